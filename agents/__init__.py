@@ -1,0 +1,1 @@
+"""Driving agents (expert, AURORA, baselines) behind one policy interface."""

@@ -1,0 +1,1 @@
+"""Closed-loop evaluation, dataset collection and Chat-V2XBench generation."""

@@ -1,0 +1,1 @@
+"""Environments shipped with V2XBench."""

@@ -1,0 +1,1 @@
+"""V2XIntersection: the V2XBench cooperative driving simulator."""

@@ -1,0 +1,736 @@
+"""The V2X channel between the roadside unit (RSU) and the ego vehicle.
+
+The RSU's action in the RL environments *is* its message: a typed, fixed-size action
+(:func:`message_space`) holding a used length and a float payload. The :class:`Channel`
+serializes every message to real bytes (:func:`encode_message`), counts them, and applies
+latency, radio loss and a bandwidth cap before the ego receives and decodes it. **Bandwidth
+(BPS) is always measured here**, from the serialized byte counts, never reported by a method
+about itself (``METRICS.md``, "Bandwidth (BPS)").
+
+Wire format (little endian). A message is a fixed header followed by the payload:
+
+=======  ======  ==========================================================================
+offset   type    field
+=======  ======  ==========================================================================
+0        2s      magic ``b"VX"``
+2        uint8   format version (:data:`WIRE_VERSION`, currently 1)
+3        uint8   encoding code: 1 = float16, 2 = float32 (:data:`ENCODING_CODES`)
+4        uint16  sender id (RSU unit id, 0..65535)
+6        uint16  payload length in floats (0..65535)
+8        uint32  tick at which the message was sent (simulation ticks of ``dt`` seconds)
+12       uint32  CRC-32 (zlib) of header bytes 0..11 followed by the payload bytes
+16       ...     reserved zero padding up to ``header_bytes`` (only if ``header_bytes > 16``)
+hdr      L*size  payload: ``L`` floats in the declared encoding (2 or 4 bytes each)
+=======  ======  ==========================================================================
+
+So every message costs exactly ``header_bytes + length * itemsize`` bytes on air, with
+``header_bytes = 16`` by default (:data:`HEADER_SIZE`). A ``length`` of 0 means "say nothing":
+no message is sent, no header, 0 bytes.
+
+Time convention: ticks are integers; tick ``t`` is simulated time ``t * dt`` seconds. The
+channel's clock is the largest tick it has seen in :meth:`Channel.send`,
+:meth:`Channel.receive` or :meth:`Channel.advance` since :meth:`Channel.reset`; ticks must
+never go backwards.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+import struct
+import zlib
+from collections import deque
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+from gymnasium import spaces
+
+__all__ = [
+    "ENCODING_CODES",
+    "HEADER_SIZE",
+    "MAGIC",
+    "NUM_OBJECT_FIELDS",
+    "OBJECT_FIELDS",
+    "PAYLOAD_LIMIT",
+    "WIRE_VERSION",
+    "Channel",
+    "ChannelConfig",
+    "decode_message",
+    "empty_message",
+    "encode_message",
+    "max_objects",
+    "message_space",
+    "pack_objects",
+    "unpack_objects",
+    "validate_message",
+]
+
+MAGIC = b"VX"
+WIRE_VERSION = 1
+#: Wire codes of the payload encodings.
+ENCODING_CODES: dict[str, int] = {"float16": 1, "float32": 2}
+_CODE_TO_DTYPE: dict[int, np.dtype] = {1: np.dtype("<f2"), 2: np.dtype("<f4")}
+_ENCODING_DTYPES: dict[str, np.dtype] = {"float16": np.dtype("<f2"), "float32": np.dtype("<f4")}
+
+_HEADER = struct.Struct("<2sBBHHII")  # magic, version, encoding, sender, length, tick, crc32
+_HEADER_NOCRC = struct.Struct("<2sBBHHI")
+#: Size in bytes of the fixed part of the wire header (the minimum ``header_bytes``).
+HEADER_SIZE = _HEADER.size  # 16
+_MAX_U16 = 0xFFFF
+_MAX_U32 = 0xFFFFFFFF
+
+#: Bound on payload values (the ``Box`` of :func:`message_space`); inside float16's range (65504).
+PAYLOAD_LIMIT = 1.0e4
+
+#: Fields of one object in a "share objects" payload, in order. Positions and velocities are in
+#: the sending RSU's frame (m, m/s), yaw in rad, sizes in m; ``class_id`` as in ``classes.py``.
+OBJECT_FIELDS: tuple[str, ...] = (
+    "class_id",
+    "x",
+    "y",
+    "yaw",
+    "length",
+    "width",
+    "height",
+    "vx",
+    "vy",
+    "track_id",
+)
+NUM_OBJECT_FIELDS = len(OBJECT_FIELDS)
+_TRACK_ID_COL = OBJECT_FIELDS.index("track_id")
+#: float16 represents every integer in ``[0, 2048]`` exactly; track ids wrap modulo this.
+FLOAT16_TRACK_ID_MODULUS = 2048
+
+
+def _is_int(x: object) -> bool:
+    """True for Python/numpy integers, False for bools (fast path for plain ``int``)."""
+    t = type(x)
+    if t is int:
+        return True
+    if t is bool:
+        return False
+    return isinstance(x, numbers.Integral) and not isinstance(x, bool | np.bool_)
+
+
+# --------------------------------------------------------------------------------------------
+# Configuration
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ChannelConfig:
+    """Parameters of the RSU -> ego V2X channel.
+
+    Attributes:
+        latency_ticks: Delivery delay in ticks: a message sent at tick ``t`` is delivered to the
+            ego's observation at tick ``t + latency_ticks`` (0 = the same tick, provided the
+            environment sends before it receives). Integer ``>= 0``.
+        loss_prob: Probability in ``[0, 1]`` that a transmitted message is lost on the radio.
+            Lost messages were transmitted, so their bytes count as sent.
+        bandwidth_bytes_per_s: Cap on bytes on air per second, or ``None`` for unlimited. Enforced
+            over a sliding window of the last ``round(1 / dt)`` ticks (see :class:`Channel`); a
+            message that does not fit is dropped before transmission and its bytes are not
+            counted as sent.
+        header_bytes: Fixed per-message header size in bytes, counted for every transmitted
+            message. At least :data:`HEADER_SIZE` (16: magic, version, encoding, sender id,
+            length, tick, CRC-32; see the module docstring); any extra is reserved zero padding
+            that is really serialized (e.g. to model a larger link-layer header).
+        max_payload_floats: Maximum floats per message (the payload size of the action space),
+            in ``[1, 65535]``.
+        encoding: Wire encoding of payload floats: ``"float16"`` (2 bytes) or ``"float32"``
+            (4 bytes).
+        dt: Simulation tick length in seconds (> 0).
+    """
+
+    latency_ticks: int = 1
+    loss_prob: float = 0.0
+    bandwidth_bytes_per_s: float | None = None
+    header_bytes: int = HEADER_SIZE
+    max_payload_floats: int = 512
+    encoding: str = "float16"
+    dt: float = 0.1
+
+    def __post_init__(self) -> None:
+        def bad(field: str, value: object, need: str) -> ValueError:
+            return ValueError(f"ChannelConfig.{field} must be {need}, got {value!r}")
+
+        if not _is_int(self.latency_ticks) or self.latency_ticks < 0:
+            raise bad("latency_ticks", self.latency_ticks, "an integer >= 0")
+        lp = self.loss_prob
+        if (
+            not isinstance(lp, numbers.Real)
+            or isinstance(lp, bool)
+            or not math.isfinite(lp)
+            or not 0.0 <= lp <= 1.0
+        ):
+            raise bad("loss_prob", lp, "a number in [0, 1]")
+        bw = self.bandwidth_bytes_per_s
+        if bw is not None and (
+            not isinstance(bw, numbers.Real)
+            or isinstance(bw, bool)
+            or not math.isfinite(bw)
+            or bw <= 0
+        ):
+            raise bad("bandwidth_bytes_per_s", bw, "None or a finite number > 0")
+        if not _is_int(self.header_bytes) or not HEADER_SIZE <= self.header_bytes <= _MAX_U16:
+            raise bad(
+                "header_bytes", self.header_bytes, f"an integer in [{HEADER_SIZE}, {_MAX_U16}]"
+            )
+        if not _is_int(self.max_payload_floats) or not 1 <= self.max_payload_floats <= _MAX_U16:
+            raise bad(
+                "max_payload_floats", self.max_payload_floats, f"an integer in [1, {_MAX_U16}]"
+            )
+        if self.encoding not in _ENCODING_DTYPES:
+            raise bad("encoding", self.encoding, f"one of {tuple(_ENCODING_DTYPES)}")
+        dt = self.dt
+        if (
+            not isinstance(dt, numbers.Real)
+            or isinstance(dt, bool)
+            or not math.isfinite(dt)
+            or dt <= 0
+        ):
+            raise bad("dt", dt, "a finite number of seconds > 0")
+
+    @property
+    def itemsize(self) -> int:
+        """Bytes per payload float on the wire (2 for float16, 4 for float32)."""
+        return _ENCODING_DTYPES[self.encoding].itemsize
+
+    @property
+    def window_ticks(self) -> int:
+        """Ticks in the one-second window used by the bandwidth cap and ``peak_bps``."""
+        return max(1, round(1.0 / self.dt))
+
+    def message_bytes(self, length: int) -> int:
+        """Bytes on air for a message of ``length`` floats (0 if ``length == 0``)."""
+        return 0 if length == 0 else self.header_bytes + length * self.itemsize
+
+
+# --------------------------------------------------------------------------------------------
+# Codec
+# --------------------------------------------------------------------------------------------
+
+
+def encode_message(
+    sender_id: int,
+    tick: int,
+    payload: np.ndarray,
+    encoding: str = "float16",
+    header_bytes: int = HEADER_SIZE,
+) -> bytes:
+    """Serialize one message to bytes (see the wire format in the module docstring).
+
+    Args:
+        sender_id: Sender (RSU unit) id in ``[0, 65535]``.
+        tick: Tick at which the message is sent, in ``[0, 2**32 - 1]``.
+        payload: ``(L,)`` floats, all finite, ``L <= 65535``; encoded with round-to-nearest.
+        encoding: ``"float16"`` or ``"float32"``.
+        header_bytes: Total header size; bytes beyond :data:`HEADER_SIZE` are zero padding.
+
+    Returns:
+        ``header_bytes + L * itemsize`` bytes.
+
+    Raises:
+        ValueError: For out-of-range ids/ticks/lengths, an unknown encoding, a payload that is not
+            1-D, non-finite values, or values that overflow the encoding (float16 max is 65504).
+    """
+    dtype = _ENCODING_DTYPES.get(encoding)
+    if dtype is None:
+        raise ValueError(
+            f"unknown encoding {encoding!r}; expected one of {tuple(_ENCODING_DTYPES)}"
+        )
+    if not _is_int(sender_id) or not 0 <= sender_id <= _MAX_U16:
+        raise ValueError(f"sender_id must be an integer in [0, {_MAX_U16}], got {sender_id!r}")
+    if not _is_int(tick) or not 0 <= tick <= _MAX_U32:
+        raise ValueError(f"tick must be an integer in [0, {_MAX_U32}], got {tick!r}")
+    if header_bytes < HEADER_SIZE:
+        raise ValueError(f"header_bytes must be >= {HEADER_SIZE}, got {header_bytes}")
+    p = np.asarray(payload)
+    if p.ndim != 1:
+        raise ValueError(f"payload must be 1-D (L,), got shape {p.shape}")
+    if p.shape[0] > _MAX_U16:
+        raise ValueError(f"payload too long: {p.shape[0]} floats > {_MAX_U16}")
+    if p.dtype.kind not in "fiu":
+        raise ValueError(f"payload must hold floats, got dtype {p.dtype}")
+    with np.errstate(over="ignore", invalid="ignore"):
+        enc = p.astype(dtype)
+    if not np.isfinite(enc).all():
+        if not np.isfinite(p).all():
+            raise ValueError("payload contains NaN or inf")
+        raise ValueError(f"payload values overflow {encoding} (max abs {float(np.abs(p).max())})")
+    return _serialize(sender_id, tick, enc, ENCODING_CODES[encoding], header_bytes - HEADER_SIZE)
+
+
+def _serialize(sender_id: int, tick: int, enc: np.ndarray, code: int, pad: int) -> bytes:
+    """Header + payload bytes of an already encoded, already checked ``(L,)`` payload."""
+    body = enc.tobytes()
+    h = _HEADER_NOCRC.pack(MAGIC, WIRE_VERSION, code, sender_id, enc.shape[0], tick)
+    crc = zlib.crc32(body, zlib.crc32(h))
+    return b"".join((h, crc.to_bytes(4, "little"), b"\x00" * pad, body))
+
+
+def decode_message(
+    data: bytes | bytearray | memoryview, header_bytes: int = HEADER_SIZE
+) -> tuple[int, int, np.ndarray]:
+    """Parse bytes produced by :func:`encode_message`, checking the header and checksum.
+
+    Args:
+        data: The serialized message.
+        header_bytes: Header size the message was encoded with.
+
+    Returns:
+        ``(sender_id, tick, payload)`` with ``payload`` a new ``(L,)`` float32 array.
+
+    Raises:
+        ValueError: Naming the problem: truncated data, bad magic, unsupported version, unknown
+            encoding, non-zero padding, size mismatch (truncated or trailing payload bytes), or
+            checksum mismatch (corrupt message).
+    """
+    n = len(data)
+    if n < header_bytes or n < HEADER_SIZE:
+        raise ValueError(
+            f"truncated message: {n} bytes, shorter than the {header_bytes}-byte header"
+        )
+    magic, version, code, sender_id, length, tick, crc = _HEADER.unpack_from(data, 0)
+    if magic != MAGIC:
+        raise ValueError(f"bad magic {bytes(magic)!r}, expected {MAGIC!r}: not a V2X message")
+    if version != WIRE_VERSION:
+        raise ValueError(f"unsupported wire version {version} (this codec reads {WIRE_VERSION})")
+    dtype = _CODE_TO_DTYPE.get(code)
+    if dtype is None:
+        raise ValueError(f"unknown encoding code {code} in header")
+    expected = header_bytes + length * dtype.itemsize
+    if n != expected:
+        what = "truncated" if n < expected else "trailing bytes in"
+        raise ValueError(
+            f"size mismatch ({what} message): header declares {length} floats = {expected} bytes, got {n}"
+        )
+    mv = memoryview(data)
+    if header_bytes > HEADER_SIZE and any(mv[HEADER_SIZE:header_bytes]):
+        raise ValueError("corrupt message: non-zero header padding")
+    body = mv[header_bytes:]
+    if zlib.crc32(body, zlib.crc32(mv[: HEADER_SIZE - 4])) != crc:
+        raise ValueError("checksum mismatch: corrupt message")
+    payload = np.frombuffer(body, dtype=dtype).astype(np.float32)
+    return sender_id, tick, payload
+
+
+# --------------------------------------------------------------------------------------------
+# The RSU message action
+# --------------------------------------------------------------------------------------------
+
+
+def message_space(config: ChannelConfig) -> spaces.Dict:
+    """The RSU's action space: its message.
+
+    ``{"length": Discrete(max_payload_floats + 1), "payload": Box(-1e4, 1e4, (max_payload_floats,),
+    float32)}``. Only ``payload[:length]`` is sent; the rest is ignored (keep it zero).
+    ``length == 0`` means "send nothing" (0 bytes). The ``+-1e4`` bound (:data:`PAYLOAD_LIMIT`) stays
+    inside float16's finite range.
+    """
+    m = config.max_payload_floats
+    return spaces.Dict(
+        {
+            "length": spaces.Discrete(m + 1),
+            "payload": spaces.Box(-PAYLOAD_LIMIT, PAYLOAD_LIMIT, (m,), np.float32),
+        }
+    )
+
+
+def empty_message(config: ChannelConfig) -> dict[str, object]:
+    """A valid "send nothing" action: ``length`` 0 and an all-zero payload."""
+    return {"length": 0, "payload": np.zeros(config.max_payload_floats, np.float32)}
+
+
+def _check_length(length: object, max_floats: int) -> int:
+    if isinstance(length, np.ndarray) and length.ndim == 0:
+        length = length.item() if length.dtype.kind in "iu" else length
+    if not _is_int(length):
+        raise ValueError(
+            f"message length must be an integer, got {length!r} ({type(length).__name__})"
+        )
+    if length < 0:
+        raise ValueError(f"message length must be >= 0, got {length}")
+    if length > max_floats:
+        raise ValueError(
+            f"oversized message: length {length} exceeds the limit of max_payload_floats={max_floats}"
+        )
+    return int(length)
+
+
+def _check_used(payload: np.ndarray, length: int) -> None:
+    """Raise if the used part ``payload[:length]`` holds NaN/inf or leaves the Box bound."""
+    if length == 0:
+        return
+    used = payload[:length]
+    mx = np.abs(used).max()
+    if not mx <= PAYLOAD_LIMIT:  # catches NaN as well
+        if not np.isfinite(used).all():
+            bad = int(np.flatnonzero(~np.isfinite(used))[0])
+            raise ValueError(f"message payload contains NaN/inf in its used part (index {bad})")
+        raise ValueError(
+            f"message payload value {float(mx)} out of range: |value| must be <= {PAYLOAD_LIMIT}"
+        )
+
+
+def validate_message(action: Mapping, config: ChannelConfig) -> tuple[int, np.ndarray]:
+    """Check an RSU message action against :func:`message_space`.
+
+    Args:
+        action: ``{"length": int, "payload": (max_payload_floats,) float array}``.
+        config: The channel configuration.
+
+    Returns:
+        ``(length, payload)`` with ``length`` a Python int and ``payload`` the given array
+        (converted to float32 if it was float64).
+
+    Raises:
+        ValueError: Naming the problem: missing keys, non-integer or negative length, oversized
+            message (length > max_payload_floats; the message names the limit), wrong payload
+            shape, wrong dtype kind (not floating point), NaN/inf or out-of-range values in
+            ``payload[:length]``.
+    """
+    if not isinstance(action, Mapping):
+        raise ValueError(
+            f"message must be a dict with 'length' and 'payload', got {type(action).__name__}"
+        )
+    missing = [k for k in ("length", "payload") if k not in action]
+    if missing:
+        raise ValueError(f"message is missing key(s) {missing}")
+    m = config.max_payload_floats
+    length = _check_length(action["length"], m)
+    payload = action["payload"]
+    if not isinstance(payload, np.ndarray):
+        raise ValueError(f"message payload must be a numpy array, got {type(payload).__name__}")
+    if payload.shape != (m,):
+        raise ValueError(f"message payload has wrong shape {payload.shape}, expected ({m},)")
+    if payload.dtype.kind != "f":
+        raise ValueError(
+            f"message payload has wrong dtype {payload.dtype}: expected floating point"
+        )
+    if payload.dtype != np.float32:
+        payload = payload.astype(np.float32)
+    _check_used(payload, length)
+    return length, payload
+
+
+# --------------------------------------------------------------------------------------------
+# Object lists <-> payload
+# --------------------------------------------------------------------------------------------
+
+
+def max_objects(max_payload_floats: int) -> int:
+    """How many objects of :data:`NUM_OBJECT_FIELDS` floats fit in a payload."""
+    return max_payload_floats // NUM_OBJECT_FIELDS
+
+
+def pack_objects(
+    objs: np.ndarray, max_payload_floats: int = 512, encoding: str = "float16"
+) -> tuple[int, np.ndarray]:
+    """Pack an object list into a message payload (the "share objects" RSU policy).
+
+    Objects are written row by row, :data:`OBJECT_FIELDS` order, and truncated to the
+    ``max_objects(max_payload_floats)`` first rows: the caller orders them by priority (e.g. by
+    distance to the ego). The number packed is ``length // NUM_OBJECT_FIELDS``.
+
+    Precision: the whole message uses the channel's single ``encoding``. We keep float16 as the
+    default rather than a float32 side channel for positions, because objects must be sent in the
+    RSU frame, where coordinates are below 200 m: float16's step is 0.0625 m in [64, 128) m and
+    0.125 m in [128, 256) m, so the rounding error is <= 0.0625 m (relative error <= 2**-11), far
+    below detection noise, at half the bytes. Sending world coordinates (up to 1e4 m) in float16
+    would cost up to 4 m of error, so do not. Angles lose at most ~1e-3 rad, sizes and speeds
+    < 2**-11 relative. Track ids: float16 holds integers exactly only up to 2048, so with float16
+    ``track_id`` is wrapped modulo :data:`FLOAT16_TRACK_ID_MODULUS` (harmless for association
+    between consecutive messages with fewer than 2048 live tracks). Use ``encoding="float32"``
+    (channel config) where more precision is needed.
+
+    Args:
+        objs: ``(K, NUM_OBJECT_FIELDS)`` floats, positions/velocities in the RSU frame.
+        max_payload_floats: Payload capacity (``ChannelConfig.max_payload_floats``).
+        encoding: The channel's encoding (only changes the track id wrapping).
+
+    Returns:
+        ``(length, payload)``: ``length = min(K, max_objects) * NUM_OBJECT_FIELDS`` and a
+        ``(max_payload_floats,)`` float32 payload, zero beyond ``length``: a valid message action.
+
+    Raises:
+        ValueError: If ``objs`` is not ``(K, NUM_OBJECT_FIELDS)``, holds NaN/inf, or values beyond
+            :data:`PAYLOAD_LIMIT`.
+    """
+    a = np.asarray(objs, dtype=np.float32)
+    if a.ndim != 2 or a.shape[1] != NUM_OBJECT_FIELDS:
+        raise ValueError(f"objs must have shape (K, {NUM_OBJECT_FIELDS}), got {a.shape}")
+    if encoding not in _ENCODING_DTYPES:
+        raise ValueError(f"unknown encoding {encoding!r}")
+    k = min(a.shape[0], max_objects(max_payload_floats))
+    length = k * NUM_OBJECT_FIELDS
+    payload = np.zeros(max_payload_floats, np.float32)
+    if k:
+        rows = a[:k]
+        if encoding == "float16":
+            rows = rows.copy()
+            rows[:, _TRACK_ID_COL] = np.mod(rows[:, _TRACK_ID_COL], FLOAT16_TRACK_ID_MODULUS)
+        payload[:length] = rows.reshape(-1)
+        _check_used(payload, length)
+    return length, payload
+
+
+def unpack_objects(payload: np.ndarray, length: int) -> np.ndarray:
+    """Inverse of :func:`pack_objects`.
+
+    Args:
+        payload: ``(>= length,)`` floats (e.g. a decoded message payload).
+        length: Used floats; a multiple of :data:`NUM_OBJECT_FIELDS`.
+
+    Returns:
+        ``(length // NUM_OBJECT_FIELDS, NUM_OBJECT_FIELDS)`` float32 array (a copy).
+    """
+    p = np.asarray(payload)
+    if p.ndim != 1 or p.shape[0] < length or length < 0:
+        raise ValueError(f"payload of shape {p.shape} cannot hold {length} floats")
+    if length % NUM_OBJECT_FIELDS:
+        raise ValueError(
+            f"length {length} is not a multiple of NUM_OBJECT_FIELDS={NUM_OBJECT_FIELDS}"
+        )
+    return p[:length].astype(np.float32).reshape(-1, NUM_OBJECT_FIELDS)
+
+
+# --------------------------------------------------------------------------------------------
+# The channel
+# --------------------------------------------------------------------------------------------
+
+
+class Channel:
+    """RSU -> ego channel: serializes, counts, delays, loses and rate-limits messages.
+
+    Per :meth:`send`, in order:
+
+    1. ``length == 0``: nothing is sent (0 bytes, no header, nothing counted but the clock).
+    2. The message is serialized (:func:`encode_message`); its size is
+       ``header_bytes + length * itemsize``.
+    3. Bandwidth cap (if set): a sliding window over the last ``W = round(1 / dt)`` ticks
+       (the current tick included) may carry at most ``bandwidth_bytes_per_s * W * dt`` bytes
+       (= the cap per second at ``dt = 0.1``). A message that does not fit in what remains is
+       dropped whole before transmission: counted in ``messages_dropped_bandwidth`` and
+       ``bytes_dropped_bandwidth``, **not** in the sent bytes. No partial sends, no queueing.
+       Hence ``peak_bps <= bandwidth_bytes_per_s`` always holds.
+    4. The message is transmitted: its bytes count in ``bytes_sent_total`` and BPS.
+    5. Radio loss: if ``loss_prob > 0`` one uniform draw from the channel's ``rng`` (and only
+       from it) decides loss; lost messages **do** count as sent bytes (they were on air), in
+       ``messages_lost``. The draw is made for each transmitted message and for no other reason,
+       so the same seed and the same sends give the same losses.
+    6. Otherwise it is queued for delivery at tick ``tick + latency_ticks``.
+
+    :meth:`receive` decodes and returns every queued message due at or before the given tick,
+    oldest first; each is returned exactly once.
+
+    Statistics (:meth:`stats`): ``bps = bytes_sent_total / ((now + 1) * dt)`` where ``now`` is
+    the current tick: elapsed time counts ticks 0..now inclusive, each ``dt`` seconds long (0.0
+    before any tick). ``peak_bps`` is the maximum bytes sent in any window of ``W`` consecutive
+    ticks (windows overlapping tick 0 included), divided by ``W * dt`` seconds.
+
+    Args:
+        config: Channel parameters.
+        rng: Generator used for the loss draws only.
+    """
+
+    def __init__(self, config: ChannelConfig, rng: np.random.Generator):
+        if not isinstance(config, ChannelConfig):
+            raise TypeError(f"config must be a ChannelConfig, got {type(config).__name__}")
+        if not isinstance(rng, np.random.Generator):
+            raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
+        self.config = config
+        self.rng = rng
+        self._W = config.window_ticks
+        self._window_s = self._W * config.dt
+        bw = config.bandwidth_bytes_per_s
+        self._cap = None if bw is None else bw * self._window_s
+        self._dtype = _ENCODING_DTYPES[config.encoding]
+        self._code = ENCODING_CODES[config.encoding]
+        self._pad = config.header_bytes - HEADER_SIZE
+        self.reset()
+
+    def reset(self) -> None:
+        """Clear the queue, the clock and all counters (the rng is left as is)."""
+        self._pending: deque[tuple[int, int, bytes]] = deque()  # (due_tick, n_bytes, data)
+        self._now = -1
+        self._ring = [0] * self._W  # bytes sent per tick, indexed tick % W
+        self._wsum = 0
+        self._peak = 0
+        self._bytes_sent = 0
+        self._bytes_delivered = 0
+        self._bytes_dropped = 0
+        self._n_sent = 0
+        self._n_lost = 0
+        self._n_dropped = 0
+        self._n_delivered = 0
+        self._last_bytes = 0
+        self._last_delivered: tuple[int, int, np.ndarray] | None = None
+
+    # ---------------------------------------------------------------------------------- clock
+    @property
+    def now(self) -> int:
+        """The current tick (-1 before any tick since reset)."""
+        return self._now
+
+    def advance(self, tick: int) -> None:
+        """Move the clock to ``tick`` (no-op if already there); ticks may not go backwards."""
+        now = self._now
+        if tick == now:
+            return
+        if not _is_int(tick):
+            raise ValueError(f"tick must be an integer, got {tick!r}")
+        if tick < now:
+            raise ValueError(f"tick went backwards: {tick} < current tick {now}")
+        if tick < 0:
+            raise ValueError(f"tick must be >= 0, got {tick}")
+        ring = self._ring
+        W = self._W
+        if tick - now >= W:
+            for i in range(W):
+                ring[i] = 0
+            self._wsum = 0
+        else:
+            for t in range(now + 1, tick + 1):
+                i = t % W
+                self._wsum -= ring[i]
+                ring[i] = 0
+        self._now = tick
+
+    # ----------------------------------------------------------------------------------- send
+    def send(self, tick: int, sender_id: int, length: int, payload: np.ndarray) -> int:
+        """Send the first ``length`` floats of ``payload`` from ``sender_id`` at ``tick``.
+
+        Args:
+            tick: Current tick (non-decreasing across calls).
+            sender_id: RSU unit id in ``[0, 65535]``.
+            length: Floats to send, ``0..max_payload_floats``; 0 sends nothing.
+            payload: ``(>= length,)`` floats; ``payload[:length]`` must be finite and within
+                ``+-PAYLOAD_LIMIT``.
+
+        Returns:
+            Bytes put on air: ``header_bytes + length * itemsize``, or 0 if ``length == 0`` or
+            the message was dropped by the bandwidth cap (lost messages return their bytes).
+
+        Raises:
+            ValueError: Oversized/negative length, bad payload, or a tick earlier than the clock.
+        """
+        cfg = self.config
+        length = _check_length(length, cfg.max_payload_floats)
+        if length == 0:
+            self.advance(tick)
+            self._last_bytes = 0
+            return 0
+        p = payload if isinstance(payload, np.ndarray) else np.asarray(payload)
+        if p.ndim != 1 or p.shape[0] < length:
+            raise ValueError(f"payload of shape {p.shape} cannot hold a message of length {length}")
+        if p.dtype.kind != "f":
+            raise ValueError(f"message payload has wrong dtype {p.dtype}: expected floating point")
+        _check_used(p, length)
+        self.advance(tick)
+        if not _is_int(sender_id) or not 0 <= sender_id <= _MAX_U16:
+            raise ValueError(f"sender_id must be an integer in [0, {_MAX_U16}], got {sender_id!r}")
+        if tick > _MAX_U32:
+            raise ValueError(f"tick must be <= {_MAX_U32}, got {tick}")
+        # payload[:length] is finite and within +-PAYLOAD_LIMIT: the cast cannot overflow.
+        data = _serialize(sender_id, tick, p[:length].astype(self._dtype), self._code, self._pad)
+        n = len(data)
+        if self._cap is not None and self._wsum + n > self._cap:
+            self._n_dropped += 1
+            self._bytes_dropped += n
+            self._last_bytes = 0
+            return 0
+        self._ring[tick % self._W] += n
+        self._wsum += n
+        if self._wsum > self._peak:
+            self._peak = self._wsum
+        self._bytes_sent += n
+        self._n_sent += 1
+        self._last_bytes = n
+        lp = cfg.loss_prob
+        if lp > 0.0 and self.rng.random() < lp:
+            self._n_lost += 1
+        else:
+            self._pending.append((tick + cfg.latency_ticks, n, data))
+        return n
+
+    def send_action(self, tick: int, sender_id: int, action: Mapping) -> int:
+        """Validate an RSU message action (:func:`validate_message`) and :meth:`send` it."""
+        length, payload = validate_message(action, self.config)
+        return self.send(tick, sender_id, length, payload)
+
+    # -------------------------------------------------------------------------------- receive
+    def receive(self, tick: int) -> list[tuple[int, int, np.ndarray]]:
+        """Deliver the messages due at or before ``tick``.
+
+        Args:
+            tick: Current tick (non-decreasing across calls).
+
+        Returns:
+            ``[(sender_id, sent_tick, payload), ...]`` oldest first, ``payload`` a ``(L,)``
+            float32 array; empty if nothing is due.
+        """
+        self.advance(tick)
+        q = self._pending
+        if not q or q[0][0] > tick:
+            return []
+        out = []
+        hb = self.config.header_bytes
+        while q and q[0][0] <= tick:
+            _, n, data = q.popleft()
+            out.append(decode_message(data, hb))
+            self._bytes_delivered += n
+            self._n_delivered += 1
+        self._last_delivered = out[-1]
+        return out
+
+    def receive_latest(self, tick: int) -> tuple[int, int, np.ndarray] | None:
+        """Like :meth:`receive` but return only the newest message delivered now (or ``None``).
+
+        Older messages due at the same time are consumed and discarded (still counted as
+        delivered).
+        """
+        out = self.receive(tick)
+        return out[-1] if out else None
+
+    @property
+    def last_delivered(self) -> tuple[int, int, np.ndarray] | None:
+        """The most recent message ever delivered since reset (for sample-and-hold), or ``None``."""
+        return self._last_delivered
+
+    @property
+    def pending(self) -> int:
+        """Messages in flight (transmitted, not lost, not yet delivered)."""
+        return len(self._pending)
+
+    # ---------------------------------------------------------------------------------- stats
+    def stats(self) -> dict[str, float | int]:
+        """Counters since :meth:`reset` (all numbers; see the class docstring for definitions).
+
+        Returns:
+            ``bytes_sent_total`` (bytes on air, lost included, cap drops excluded),
+            ``messages_sent`` (transmitted), ``messages_lost``, ``messages_dropped_bandwidth``,
+            ``bytes_dropped_bandwidth``, ``messages_delivered``, ``bytes_delivered_total``,
+            ``messages_pending``, ``bps`` (bytes/s over ticks 0..now inclusive), ``peak_bps``
+            (max bytes in a one-second window of ``W`` ticks, per second), ``last_message_bytes``
+            (return value of the latest :meth:`send`), ``ticks_elapsed`` (``now + 1``) and
+            ``seconds_elapsed``.
+        """
+        ticks = self._now + 1
+        secs = ticks * self.config.dt
+        return {
+            "bytes_sent_total": self._bytes_sent,
+            "messages_sent": self._n_sent,
+            "messages_lost": self._n_lost,
+            "messages_dropped_bandwidth": self._n_dropped,
+            "bytes_dropped_bandwidth": self._bytes_dropped,
+            "messages_delivered": self._n_delivered,
+            "bytes_delivered_total": self._bytes_delivered,
+            "messages_pending": len(self._pending),
+            "bps": self._bytes_sent / secs if ticks > 0 else 0.0,
+            "peak_bps": self._peak / self._window_s,
+            "last_message_bytes": self._last_bytes,
+            "ticks_elapsed": ticks,
+            "seconds_elapsed": secs,
+        }

@@ -1,0 +1,48 @@
+"""Object classes and the class groups used by metrics.
+
+Class ids are stable integers (they appear in observations, datasets and messages).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+CAR = 0
+LARGE_VEHICLE = 1  # truck / van / bus: tall enough to hide what is behind it
+PEDESTRIAN = 2
+BICYCLE = 3
+TRAFFIC_LIGHT = 4
+TRAFFIC_SIGN = 5
+TRAFFIC_CONE = 6
+STATIC_OBSTACLE = 7  # buildings, walls, barriers, debris
+
+CLASS_NAMES: tuple[str, ...] = (
+    "car",
+    "large_vehicle",
+    "pedestrian",
+    "bicycle",
+    "traffic_light",
+    "traffic_sign",
+    "traffic_cone",
+    "static_obstacle",
+)
+NUM_CLASSES = len(CLASS_NAMES)
+
+#: Metric groups (as the paper's perception table): vehicle, VRU, traffic light, traffic sign.
+GROUPS: dict[str, tuple[int, ...]] = {
+    "vehicle": (CAR, LARGE_VEHICLE),
+    "vru": (PEDESTRIAN, BICYCLE),
+    "traffic_light": (TRAFFIC_LIGHT,),
+    "traffic_sign": (TRAFFIC_SIGN,),
+}
+
+VEHICLE_CLASSES = np.array([CAR, LARGE_VEHICLE])
+VRU_CLASSES = np.array([PEDESTRIAN, BICYCLE])
+
+
+def class_id(name: str) -> int:
+    """Return the integer id of a class name, raising ``ValueError`` for unknown names."""
+    try:
+        return CLASS_NAMES.index(name)
+    except ValueError:
+        raise ValueError(f"unknown object class {name!r}; known: {', '.join(CLASS_NAMES)}") from None

@@ -1,0 +1,141 @@
+"""Per-tick infraction and route-progress events for the ego (structured, numeric).
+
+Event codes are stable integers (``EVENT_NAMES``); :class:`EventMonitor` turns world state into a
+list of ``(code, tick, other_actor_id, value)`` rows and running counters. Metrics (RC, IS, DS)
+are computed from these events in ``metrics.py`` (later) - this module only detects.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .actors import ActorTable
+from .classes import BICYCLE, CAR, LARGE_VEHICLE, PEDESTRIAN
+from .routes import Route
+from .signals import RED
+from .town.model import CONNECTOR, PARKING, Town
+from .traffic import STOP_LINE_SETBACK
+
+(COLLISION_PEDESTRIAN, COLLISION_VEHICLE, COLLISION_STATIC, RED_LIGHT, STOP_SIGN, OUTSIDE_LANES,
+ OFF_ROAD, WRONG_WAY, ROUTE_DEVIATION, BLOCKED) = range(10)
+EVENT_NAMES = ("collision_pedestrian", "collision_vehicle", "collision_static", "red_light",
+               "stop_sign", "outside_lanes", "off_road", "wrong_way", "route_deviation", "blocked")
+NUM_EVENTS = len(EVENT_NAMES)
+
+REPEAT_COLLISION_S = 3.0  # s: repeated contacts with the same actor inside this window count once
+ROUTE_DEVIATION_M = 30.0  # m
+BLOCKED_S = 180.0  # s without moving (no red light ahead) ends the route
+STOP_SPEED = 0.5  # m/s: below this near the line counts as having stopped at a stop sign
+STOP_CHECK_M = 6.0  # m before the stop line where the stop must happen
+
+
+class EventMonitor:
+    """Detects the ego's infractions and route progress, tick by tick.
+
+    Attributes:
+        counts: ``(NUM_EVENTS,)`` occurrences so far.
+        events: list of ``(code, tick, other_id, value)``.
+        progress: index of the last route point passed. outside_m / driven_m: distance driven
+            outside the lanes / in total (m).
+    """
+
+    def __init__(self, town: Town, route: Route, dt: float) -> None:
+        self.town, self.route, self.dt = town, route, dt
+        self.counts = np.zeros(NUM_EVENTS, np.int64)
+        self.events: list[tuple[int, int, int, float]] = []
+        self.progress = 0
+        self.outside_m = 0.0
+        self.driven_m = 0.0
+        self.still_s = 0.0
+        self._last_hit: dict[int, int] = {}
+        self._lane = int(route.lane_ids[0])
+        self._s_on_lane = 0.0
+        self._min_speed_near_line = np.inf
+        self._wrong_way_active = False
+        self._outside_active = False
+        self._off_road_active = False
+        self._driving = np.array([ln.id for ln in town.lanes if ln.kind != PARKING])
+
+    def _emit(self, code: int, tick: int, other: int = -1, value: float = 0.0) -> None:
+        self.counts[code] += 1
+        self.events.append((code, tick, other, value))
+
+    @property
+    def route_completion(self) -> float:
+        """Percent of the route length passed (0-100)."""
+        return 100.0 * float(self.route.s[self.progress]) / max(self.route.length, 1e-9)
+
+    def update(self, tick: int, t: ActorTable, contacts: np.ndarray, lane_signal: np.ndarray,
+               moved: float) -> list[tuple[int, int, int, float]]:
+        """Process one tick; returns the events emitted in it."""
+        n0 = len(self.events)
+        ego, yaw, v = t.pos[0], float(t.yaw[0]), float(t.speed[0])
+        self.driven_m += moved
+        # collisions (by class of the other party); statics are encoded as negative ids
+        for c in contacts:
+            key = int(c)
+            last = self._last_hit.get(key)
+            self._last_hit[key] = tick
+            if last is not None and (tick - last) * self.dt < REPEAT_COLLISION_S:
+                continue
+            if c < 0:
+                self._emit(COLLISION_STATIC, tick, key)
+                continue
+            kind = int(t.kind[c])
+            code = (COLLISION_PEDESTRIAN if kind in (PEDESTRIAN, BICYCLE) else
+                    COLLISION_VEHICLE if kind in (CAR, LARGE_VEHICLE) else COLLISION_STATIC)
+            self._emit(code, tick, int(t.actor_id[c]))
+        # route progress: furthest route point within 3 m ahead in a window
+        r = self.route
+        hi = min(self.progress + 40, len(r.points))
+        d = np.linalg.norm(r.points[self.progress:hi] - ego, axis=1)
+        close = np.flatnonzero(d < 3.0)
+        if len(close):
+            self.progress += int(close[-1])
+        dev = float(np.min(np.linalg.norm(r.points[max(self.progress - 20, 0): self.progress + 40] - ego, axis=1)))
+        if dev > ROUTE_DEVIATION_M and not self.counts[ROUTE_DEVIATION]:
+            self._emit(ROUTE_DEVIATION, tick, -1, dev)
+        # lane-relative checks: nearest lane among drivable lanes
+        lane, s, dist = self.town.index.project(ego[None], self._driving)
+        lane, s, dist = int(lane[0]), float(s[0]), float(dist[0])
+        width = self.town.index.width[lane]
+        outside = dist > width / 2.0 + 0.3
+        if outside:
+            self.outside_m += moved
+        if outside and not self._outside_active:
+            self._emit(OUTSIDE_LANES, tick, -1, dist)
+        off_road = dist > width / 2.0 + 2.0
+        if off_road and not self._off_road_active:
+            self._emit(OFF_ROAD, tick, -1, dist)
+        self._outside_active, self._off_road_active = outside, off_road
+        _, heading = self.town.index.pose_at(np.array([lane]), np.array([s]))
+        wrong = v > 1.0 and not outside and abs(((yaw - heading[0] + np.pi) % (2 * np.pi)) - np.pi) > 2.1
+        wrong &= self.town.index.kind[lane] != CONNECTOR
+        if wrong and not self._wrong_way_active:
+            self._emit(WRONG_WAY, tick, -1, float(lane))
+        self._wrong_way_active = wrong
+        # stop lines: red lights and stop signs, when crossing the line of the current lane
+        ix = self.town.index
+        if lane == self._lane:
+            line = ix.length[lane] - STOP_LINE_SETBACK
+            if ix.stop_at_end[lane] and line - STOP_CHECK_M < s:
+                self._min_speed_near_line = min(self._min_speed_near_line, v)
+            if ix.stop_at_end[lane] and self._s_on_lane < line <= s:
+                if lane_signal[lane] == RED:
+                    self._emit(RED_LIGHT, tick, -1, float(lane))
+                elif lane_signal[lane] == -1 and self._is_stop_lane(lane) and self._min_speed_near_line > STOP_SPEED:
+                    self._emit(STOP_SIGN, tick, -1, float(lane))
+        else:
+            self._min_speed_near_line = np.inf
+        self._lane, self._s_on_lane = lane, s
+        # blocked
+        self.still_s = self.still_s + self.dt if v < 0.1 else 0.0
+        red_ahead = ix.stop_at_end[lane] and lane_signal[lane] == RED
+        if self.still_s >= BLOCKED_S and not red_ahead:
+            self._emit(BLOCKED, tick, -1, self.still_s)
+            self.still_s = 0.0
+        return self.events[n0:]
+
+    def _is_stop_lane(self, lane: int) -> bool:
+        j = self.town.index.junction_ahead[lane]
+        return j >= 0 and lane in self.town.junctions[j].stop_lanes

@@ -1,0 +1,174 @@
+"""Typed observation spaces and the functions that fill them from a :class:`~.world.World`.
+
+``objects`` mode (fast, for RL). Ego observation (all float32):
+
+========================  ==================  ===============================================
+key                       shape               content
+========================  ==================  ===============================================
+``ego``                   ``(9,)``            ``EGO_FEATURES``
+``route``                 ``(P, 3)``          next route points in the ego frame (x, y, command)
+``objects``               ``(M, 11)``         actors the ego sees (``OBJECT_FEATURES``, ego frame)
+``v2x_objects``           ``(M, 11)``         objects received from the RSU, moved to the ego frame
+``v2x_info``              ``(6,)``            ``V2X_INFO_FEATURES``
+========================  ==================  ===============================================
+
+RSU observation: ``unit`` (``UNIT_FEATURES``), ``calibration`` ``(2, 4, 4)`` =
+(``T_world_rsu``, ``T_ego_rsu``), ``objects`` ``(M, 11)`` in the RSU ground frame (origin at the
+pole's foot, x along the unit's yaw, z up; pitch and roll are in ``T_world_rsu``).
+Rows of object arrays are sorted by distance; unused rows are all zero (``present = 0``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from gymnasium import spaces
+
+from .channel import NUM_OBJECT_FIELDS, decode_message, message_space, unpack_objects
+from .geometry import local_to_world_2d, pose_matrix, relative_transform, world_to_local_2d, wrap_angle
+from .rsu import RSU_PITCH
+
+EGO_FEATURES = ("speed", "accel", "yaw_rate", "throttle", "steer", "brake", "light_state",
+                "dist_to_stop_line", "route_completion")
+OBJECT_FEATURES = ("present", "class_id", "x", "y", "yaw", "length", "width", "height", "vx", "vy",
+                   "visibility")
+V2X_INFO_FEATURES = ("received", "age_ticks", "num_objects", "rsu_x", "rsu_y", "rsu_yaw")
+UNIT_FEATURES = ("unit_id", "x", "y", "z", "yaw", "pitch")
+BIG = 1e4  # bound of the observation boxes
+
+
+def _box(*shape: int, low: float = -BIG, high: float = BIG) -> spaces.Box:
+    return spaces.Box(low, high, shape=shape, dtype=np.float32)
+
+
+def ego_space(cfg) -> spaces.Dict:
+    """Observation space of the ego agent."""
+    m = cfg.max_objects
+    return spaces.Dict({
+        "ego": _box(len(EGO_FEATURES)),
+        "route": _box(cfg.route_points, 3),
+        "objects": _box(m, len(OBJECT_FEATURES)),
+        "v2x_objects": _box(m, len(OBJECT_FEATURES)),
+        "v2x_info": _box(len(V2X_INFO_FEATURES)),
+    })
+
+
+def rsu_space(cfg) -> spaces.Dict:
+    """Observation space of an RSU agent."""
+    return spaces.Dict({
+        "unit": _box(len(UNIT_FEATURES)),
+        "calibration": _box(2, 4, 4),
+        "objects": _box(cfg.max_objects, len(OBJECT_FEATURES)),
+    })
+
+
+def ego_action_space() -> spaces.Box:
+    """``(throttle, steer, brake)`` in ``[0, 1] x [-1, 1] x [0, 1]``."""
+    return spaces.Box(np.array([0.0, -1.0, 0.0], np.float32), np.array([1.0, 1.0, 1.0], np.float32), dtype=np.float32)
+
+
+def rsu_action_space(world_or_cfg) -> spaces.Dict:
+    """The RSU's action is its V2X message (``channel.message_space``)."""
+    return message_space(world_or_cfg)
+
+
+def validate_control(action, name: str = "ego action") -> np.ndarray:
+    """Check an ego control and clip it into range.
+
+    Out-of-range finite values are **clipped** to the action box (as most RL libraries expect);
+    wrong shape, non-numeric dtype, NaN or inf raise ``ValueError`` naming the problem.
+    """
+    a = np.asarray(action)
+    if a.dtype.kind not in "fiu":
+        raise ValueError(f"{name}: expected a numeric array of shape (3,), got dtype {a.dtype}")
+    if a.shape != (3,):
+        raise ValueError(f"{name}: expected shape (3,) = (throttle, steer, brake), got {a.shape}")
+    a = a.astype(np.float64)
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name}: contains NaN or inf: {a.tolist()}")
+    return np.clip(a, [0.0, -1.0, 0.0], [1.0, 1.0, 1.0])
+
+
+def _rows(objs: np.ndarray, vis: np.ndarray, m: int) -> np.ndarray:
+    """Pad ``(K, 10)`` channel-layout rows into ``(m, 11)`` observation rows."""
+    out = np.zeros((m, len(OBJECT_FEATURES)), np.float32)
+    k = min(len(objs), m)
+    if k:
+        out[:k, 0] = 1.0
+        out[:k, 1:10] = objs[:k, :9]
+        out[:k, 10] = vis[:k]
+    return out
+
+
+def ego_observation(world) -> dict[str, np.ndarray]:
+    """Fill the ego observation (see module docstring)."""
+    from .world import VISIBLE_THRESHOLD, object_rows
+
+    cfg, t = world.config, world.table
+    ego_xy, ego_yaw = t.pos[0], float(t.yaw[0])
+    seen = np.flatnonzero(world.ego_vis >= VISIBLE_THRESHOLD)
+    objs = object_rows(t, seen, ego_xy, ego_yaw)
+    vis = world.ego_vis[objs[:, 9].astype(np.int64)] if len(objs) else np.zeros(0)
+    # route ahead
+    r = world.route
+    k0 = world.monitor.progress
+    ks = np.minimum(k0 + np.arange(cfg.route_points) * int(round(cfg.route_step)), len(r.points) - 1)
+    route = np.zeros((cfg.route_points, 3), np.float32)
+    route[:, :2] = world_to_local_2d(r.points[ks], ego_xy, ego_yaw)
+    route[:, 2] = r.commands[ks]
+    # traffic light of the current route lane
+    ix = world.town.index
+    lane = int(r.lane_ids[min(k0, len(r.lane_ids) - 1)])
+    light = float(world.lane_signal[lane])
+    dist_line = float(ix.length[lane] - world.monitor._s_on_lane) if ix.stop_at_end[lane] else -1.0
+    yaw_rate = t.speed[0] * np.tan(world.last_control[1] * world.params.max_steer) / world.params.wheelbase
+    ego = np.array([t.speed[0], t.accel[0], yaw_rate, *world.last_control, light, dist_line,
+                    world.monitor.route_completion], np.float32)
+    v2x, info = _v2x(world, ego_xy, ego_yaw)
+    return {"ego": ego, "route": route, "objects": _rows(objs, vis, cfg.max_objects),
+            "v2x_objects": v2x, "v2x_info": info}
+
+
+def _v2x(world, ego_xy: np.ndarray, ego_yaw: float) -> tuple[np.ndarray, np.ndarray]:
+    cfg = world.config
+    info = np.zeros(len(V2X_INFO_FEATURES), np.float32)
+    if world.inbox is None:
+        return np.zeros((cfg.max_objects, len(OBJECT_FEATURES)), np.float32), info
+    sender, sent_tick, payload = world.inbox
+    rows = unpack_objects(payload, len(payload) - len(payload) % NUM_OBJECT_FIELDS)
+    x, y, _, yaw = world.rsus.pose[sender]
+    if len(rows):
+        xy = local_to_world_2d(rows[:, 1:3].astype(np.float64), np.array([x, y]), yaw)
+        rows = rows.copy()
+        rows[:, 1:3] = world_to_local_2d(xy, ego_xy, ego_yaw)
+        rows[:, 3] = wrap_angle(rows[:, 3] + yaw - ego_yaw)
+        c, s = np.cos(yaw - ego_yaw), np.sin(yaw - ego_yaw)
+        vx, vy = rows[:, 7].copy(), rows[:, 8].copy()
+        rows[:, 7], rows[:, 8] = c * vx - s * vy, s * vx + c * vy
+    rel = world_to_local_2d(np.array([[x, y]]), ego_xy, ego_yaw)[0]
+    info[:] = (1.0, world.tick - sent_tick, len(rows), rel[0], rel[1], wrap_angle(yaw - ego_yaw))
+    return _rows(rows, np.ones(len(rows)), cfg.max_objects), info
+
+
+def rsu_observation(world, slot: int = 0) -> dict[str, np.ndarray]:
+    """Fill the observation of the RSU agent in ``slot`` (zeros when no unit is active)."""
+    cfg, t = world.config, world.table
+    u = int(world.active_rsu[slot])
+    obs = {k: np.zeros(s.shape, np.float32) for k, s in rsu_space(cfg).spaces.items()}
+    if u < 0:
+        return obs
+    x, y, z, yaw = world.rsus.pose[u]
+    obs["unit"][:] = (u, x, y, z, yaw, RSU_PITCH)
+    t_world_rsu = world.rsus.matrix(u)
+    t_world_ego = pose_matrix(t.pos[0, 0], t.pos[0, 1], 0.0, t.yaw[0])
+    obs["calibration"][0] = t_world_rsu
+    obs["calibration"][1] = relative_transform(t_world_ego, t_world_rsu)
+    objs = world.rsu_objects(slot)
+    vis = world.rsu_vis[slot][objs[:, 9].astype(np.int64)] if len(objs) else np.zeros(0)
+    obs["objects"] = _rows(objs, vis, cfg.max_objects)
+    return obs
+
+
+def decode_inbox(data: bytes) -> np.ndarray:
+    """Decode raw channel bytes into object rows (for tools that read recorded traffic)."""
+    _, _, payload = decode_message(data)
+    return unpack_objects(payload, len(payload) - len(payload) % NUM_OBJECT_FIELDS)

@@ -1,0 +1,111 @@
+"""Pedestrians: walk along sidewalks, cross at crosswalks, and some jaywalk mid-block.
+
+A walking pedestrian has ``path`` = sidewalk id and moves along it (``path_s``, direction
+``path_dir``) with a lateral offset ``lat`` inside the sidewalk. A crossing pedestrian has
+``path = -1`` and moves on the straight segment ``cross_from -> cross_to``; on arrival it snaps to
+the nearest sidewalk and walks on.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .actors import WALKER, ActorTable
+from .town.model import PolylineIndex, Town
+
+
+class SidewalkNetwork:
+    """Sidewalk polylines plus, for each sidewalk end, the crosswalk (if any) reached from there."""
+
+    def __init__(self, town: Town) -> None:
+        self.town = town
+        self.index = PolylineIndex([s.points for s in town.sidewalks]) if town.sidewalks else None
+        # crossing segments of every crosswalk (centre line across the road, extended to the kerbs)
+        segs = []
+        for c in town.crosswalks:
+            a = 0.5 * (c.corners[0] + c.corners[1])
+            b = 0.5 * (c.corners[2] + c.corners[3])
+            u = (b - a) / max(np.linalg.norm(b - a), 1e-9)
+            segs.append((a - 1.5 * u, b + 1.5 * u))
+        self.crossings = np.array(segs, float).reshape(-1, 2, 2)
+        # the sidewalk across the road from each sidewalk (same road, other side)
+        self.opposite = np.full(len(town.sidewalks), -1, np.int64)
+        by_road: dict[int, list[int]] = {}
+        for s in town.sidewalks:
+            by_road.setdefault(s.road, []).append(s.id)
+        for ids in by_road.values():
+            if len(ids) == 2:
+                self.opposite[ids[0]], self.opposite[ids[1]] = ids[1], ids[0]
+
+    def crossing_near(self, xy: np.ndarray, radius: float = 6.0) -> int:
+        """Index of a crossing with an end within ``radius`` m of ``xy`` (-1: none)."""
+        if len(self.crossings) == 0:
+            return -1
+        d = np.linalg.norm(self.crossings - xy, axis=2).min(1)
+        k = int(np.argmin(d))
+        return k if d[k] < radius else -1
+
+
+def step_walkers(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, dt: float,
+                 jaywalk_prob: float) -> None:
+    """Advance all pedestrians by one tick, in place."""
+    if net.index is None:
+        return
+    idx = np.flatnonzero(t.active & (t.behaviour == WALKER))
+    if len(idx) == 0:
+        return
+    walking = idx[t.path[idx] >= 0]
+    crossing = idx[t.path[idx] < 0]
+
+    # crossing pedestrians move on their segment
+    if len(crossing):
+        seg = t.cross_to[crossing] - t.cross_from[crossing]
+        left = t.cross_to[crossing] - t.pos[crossing]
+        dist = np.linalg.norm(left, axis=1)
+        step = t.speed[crossing] * dt
+        u = seg / np.maximum(np.linalg.norm(seg, axis=1, keepdims=True), 1e-9)
+        t.pos[crossing] += u * np.minimum(step, dist)[:, None]
+        t.yaw[crossing] = np.arctan2(u[:, 1], u[:, 0])
+        done = crossing[dist <= step]
+        if len(done):
+            sw, s, _ = net.index.project(t.pos[done])
+            t.path[done], t.path_s[done] = sw, s
+            t.path_dir[done] = rng.choice([-1.0, 1.0], size=len(done))
+
+    if len(walking) == 0:
+        return
+    ix = net.index
+    s = t.path_s[walking] + t.path_dir[walking] * t.speed[walking] * dt
+    length = ix.length[t.path[walking]]
+    at_end = (s < 0.0) | (s > length)
+    s = np.clip(s, 0.0, length)
+    t.path_s[walking] = s
+    p, h = ix.pose_at(t.path[walking], s)
+    normal = np.stack([-np.sin(h), np.cos(h)], -1)
+    t.pos[walking] = p + t.lat[walking][:, None] * normal
+    t.yaw[walking] = np.where(t.path_dir[walking] > 0, h, h + np.pi)
+    for k in np.flatnonzero(at_end):  # end of the sidewalk: cross, or turn around
+        i = walking[k]
+        c = net.crossing_near(t.pos[i])
+        if c >= 0 and rng.random() < 0.7:
+            a, b = net.crossings[c]
+            if np.linalg.norm(a - t.pos[i]) > np.linalg.norm(b - t.pos[i]):
+                a, b = b, a
+            _start_crossing(t, i, a, b)
+        else:
+            t.path_dir[i] = -t.path_dir[i]
+    # jaywalking: cross straight over the road to the opposite sidewalk
+    jay = walking[(rng.random(len(walking)) < jaywalk_prob * dt) & ~at_end]
+    for i in jay:
+        opp = net.opposite[t.path[i]]
+        if opp < 0:
+            continue
+        _, s_o, _ = ix.project(t.pos[i][None], np.array([opp]))
+        target, _ = ix.pose_at(np.array([opp]), s_o)
+        _start_crossing(t, i, t.pos[i].copy(), target[0])
+
+
+def _start_crossing(t: ActorTable, i: int, a: np.ndarray, b: np.ndarray) -> None:
+    t.path[i] = -1
+    t.cross_from[i], t.cross_to[i] = a, b
+    t.pos[i] = a

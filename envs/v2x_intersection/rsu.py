@@ -1,0 +1,122 @@
+"""Route-adaptive roadside-unit deployment and per-tick active-unit selection (paper appendix).
+
+Candidates are placed (1) every ~``STRAIGHT_SPACING`` m along the route's non-junction parts,
+beside the road and looking back at the approaching ego; (2) at every junction the route crosses,
+on a corner offset from the centre, looking at the junction so all approaches are overlooked;
+(3) near each scenario trigger point. Units closer than ``MIN_SPACING`` m to an already kept unit
+are pruned (junction and trigger units are kept first). Each tick the nearest forward-facing unit
+(ahead of the ego and within range) is active.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .geometry import pose_matrix, wrap_angle
+from .routes import Route
+from .town.model import Town
+
+STRAIGHT_SPACING = 80.0  # m
+MIN_SPACING = 30.0  # m
+RSU_HEIGHT = 5.0  # m
+RSU_PITCH = np.deg2rad(12.0)  # rad, pitched down toward the road
+RSU_ROLL = np.deg2rad(1.0)  # rad, small roll offset (as the paper)
+SIDE_OFFSET = 9.0  # m from the route centre line to the pole
+KIND_STRAIGHT, KIND_JUNCTION, KIND_TRIGGER = 0, 1, 2
+
+
+@dataclass
+class RSUSet:
+    """Deployed units of one route.
+
+    Attributes:
+        pose: ``(U, 4)`` ``(x, y, z, yaw)`` (m, rad); pitch ``RSU_PITCH``, roll ``RSU_ROLL``.
+        kind: ``(U,)`` ``KIND_STRAIGHT | KIND_JUNCTION | KIND_TRIGGER``.
+        route_s: ``(U,)`` route arc length the unit was placed for (m).
+    """
+
+    pose: np.ndarray
+    kind: np.ndarray
+    route_s: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.pose)
+
+    def matrix(self, u: int) -> np.ndarray:
+        """4x4 ``T_world_rsu`` of unit ``u`` (RSU body frame: x along the optical axis, z up)."""
+        x, y, z, yaw = self.pose[u]
+        return pose_matrix(x, y, z, yaw, RSU_PITCH, RSU_ROLL)
+
+
+def deploy(town: Town, route: Route, triggers: np.ndarray | None = None) -> RSUSet:
+    """Place RSUs for a route (see module docstring).
+
+    Args:
+        town: the road network.
+        route: the ego's route.
+        triggers: optional ``(T, 2)`` scenario trigger points (m).
+    """
+    cands: list[tuple[float, float, float, int, float]] = []
+    pts, hd, s = route.points, route.headings, route.s
+    in_junction = town.index.junction[route.lane_ids] >= 0
+    # junctions the route crosses
+    for jid in np.unique(town.index.junction[route.lane_ids][in_junction]):
+        j = town.junctions[jid]
+        k = int(np.argmin(np.linalg.norm(pts - j.center, axis=1)))
+        entry = int(np.flatnonzero(in_junction & (np.arange(len(pts)) <= k))[0]) if np.any(in_junction[: k + 1]) else k
+        h_in = hd[max(entry - 1, 0)]
+        # far-right corner as seen when arriving, looking back diagonally over the junction
+        corner = j.center + (j.radius + 3.0) * np.array([np.cos(h_in - np.pi / 4), np.sin(h_in - np.pi / 4)])
+        yaw = np.arctan2(*(j.center - corner)[::-1]) - np.pi / 8
+        cands.append((corner[0], corner[1], float(yaw), KIND_JUNCTION, float(s[k])))
+    for tp in [] if triggers is None else np.asarray(triggers, float).reshape(-1, 2):
+        k = int(np.argmin(np.linalg.norm(pts - tp, axis=1)))
+        p = _beside(pts[k], hd[k], SIDE_OFFSET)
+        yaw = np.arctan2(*(tp - p)[::-1])
+        cands.append((p[0], p[1], float(yaw), KIND_TRIGGER, float(s[k])))
+    for sk in np.arange(STRAIGHT_SPACING / 2, route.length, STRAIGHT_SPACING):
+        k = int(np.searchsorted(s, sk))
+        k = min(k, len(pts) - 1)
+        if in_junction[k]:
+            continue
+        # the unit stands ~40 m ahead of the point it serves, looking back at the ego
+        ahead = min(int(np.searchsorted(s, sk + 30.0)), len(pts) - 1)
+        p = _beside(pts[ahead], hd[ahead], SIDE_OFFSET)
+        yaw = wrap_angle(hd[ahead] + np.pi - 0.35)
+        cands.append((p[0], p[1], float(yaw), KIND_STRAIGHT, float(s[k])))
+    order = sorted(range(len(cands)), key=lambda i: (-cands[i][3], cands[i][4]))
+    kept: list[int] = []
+    for i in order:
+        if all(np.hypot(cands[i][0] - cands[j][0], cands[i][1] - cands[j][1]) >= MIN_SPACING for j in kept):
+            kept.append(i)
+    kept.sort(key=lambda i: cands[i][4])
+    c = np.array([cands[i] for i in kept], float).reshape(-1, 5)
+    pose = np.stack([c[:, 0], c[:, 1], np.full(len(c), RSU_HEIGHT), c[:, 2]], -1)
+    return RSUSet(pose, c[:, 3].astype(np.int64), c[:, 4])
+
+
+def _beside(p: np.ndarray, heading: float, offset: float) -> np.ndarray:
+    return p + offset * np.array([np.sin(heading), -np.cos(heading)])
+
+
+def select_active(rsus: RSUSet, ego_xy: np.ndarray, ego_yaw: float, max_range: float, slots: int = 1) -> np.ndarray:
+    """Indices of the ``slots`` nearest forward-facing units (-1 pads when fewer qualify).
+
+    Forward-facing: the unit is ahead of the ego (positive longitudinal offset, allowing 10 m
+    behind) and its optical axis points back toward the ego's side (angle to the ego < 100 deg).
+    """
+    if len(rsus) == 0:
+        return np.full(slots, -1, np.int64)
+    d = rsus.pose[:, :2] - ego_xy
+    dist = np.linalg.norm(d, axis=1)
+    ahead = d @ np.array([np.cos(ego_yaw), np.sin(ego_yaw)]) > -10.0
+    to_ego = np.arctan2(-d[:, 1], -d[:, 0])
+    facing = np.abs(wrap_angle(to_ego - rsus.pose[:, 3])) < np.deg2rad(100.0)
+    ok = ahead & facing & (dist < max_range)
+    order = np.argsort(np.where(ok, dist, np.inf))
+    out = np.where(ok[order][:slots], order[:slots], -1)
+    if out[0] < 0:  # nothing forward-facing: fall back to the nearest unit
+        out[0] = int(np.argmin(dist))
+    return np.pad(out, (0, max(0, slots - len(out))), constant_values=-1).astype(np.int64)

@@ -1,0 +1,55 @@
+"""Road networks: data model, procedural templates and the named towns.
+
+Named towns: ``Town01`` to ``Town06`` are training towns; ``Town12`` is the larger held-out test
+town (as the paper's Town12 test split) and is never used for training routes.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+from pathlib import Path
+
+from .model import COMMAND_NAMES, LaneIndex, Town
+from .templates import TEMPLATES, generate_town
+
+#: name -> (template, seed, size)
+NAMED_TOWNS: dict[str, tuple[str, int, int | None]] = {
+    "Town01": ("grid", 1, 3),
+    "Town02": ("tjunction", 2, 4),
+    "Town03": ("arterial", 3, 3),
+    "Town04": ("highway", 4, 3),
+    "Town05": ("grid", 5, 2),
+    "Town06": ("tjunction", 6, 3),
+    "Town12": ("grid", 12, 4),
+}
+TRAIN_TOWNS = ("Town01", "Town02", "Town03", "Town04", "Town05", "Town06")
+TEST_TOWNS = ("Town12",)
+
+
+@functools.lru_cache(maxsize=16)
+def get_town(name: str) -> Town:
+    """A named town (cached). Raises ``ValueError`` for unknown names."""
+    if name not in NAMED_TOWNS:
+        raise ValueError(f"unknown town {name!r}; known: {', '.join(NAMED_TOWNS)}")
+    template, seed, size = NAMED_TOWNS[name]
+    return generate_town(template, seed, size, name=name)
+
+
+def save_town(town: Town, path: str | Path) -> None:
+    """Write a town to JSON atomically (write to a temporary file, then rename)."""
+    path = Path(path)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(town.to_dict()))
+    tmp.replace(path)
+
+
+def load_town(path: str | Path) -> Town:
+    """Read a town JSON file written by :func:`save_town`."""
+    return Town.from_dict(json.loads(Path(path).read_text()))
+
+
+__all__ = [
+    "COMMAND_NAMES", "LaneIndex", "NAMED_TOWNS", "TEMPLATES", "TEST_TOWNS", "TRAIN_TOWNS", "Town",
+    "generate_town", "get_town", "load_town", "save_town",
+]

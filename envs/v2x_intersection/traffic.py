@@ -1,0 +1,200 @@
+"""NPC vehicles and bicycles: IDM along lane paths with signals, stop signs, junction yielding
+and lane changes. One vectorized update per tick over all lane followers.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .actors import DRIVER, EGO, RIDER, ActorTable
+from .dynamics import IDMParams, idm_accel
+from .signals import RED, YELLOW
+from .town.model import PRIORITY, STOP, Town
+
+LOOKAHEAD = 50.0  # m, leader search distance
+STOP_LINE_SETBACK = 4.5  # m, stop line before the lane end (crosswalk + margin)
+LANE_CHANGE_RATE = 1.2  # m/s lateral speed during a lane change
+STUCK_RESPAWN_S = 40.0  # s stopped (not at a red light) before an NPC is respawned elsewhere
+IDM = IDMParams()
+IDM_BIKE = IDMParams(accel=1.0, decel=2.0, time_headway=1.0, min_gap=1.5)
+
+
+def leaders(t: ActorTable, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Gap (m) and approach rate (m/s) to the nearest actor in each follower's driving corridor.
+
+    The corridor is the strip ahead of the follower along its heading, as wide as both actors
+    (+0.4 m); head-on actors moving faster than 1 m/s are ignored (they are in another lane).
+
+    Returns:
+        ``(gap (M,), dv (M,))`` for followers ``idx``; ``inf`` gap where the corridor is free.
+    """
+    others = np.flatnonzero(t.active)
+    d = t.pos[others][None, :, :] - t.pos[idx][:, None, :]
+    c, s = np.cos(t.yaw[idx])[:, None], np.sin(t.yaw[idx])[:, None]
+    dx = c * d[..., 0] + s * d[..., 1]
+    dy = -s * d[..., 0] + c * d[..., 1]
+    cos_rel = np.cos(t.yaw[others][None, :] - t.yaw[idx][:, None])
+    half = 0.5 * (t.width[idx][:, None] + t.width[others][None, :]) + 0.4
+    reach = 0.5 * (t.length[idx][:, None] + t.length[others][None, :])
+    ok = (dx > 0.0) & (dx < LOOKAHEAD + reach) & (np.abs(dy) < half)
+    ok &= ~((cos_rel < -0.5) & (t.speed[others][None, :] > 1.0))
+    ok &= others[None, :] != idx[:, None]
+    gap = np.where(ok, dx - reach, np.inf)
+    j = np.argmin(gap, axis=1)
+    g = gap[np.arange(len(idx)), j]
+    dv = t.speed[idx] - t.speed[others[j]] * np.maximum(cos_rel[np.arange(len(idx)), j], 0.0)
+    return np.maximum(g, 0.0), np.where(np.isfinite(g), dv, 0.0)
+
+
+def junction_clear(t: ActorTable, town: Town, jid: int, me: int) -> bool:
+    """No other vehicle inside junction ``jid`` (and, at priority junctions, none arriving on a
+    major approach within 30 m)."""
+    j = town.junctions[jid]
+    veh = t.active & np.isin(t.behaviour, (EGO, DRIVER, RIDER))
+    veh[me] = False
+    inside = np.linalg.norm(t.pos - j.center, axis=1) < j.radius + 1.0
+    if np.any(veh & inside):
+        return False
+    if j.control == PRIORITY:
+        major = np.setdiff1d(j.incoming, j.stop_lanes)
+        on_major = veh & np.isin(t.lane, major) & (t.speed > 0.5)
+        remaining = town.index.length[np.clip(t.lane, 0, None)] - t.s
+        if np.any(on_major & (remaining < 30.0)):
+            return False
+    return True
+
+
+def step_followers(t: ActorTable, town: Town, lane_signal: np.ndarray, rng: np.random.Generator,
+                   dt: float, ego_pos: np.ndarray) -> np.ndarray:
+    """Advance all lane followers (``DRIVER`` and ``RIDER``) by one tick, in place.
+
+    Args:
+        t: actor table (modified).
+        town: the road network.
+        lane_signal: ``(num_lanes,)`` signal state per lane (``signals.SignalPlan.lane_states``).
+        rng: the world's generator.
+        dt: tick (s).
+        ego_pos: ``(2,)`` ego position, to respawn out of its way.
+
+    Returns:
+        indices of followers that must be respawned (dead end or stuck).
+    """
+    ix = town.index
+    idx = np.flatnonzero(t.active & ((t.behaviour == DRIVER) | (t.behaviour == RIDER)))
+    if len(idx) == 0:
+        return idx
+    lane = t.lane[idx]
+    bike = t.behaviour[idx] == RIDER
+    limit = ix.speed_limit[lane]
+    v0 = np.where(bike, np.minimum(t.v0[idx], limit), t.v0[idx] * limit)
+    gap, dv = leaders(t, idx)
+    v = t.speed[idx]
+    acc = np.where(bike, idm_accel(v, v0, gap, dv, IDM_BIKE), idm_accel(v, v0, gap, dv, IDM))
+
+    # stop lines: red / yellow lights, stop signs, junction not clear
+    to_line = ix.length[lane] - t.s[idx] - STOP_LINE_SETBACK - 0.5 * t.length[idx]
+    sig = lane_signal[lane]
+    near = ix.stop_at_end[lane] & (to_line > -1.0) & (to_line < LOOKAHEAD)
+    must_stop = near & ((sig == RED) | ((sig == YELLOW) & (to_line > v * v / (2 * IDM.decel))))
+    jahead = ix.junction_ahead[lane]
+    sign_lane = near & (sig == -1)
+    arrived = sign_lane & (to_line < 1.0) & (v < 0.3)
+    t.stopped_at_sign[idx[arrived]] = True
+    for k in np.flatnonzero(sign_lane):
+        i = idx[k]
+        control = town.junctions[jahead[k]].control
+        needs_stop = control == STOP or lane[k] in town.junctions[jahead[k]].stop_lanes
+        if needs_stop and not t.stopped_at_sign[i]:
+            must_stop[k] = True
+        elif (needs_stop or control == PRIORITY) and to_line[k] < 8.0 and not junction_clear(t, town, jahead[k], i):
+            must_stop[k] = True
+    acc_line = idm_accel(v, v0, np.maximum(to_line, 0.0), v, IDM)
+    acc = np.where(must_stop, np.minimum(acc, acc_line), acc)
+
+    v_new = np.maximum(v + acc * dt, 0.0)
+    t.accel[idx] = (v_new - v) / dt
+    t.speed[idx] = v_new
+    s = t.s[idx] + v_new * dt
+    waiting = (v_new < 0.1) & ~must_stop | (v_new < 0.1) & (sig == -1)
+    t.wait[idx] = np.where(v_new < 0.1, t.wait[idx] + dt, 0.0)
+
+    # lane transitions (random successor); dead ends -> respawn
+    respawn = []
+    over = np.flatnonzero(s > ix.length[lane])
+    for k in over:
+        i = idx[k]
+        while s[k] > ix.length[lane[k]]:
+            succ = town.lanes[lane[k]].successors
+            if not succ:
+                respawn.append(i)
+                break
+            s[k] -= ix.length[lane[k]]
+            lane[k] = succ[int(rng.integers(len(succ)))]
+            t.stopped_at_sign[i] = False
+    stuck = idx[(t.wait[idx] > STUCK_RESPAWN_S) & waiting & (sig != RED)]
+    respawn.extend(stuck.tolist())
+
+    _lane_changes(t, town, idx, lane, s, gap, dv, bike, rng, dt)
+    t.lane[idx] = lane
+    t.s[idx] = s
+    # lateral offset: riders keep to the right edge; lane changes decay to the centre
+    lat = t.lat[idx]
+    edge = -(ix.width[lane] / 2.0 - 0.6)
+    lat = np.where(bike, edge, np.sign(lat) * np.maximum(np.abs(lat) - LANE_CHANGE_RATE * dt, 0.0))
+    dlat = lat - t.lat[idx]
+    t.lat[idx] = lat
+    p, h = ix.pose_at(lane, s)
+    normal = np.stack([-np.sin(h), np.cos(h)], -1)
+    t.pos[idx] = p + lat[:, None] * normal
+    t.yaw[idx] = h + np.where(bike, 0.0, np.arctan2(dlat / dt, np.maximum(v_new, 1.0)))
+    return np.unique(np.array(respawn, np.int64))
+
+
+def _lane_changes(t, town, idx, lane, s, gap, dv, bike, rng, dt) -> None:
+    """Overtake a slow leader: move to a neighbour lane whose nearby stretch is free (MOBIL-lite)."""
+    ix = town.index
+    want = (~bike) & (gap < 25.0) & (dv > 1.0) & (np.abs(t.lat[idx]) < 0.1) & (rng.random(len(idx)) < 0.05)
+    for k in np.flatnonzero(want):
+        cur = lane[k]
+        for nb, side in ((ix.left[cur], 1.0), (ix.right[cur], -1.0)):
+            if nb < 0 or ix.kind[nb] != ix.kind[cur]:
+                continue
+            s_nb = s[k] * ix.length[nb] / max(ix.length[cur], 1e-6)
+            others = t.active & (t.lane == nb)
+            if np.any(others & (t.s > s_nb - 15.0) & (t.s < s_nb + 25.0)):
+                continue
+            if ix.length[nb] - s_nb < 30.0:
+                continue
+            lane[k], s[k] = nb, s_nb
+            t.lat[idx[k]] = -side * ix.width[cur]  # old position, seen from the new lane
+            break
+
+
+def occupied(t: ActorTable, xy: np.ndarray, radius: float) -> bool:
+    """Whether any active actor is within ``radius`` m of ``xy``."""
+    return bool(np.any(t.active & (np.linalg.norm(t.pos - xy, axis=1) < radius)))
+
+
+def place_on_lane(t: ActorTable, town: Town, i: int, lane: int, s: float) -> None:
+    """Put follower ``i`` on ``lane`` at arc length ``s``."""
+    p, h = town.index.pose_at(np.array([lane]), np.array([s]))
+    t.lane[i], t.s[i], t.lat[i] = lane, s, 0.0
+    t.pos[i], t.yaw[i] = p[0], h[0]
+    t.stopped_at_sign[i] = False
+    t.wait[i] = 0.0
+
+
+def free_lane_spot(t: ActorTable, town: Town, lanes: np.ndarray, rng: np.random.Generator,
+                   avoid: np.ndarray, min_avoid: float, clearance: float = 10.0,
+                   tries: int = 50) -> tuple[int, float] | None:
+    """A random ``(lane, s)`` on ``lanes`` at least ``clearance`` m from actors and ``min_avoid`` m
+    from ``avoid (2,)``; ``None`` if none found in ``tries`` draws."""
+    ix = town.index
+    for _ in range(tries):
+        lane = int(rng.choice(lanes))
+        s = float(rng.uniform(2.0, max(ix.length[lane] - 2.0, 2.5)))
+        p, _ = ix.pose_at(np.array([lane]), np.array([s]))
+        if np.linalg.norm(p[0] - avoid) < min_avoid or occupied(t, p[0], clearance):
+            continue
+        return lane, s
+    return None

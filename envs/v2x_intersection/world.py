@@ -1,0 +1,300 @@
+"""The simulator core: one world, one fixed step order.
+
+``World.step`` always runs, in this order:
+
+1. validate actions (ego control, RSU message);
+2. the active RSU's message enters the V2X channel (serialized and counted there);
+3. ego dynamics (kinematic bicycle);
+4. traffic lights, NPC vehicles and bicycles (IDM), pedestrians;
+5. respawn NPCs that left the map or are stuck;
+6. collisions (pymunk query) and infraction / route-progress events;
+7. ``tick += 1``; perception: which actors the ego and the active RSU(s) see (2.5D occlusion);
+8. the channel delivers what is due into the ego's inbox.
+
+The adapters (PettingZoo, Gymnasium, TorchRL) only turn this state into observations.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .actors import DRIVER, EGO, PARKED, RIDER, WALKER, ActorTable, draw_size
+from .channel import Channel, ChannelConfig, empty_message, pack_objects, validate_message
+from .classes import BICYCLE, CAR, LARGE_VEHICLE, PEDESTRIAN, STATIC_OBSTACLE, TRAFFIC_LIGHT, TRAFFIC_SIGN
+from .config import EnvConfig
+from .dynamics import VehicleParams, bicycle_step
+from .geometry import world_to_local_2d
+from .infractions import EventMonitor
+from .pedestrians import SidewalkNetwork, step_walkers
+from .physics import CollisionWorld
+from .raycast import Boxes
+from .routes import Route, random_route
+from .rsu import RSUSet, deploy, select_active
+from .signals import SignalPlan
+from .town import get_town
+from .town.model import DRIVING, RAMP
+from .traffic import free_lane_spot, place_on_lane, step_followers
+from .visibility import visible_fraction
+
+EGO_SENSOR_Z = 1.8  # m, ego camera height (occlusion is judged from here)
+EGO_LENGTH, EGO_WIDTH, EGO_HEIGHT = 4.7, 1.9, 1.5  # m
+VISIBLE_THRESHOLD = 0.1  # fraction of sample points with a clear line of sight
+RSU_HFOV = np.deg2rad(120.0)  # rad, RSU LiDAR horizontal field of view
+
+
+class StepError(RuntimeError):
+    """Raised when stepping a world that has ended or was never reset."""
+
+
+class World:
+    """A V2XIntersection world: town, route, actors, RSUs, channel and event monitor."""
+
+    def __init__(self, config: EnvConfig) -> None:
+        self.config = config
+        self.town = get_town(config.town)
+        self.signals = SignalPlan(self.town)
+        self.sidewalks = SidewalkNetwork(self.town)
+        self.params = VehicleParams()
+        self.channel_config = ChannelConfig(
+            latency_ticks=config.latency_ticks, loss_prob=config.loss_prob,
+            bandwidth_bytes_per_s=config.bandwidth_bytes_per_s,
+            max_payload_floats=config.max_payload_floats, encoding=config.encoding, dt=config.dt,
+        )
+        self._drive_lanes = np.array([ln.id for ln in self.town.lanes if ln.kind in (DRIVING, RAMP)
+                                      and ln.length > 15.0])
+        statics, heights, kinds = self._static_boxes()
+        self.static_boxes = statics  # (S, 5) x, y, length, width, yaw
+        self.static_heights = heights
+        self.static_kinds = kinds
+        self.ended = True
+        self.tick = 0
+
+    # ------------------------------------------------------------------ setup
+    def _static_boxes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        t = self.town
+        rows, heights, kinds = [t.buildings], [t.building_heights], [np.full(len(t.buildings), STATIC_OBSTACLE)]
+        for poles, kind, h in ((t.lights, TRAFFIC_LIGHT, 5.0), (t.stop_signs, TRAFFIC_SIGN, 2.2)):
+            if len(poles):
+                rows.append(np.stack([poles[:, 0], poles[:, 1], np.full(len(poles), 0.4),
+                                      np.full(len(poles), 0.4), poles[:, 2]], -1))
+                heights.append(np.full(len(poles), h))
+                kinds.append(np.full(len(poles), kind))
+        return np.concatenate(rows, 0), np.concatenate(heights), np.concatenate(kinds).astype(np.int64)
+
+    def reset(self, seed: int | None = None, route: Route | None = None) -> None:
+        """Start an episode: draw a route (unless given) and populate the world from ``seed``."""
+        cfg = self.config
+        self.rng = np.random.default_rng(seed)
+        self.route = route if route is not None else random_route(self.town, self.rng, cfg.route_length)
+        n = 1 + cfg.num_vehicles + cfg.num_parked + cfg.num_pedestrians + cfg.num_bicycles
+        t = ActorTable.empty(n)
+        t.kind[0], t.behaviour[0], t.active[0] = CAR, EGO, True
+        t.length[0], t.width[0], t.height[0] = EGO_LENGTH, EGO_WIDTH, EGO_HEIGHT
+        t.pos[0], t.yaw[0] = self.route.points[0], self.route.headings[0]
+        t.lane[0] = self.route.lane_ids[0]
+        self.table = t
+        row = 1
+        row = self._spawn_drivers(row, cfg.num_vehicles)
+        row = self._spawn_parked(row, cfg.num_parked)
+        row = self._spawn_walkers(row, cfg.num_pedestrians)
+        row = self._spawn_riders(row, cfg.num_bicycles)
+        t.color[:] = self.rng.integers(0, 8, size=n)
+        self.collisions = CollisionWorld(t, self.static_boxes)
+        self.rsus: RSUSet = deploy(self.town, self.route)
+        self.channel = Channel(self.channel_config, self.rng)
+        self.monitor = EventMonitor(self.town, self.route, cfg.dt)
+        self.tick = 0
+        self.last_control = np.zeros(3)
+        self.last_events: list = []
+        self.inbox: tuple | None = None  # (sender, sent_tick, payload) last delivered message
+        self.ended = False
+        self.lane_signal = self.signals.lane_states(0.0)
+        self._perceive()
+
+    def _spawn_drivers(self, row: int, count: int) -> int:
+        t, rng = self.table, self.rng
+        for _ in range(count):
+            spot = free_lane_spot(t, self.town, self._drive_lanes, rng, t.pos[0], 25.0, clearance=12.0)
+            if spot is None:
+                break
+            kind = LARGE_VEHICLE if rng.random() < self.config.large_vehicle_fraction else CAR
+            t.kind[row], t.behaviour[row], t.active[row] = kind, DRIVER, True
+            t.length[row], t.width[row], t.height[row] = draw_size(kind, rng)
+            t.v0[row] = rng.uniform(0.75, 1.05) if kind == CAR else rng.uniform(0.65, 0.9)
+            place_on_lane(t, self.town, row, *spot)
+            t.speed[row] = 0.5 * t.v0[row] * self.town.index.speed_limit[spot[0]]
+            row += 1
+        return row
+
+    def _spawn_parked(self, row: int, count: int) -> int:
+        t, rng, slots = self.table, self.rng, self.town.parking
+        if len(slots) == 0:
+            return row
+        for k in rng.permutation(len(slots))[:count]:
+            kind = LARGE_VEHICLE if rng.random() < self.config.large_vehicle_fraction else CAR
+            t.kind[row], t.behaviour[row], t.active[row] = kind, PARKED, True
+            t.length[row], t.width[row], t.height[row] = draw_size(kind, rng)
+            t.length[row] = min(t.length[row], 6.2)  # slots are 6.5 m long
+            t.pos[row], t.yaw[row] = slots[k, :2], slots[k, 2]
+            row += 1
+        return row
+
+    def _spawn_walkers(self, row: int, count: int) -> int:
+        t, rng, net = self.table, self.rng, self.sidewalks
+        if net.index is None:
+            return row
+        for _ in range(count):
+            sw = int(rng.integers(len(net.index.length)))
+            t.kind[row], t.behaviour[row], t.active[row] = PEDESTRIAN, WALKER, True
+            t.length[row], t.width[row], t.height[row] = draw_size(PEDESTRIAN, rng)
+            t.path[row], t.path_s[row] = sw, rng.uniform(0.0, net.index.length[sw])
+            t.path_dir[row] = rng.choice([-1.0, 1.0])
+            t.lat[row] = rng.uniform(-0.8, 0.8)
+            t.speed[row] = rng.uniform(1.0, 1.6)
+            p, h = net.index.pose_at(np.array([sw]), np.array([t.path_s[row]]))
+            t.pos[row], t.yaw[row] = p[0], h[0]
+            row += 1
+        return row
+
+    def _spawn_riders(self, row: int, count: int) -> int:
+        t, rng = self.table, self.rng
+        for _ in range(count):
+            spot = free_lane_spot(t, self.town, self._drive_lanes, rng, t.pos[0], 25.0, clearance=10.0)
+            if spot is None:
+                break
+            t.kind[row], t.behaviour[row], t.active[row] = BICYCLE, RIDER, True
+            t.length[row], t.width[row], t.height[row] = draw_size(BICYCLE, rng)
+            t.v0[row] = rng.uniform(3.5, 5.5)
+            place_on_lane(t, self.town, row, *spot)
+            t.speed[row] = t.v0[row] * 0.8
+            row += 1
+        return row
+
+    # ------------------------------------------------------------------ step
+    def step(self, control: np.ndarray, rsu_message: dict | None = None) -> list:
+        """Advance one tick (``config.dt`` s). See the module docstring for the order.
+
+        Args:
+            control: ``(3,)`` ego ``(throttle in [0, 1], steer in [-1, 1], brake in [0, 1])``;
+                validated by the adapters (``spaces.validate_control``).
+            rsu_message: the active RSU's message ``{"length", "payload"}`` (``None``: nothing sent).
+
+        Returns:
+            Events emitted during this tick (``infractions.EventMonitor``).
+        """
+        if self.ended:
+            raise StepError("step() called on a world that has ended or was never reset; call reset()")
+        cfg, t = self.config, self.table
+        # 2. V2X: the active RSU's message is sent now and delivered after the latency
+        if rsu_message is not None:
+            length, payload = validate_message(rsu_message, self.channel_config)
+            self.channel.send(self.tick, int(max(self.active_rsu[0], 0)), length, payload)
+        else:
+            self.channel.advance(self.tick)
+        # 3. ego
+        throttle, steer, brake = (float(c) for c in control)
+        old = t.pos[0].copy()
+        x, y, yaw, v, a = bicycle_step(t.pos[0, 0], t.pos[0, 1], t.yaw[0], t.speed[0], throttle, steer, brake,
+                                       self.params, cfg.dt)
+        t.pos[0] = (x, y)
+        t.yaw[0], t.speed[0], t.accel[0] = yaw, v, a
+        self.last_control = np.array([throttle, steer, brake])
+        # 4. traffic
+        time_s = (self.tick + 1) * cfg.dt
+        self.lane_signal = self.signals.lane_states(time_s)
+        respawn = step_followers(t, self.town, self.lane_signal, self.rng, cfg.dt, t.pos[0])
+        step_walkers(t, self.sidewalks, self.rng, cfg.dt, cfg.jaywalk_prob)
+        # 5. respawn
+        for i in respawn:
+            spot = free_lane_spot(t, self.town, self._drive_lanes, self.rng, t.pos[0], 60.0)
+            if spot is None:
+                t.active[i] = False
+            else:
+                place_on_lane(t, self.town, int(i), *spot)
+                t.speed[i] = 0.0
+        # 6. collisions and events
+        contacts = self.collisions.ego_contacts(t)
+        moved = float(np.linalg.norm(t.pos[0] - old))
+        self.last_events = self.monitor.update(self.tick + 1, t, contacts, self.lane_signal, moved)
+        # 7. perception
+        self.tick += 1
+        self._perceive()
+        # 8. delivery
+        for msg in self.channel.receive(self.tick):
+            self.inbox = msg
+        return self.last_events
+
+    # ------------------------------------------------------------------ perception
+    def occluders(self) -> Boxes:
+        """All boxes that block sight: active actors (rows first) then static boxes."""
+        t = self.table
+        s = self.static_boxes
+        return Boxes.from_arrays(
+            np.concatenate([t.pos, s[:, :2]]), np.concatenate([t.length, s[:, 2]]),
+            np.concatenate([t.width, s[:, 3]]), np.concatenate([t.yaw, s[:, 4]]),
+            np.concatenate([np.where(t.active, t.height, 0.0), self.static_heights]),
+        )
+
+    def _perceive(self) -> None:
+        """Visible fraction of every actor from the ego and from each active RSU."""
+        cfg, t = self.config, self.table
+        self.active_rsu = select_active(self.rsus, t.pos[0], float(t.yaw[0]), cfg.rsu_range, cfg.rsu_slots)
+        boxes = self.occluders()
+        n = len(t)
+        targets = np.flatnonzero(t.active)
+        targets = targets[targets > 0]
+        self.ego_vis = np.zeros(n)
+        ego_sensor = np.array([t.pos[0, 0], t.pos[0, 1], EGO_SENSOR_Z])
+        near = targets[np.linalg.norm(t.pos[targets] - t.pos[0], axis=1) < cfg.ego_range]
+        if len(near):
+            self.ego_vis[near] = visible_fraction(ego_sensor, boxes, near, ignore=np.array([0]),
+                                                  max_range=cfg.ego_range)
+        self.rsu_vis = np.zeros((cfg.rsu_slots, n))
+        for k, u in enumerate(self.active_rsu):
+            if u < 0:
+                continue
+            x, y, z, yaw = self.rsus.pose[u]
+            near = targets[np.linalg.norm(t.pos[targets] - (x, y), axis=1) < cfg.rsu_range]
+            if len(near):
+                self.rsu_vis[k, near] = visible_fraction(np.array([x, y, z]), boxes, near, max_range=cfg.rsu_range,
+                                                         sensor_yaw=yaw, hfov=RSU_HFOV)
+
+    # ------------------------------------------------------------------ helpers
+    def rsu_objects(self, slot: int = 0) -> np.ndarray:
+        """Objects the RSU in ``slot`` sees, in its frame: ``(K, 10)`` rows of
+        ``channel.OBJECT_FIELDS`` sorted by distance to the unit."""
+        u = self.active_rsu[slot]
+        t = self.table
+        if u < 0:
+            return np.zeros((0, 10), np.float32)
+        seen = np.flatnonzero(self.rsu_vis[slot] >= VISIBLE_THRESHOLD)
+        x, y, _, yaw = self.rsus.pose[u]
+        return object_rows(t, seen, np.array([x, y]), yaw)
+
+    def default_rsu_message(self) -> dict:
+        """The built-in ``share_objects`` policy: pack what the RSU sees (or send nothing)."""
+        if self.config.rsu_policy == "none" or self.active_rsu[0] < 0:
+            return empty_message(self.channel_config)
+        length, payload = pack_objects(self.rsu_objects(0), self.config.max_payload_floats, self.config.encoding)
+        return {"length": length, "payload": payload}
+
+    def is_route_complete(self) -> bool:
+        """The ego has passed the last route point (within 3 m)."""
+        return self.monitor.progress >= len(self.route.points) - 3
+
+
+def object_rows(t: ActorTable, idx: np.ndarray, origin: np.ndarray, yaw: float) -> np.ndarray:
+    """Rows ``(K, 10)`` of ``channel.OBJECT_FIELDS`` for actors ``idx``, in the frame at
+    ``origin (2,)`` / ``yaw``, sorted by distance."""
+    if len(idx) == 0:
+        return np.zeros((0, 10), np.float32)
+    local = world_to_local_2d(t.pos[idx], origin, yaw)
+    order = np.argsort(np.linalg.norm(local, axis=1))
+    idx, local = idx[order], local[order]
+    vel = world_to_local_2d(t.velocity()[idx], np.zeros(2), yaw)
+    rel_yaw = (t.yaw[idx] - yaw + np.pi) % (2 * np.pi) - np.pi
+    return np.stack([t.kind[idx], local[:, 0], local[:, 1], rel_yaw, t.length[idx], t.width[idx],
+                     t.height[idx], vel[:, 0], vel[:, 1], t.actor_id[idx]], -1).astype(np.float32)
+
+
+__all__ = ["World", "StepError", "object_rows"]

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from v2xbench.envs.v2x_intersection.raycast import (
     GROUND,
     NO_HIT,
@@ -145,6 +144,12 @@ def test_ground_hit_from_2_5_m():
     assert idx[0] == 0 and t[0] == pytest.approx(8.0, abs=TOL)
     t, idx = first_hit([0.0, 0.0, 2.5], [[1.0, 0.0, -0.2]], Boxes.empty(), ground=False)
     assert idx[0] == NO_HIT
+    # a flat (height 0) box on the ground is never hit: the ground is (12.5 m along x)
+    t, idx = first_hit([0.0, 0.0, 2.5], [[1.0, 0.0, -0.2]], one_box(cx=12.0, height=0.0))
+    assert idx[0] == GROUND and t[0] == pytest.approx(12.5, abs=TOL)
+    u = [[1.0, 0.0]]
+    t, idx = first_hit_fan([0.0, 0.0, 2.5], u, [-0.2], one_box(cx=12.0, height=0.0))
+    assert idx[0, 0] == GROUND and t[0, 0] == pytest.approx(12.5, abs=TOL)
 
 
 def test_max_t_and_ignore():
@@ -168,16 +173,17 @@ def test_segments_blocked():
     ends = [
         [30.0, 0.0, 1.0],  # through both boxes
         [5.0, 0.0, 1.0],  # stops short of the first
-        [30.0, 0.0, 4.0],  # rises over both? at x = 8..12 z = 1.8..2.2 > 1.5; x = 18 z = 2.8 < 3
-        [30.0, 5.0, 1.0],  # y = 0 at x = 0 to 5 at x = 30: at x = 8 y = 1.33 > 1, beside box 0
+        [30.0, 0.0, 4.0],  # z = 1 + x / 10: 1.8-2.2 over box 0 (1.5), 2.8 at box 1 (3 m)
+        [30.0, 5.0, 1.0],  # y = x / 6: 1.33 at x = 8 and 3 at x = 18, beside both (|y| <= 1)
+        [30.0, 2.0, 1.0],  # y = x / 15: 0.53 at x = 8, inside box 0's footprint
         [10.0, 0.0, 1.0],  # ends inside box 0 (its target)
     ]
     np.testing.assert_array_equal(
-        segments_blocked(start, ends, boxes), [True, False, True, True, True]
+        segments_blocked(start, ends, boxes), [True, False, True, False, True, True]
     )
     np.testing.assert_array_equal(
-        segments_blocked(start, ends, boxes, ignore=[-1, -1, -1, -1, 0]),
-        [True, False, True, True, False],
+        segments_blocked(start, ends, boxes, ignore=[-1, -1, -1, -1, -1, 0]),
+        [True, False, True, False, True, False],
     )
     # line from 1 m to 4 m over 30 m: only box 1 (3 m tall) blocks it
     blk = segments_blocked(start, [[30.0, 0.0, 4.0]] * 2, boxes, ignore=[[1, -1], [0, -1]])
@@ -189,7 +195,7 @@ def test_segments_blocked():
 def test_matches_reference_and_chunking():
     boxes, origins, dirs = random_scene(0)
     t, idx = first_hit(origins, dirs, boxes)
-    ref = [reference_first_hit(o, d, boxes) for o, d in zip(origins, dirs)]
+    ref = [reference_first_hit(o, d, boxes) for o, d in zip(origins, dirs, strict=True)]
     ref_t, ref_idx = np.array([r[0] for r in ref]), np.array([r[1] for r in ref])
     assert np.mean(idx == ref_idx) > 0.99  # float32 vs float64 may flip near-grazing cases
     same = idx == ref_idx
@@ -201,7 +207,7 @@ def test_matches_reference_and_chunking():
         lambda c: (segments_blocked(origins, origins + 5 * dirs, boxes, chunk_elems=c),),
         lambda c: first_hit(origins[0], dirs, boxes, chunk_elems=c),  # shared origin
     ):
-        for a, b in zip(f(1), f(4_000_000)):
+        for a, b in zip(f(1), f(4_000_000), strict=True):
             np.testing.assert_array_equal(a, b)
 
 

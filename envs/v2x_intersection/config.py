@@ -31,7 +31,8 @@ class EnvConfig:
         ego_range, rsu_range: sensing ranges (m).
         rsu_policy: built-in RSU message policy for the single-agent Gymnasium env.
         rsu_slots: RSU agents in the PettingZoo env (the nearest forward-facing units).
-        latency_ticks, loss_prob, bandwidth_bytes_per_s, max_payload_floats, encoding: V2X channel.
+        latency_ticks, loss_prob, bandwidth_bytes_per_s, max_payload_floats, encoding: V2X channel
+            (``channel.ChannelConfig``); latency >= 1: the RSU acts on tick t, the ego reads at t + latency.
         max_steps: episode cap in ticks (``None``: from the route's time budget).
         terminate_on_collision: end the episode at the first collision (for RL; off for eval).
         render_size: top-down render size in pixels.
@@ -93,8 +94,9 @@ class EnvConfig:
             bad("obs_mode", f"must be one of {OBS_MODES}")
         if self.rsu_policy not in RSU_POLICIES:
             bad("rsu_policy", f"must be one of {RSU_POLICIES}")
-        if not isinstance(self.latency_ticks, int) or self.latency_ticks < 0:
-            bad("latency_ticks", "must be an int >= 0")
+        if not isinstance(self.latency_ticks, int) or self.latency_ticks < 1:
+            bad("latency_ticks", "must be an int >= 1 (a message made from the RSU's observation at "
+                "tick t reaches the ego's observation at tick t + latency_ticks)")
         if self.bandwidth_bytes_per_s is not None and not self.bandwidth_bytes_per_s > 0:
             bad("bandwidth_bytes_per_s", "must be positive or None")
         if self.encoding not in ("float16", "float32"):

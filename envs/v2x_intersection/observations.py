@@ -24,7 +24,13 @@ import numpy as np
 from gymnasium import spaces
 
 from .channel import NUM_OBJECT_FIELDS, decode_message, message_space, unpack_objects
-from .geometry import local_to_world_2d, pose_matrix, relative_transform, world_to_local_2d, wrap_angle
+from .geometry import (
+    local_to_world_2d,
+    pose_matrix,
+    relative_transform,
+    world_to_local_2d,
+    wrap_angle,
+)
 from .rsu import RSU_PITCH
 
 EGO_FEATURES = ("speed", "accel", "yaw_rate", "throttle", "steer", "brake", "light_state",
@@ -34,6 +40,10 @@ OBJECT_FEATURES = ("present", "class_id", "x", "y", "yaw", "length", "width", "h
 V2X_INFO_FEATURES = ("received", "age_ticks", "num_objects", "rsu_x", "rsu_y", "rsu_yaw")
 UNIT_FEATURES = ("unit_id", "x", "y", "z", "yaw", "pitch")
 BIG = 1e4  # bound of the observation boxes
+#: received objects are shown until they are this many ticks old (then the slots are zeroed)
+V2X_HOLD_TICKS = 5
+#: ``light_state`` value for a stop sign (other values: -1 none, 0 green, 1 yellow, 2 red)
+STOP_SIGN = 3
 
 
 def _box(*shape: int, low: float = -BIG, high: float = BIG) -> spaces.Box:
@@ -119,6 +129,9 @@ def ego_observation(world) -> dict[str, np.ndarray]:
     ix = world.town.index
     lane = int(r.lane_ids[min(k0, len(r.lane_ids) - 1)])
     light = float(world.lane_signal[lane])
+    jid = ix.junction_ahead[lane]
+    if light < 0 and jid >= 0 and lane in world.town.junctions[jid].stop_lanes:
+        light = float(STOP_SIGN)
     dist_line = float(ix.length[lane] - world.monitor._s_on_lane) if ix.stop_at_end[lane] else -1.0
     yaw_rate = t.speed[0] * np.tan(world.last_control[1] * world.params.max_steer) / world.params.wheelbase
     ego = np.array([t.speed[0], t.accel[0], yaw_rate, *world.last_control, light, dist_line,
@@ -131,7 +144,7 @@ def ego_observation(world) -> dict[str, np.ndarray]:
 def _v2x(world, ego_xy: np.ndarray, ego_yaw: float) -> tuple[np.ndarray, np.ndarray]:
     cfg = world.config
     info = np.zeros(len(V2X_INFO_FEATURES), np.float32)
-    if world.inbox is None:
+    if world.inbox is None or world.tick - world.inbox[1] > V2X_HOLD_TICKS:
         return np.zeros((cfg.max_objects, len(OBJECT_FEATURES)), np.float32), info
     sender, sent_tick, payload = world.inbox
     rows = unpack_objects(payload, len(payload) - len(payload) % NUM_OBJECT_FIELDS)

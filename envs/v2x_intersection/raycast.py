@@ -46,11 +46,7 @@ MAX_CHUNK_ELEMS = 4_000_000
 NO_HIT = -1
 #: ``first_hit`` index for rays whose first hit is the ground plane ``z = 0``.
 GROUND = -2
-
-
-def _ro(a: np.ndarray) -> np.ndarray:
-    a.setflags(write=False)
-    return a
+_FIELDS = ("center", "length", "width", "yaw", "z0", "height")
 
 
 @dataclass(frozen=True, eq=False)
@@ -76,12 +72,14 @@ class Boxes:
     def __post_init__(self) -> None:
         center = np.array(self.center, dtype=np.float64).reshape(-1, 2)
         n = center.shape[0]
-        object.__setattr__(self, "center", _ro(center))
-        for name in ("length", "width", "yaw", "z0", "height"):
+        center.setflags(write=False)
+        object.__setattr__(self, "center", center)
+        for name in _FIELDS[1:]:
             a = np.array(getattr(self, name), dtype=np.float64).reshape(-1)
             if a.shape != (n,):
                 raise ValueError(f"Boxes.{name} has shape {a.shape}, expected ({n},)")
-            object.__setattr__(self, name, _ro(a))
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
 
     @classmethod
     def from_arrays(
@@ -93,14 +91,11 @@ class Boxes:
         height: np.ndarray | float = 1.5,
         z0: np.ndarray | float = 0.0,
     ) -> Boxes:
-        """Build boxes from array-likes; scalars broadcast to ``N = len(center)``.
+        """Build boxes from array-likes, broadcasting scalars to ``N = len(center)``.
 
         Args:
-            center: ``(N, 2)`` (or ``(2,)`` for one box) centres (m).
-            length, width: ``(N,)`` or scalar full extents (m).
-            yaw: ``(N,)`` or scalar headings (rad).
-            height: ``(N,)`` or scalar heights (m).
-            z0: ``(N,)`` or scalar base heights (m).
+            center: ``(N, 2)``, or ``(2,)`` for one box (m).
+            length, width, yaw, height, z0: ``(N,)`` or scalars (m; yaw in rad).
         """
         center = np.asarray(center, dtype=np.float64).reshape(-1, 2)
         n = center.shape[0]
@@ -118,18 +113,11 @@ class Boxes:
     @staticmethod
     def concat(a: Boxes, b: Boxes) -> Boxes:
         """Boxes of ``a`` followed by those of ``b`` (indices of ``b`` shift by ``len(a)``)."""
-        return Boxes(
-            *(
-                np.concatenate([getattr(a, f), getattr(b, f)])
-                for f in ("center", "length", "width", "yaw", "z0", "height")
-            )
-        )
+        return Boxes(*(np.concatenate([getattr(a, f), getattr(b, f)]) for f in _FIELDS))
 
     def subset(self, idx: np.ndarray) -> Boxes:
         """Boxes selected by an index array or boolean mask ``(N,)``."""
-        return Boxes(
-            *(getattr(self, f)[idx] for f in ("center", "length", "width", "yaw", "z0", "height"))
-        )
+        return Boxes(*(getattr(self, f)[idx] for f in _FIELDS))
 
     def __len__(self) -> int:
         return self.center.shape[0]
@@ -156,13 +144,14 @@ def _slabs_xy(o: np.ndarray, d: np.ndarray, p: _Prepared) -> tuple[np.ndarray, n
     """Footprint (local x and y slab) intervals ``(r, N)`` for ``o (r_o, >=2)``, ``d (r, >=2)``."""
     ox, oy = o[:, 0:1], o[:, 1:2]
     lx = ox * p.c + oy * p.s - p.bx  # (r_o, N) origin in the box frame
-    inv = np.divide(1.0, d[:, :2] @ p.rot_x)  # (r, N) inverse local direction
+    # einsum, not matmul: BLAS takes another path for a 1-row chunk (last-bit differences)
+    inv = np.divide(1.0, np.einsum("rk,kn->rn", d[:, :2], p.rot_x))  # (r, N) 1 / local dir x
     t1 = np.multiply(-p.hl - lx, inv)
     t2 = np.multiply(p.hl - lx, inv, out=inv)
     t_in = np.fmin(t1, t2)
     t_out = np.fmax(t1, t2, out=t1)
     ly = oy * p.c - ox * p.s - p.by
-    inv = np.divide(1.0, d[:, :2] @ p.rot_y)
+    inv = np.divide(1.0, np.einsum("rk,kn->rn", d[:, :2], p.rot_y))
     np.multiply(-p.hw - ly, inv, out=t2)
     t3 = np.multiply(p.hw - ly, inv, out=inv)
     np.fmax(t_in, np.fmin(t2, t3), out=t_in)
@@ -250,6 +239,17 @@ def _ignore_spec(ignore, r: int, n: int):
     return None, ig.reshape(r, -1)
 
 
+def _solid(keep: np.ndarray | None, boxes: Boxes) -> np.ndarray | None:
+    """``keep`` restricted to boxes with a positive height (``None`` = keep all).
+
+    A flat box on the ground would otherwise catch every ray that reaches the ground over it.
+    """
+    solid = boxes.height > 0
+    if solid.all():
+        return keep
+    return solid if keep is None else keep & solid
+
+
 def _apply_row_ignore(arr: np.ndarray, per_row, sl: slice, value) -> None:
     """Set ``arr[i, j] = value`` for the ignored boxes ``j`` of each row ``i`` of chunk ``sl``."""
     if per_row is None:
@@ -261,6 +261,17 @@ def _apply_row_ignore(arr: np.ndarray, per_row, sl: slice, value) -> None:
     valid = rows >= 0
     ri = np.broadcast_to(np.arange(rows.shape[0])[:, None], rows.shape)
     arr[ri[valid], rows[valid]] = value
+
+
+def _finish(t: np.ndarray, idx: np.ndarray, tg: np.ndarray | None, max_t) -> tuple:
+    """Apply the ground hits ``tg`` (``inf`` = none; a box wins a tie) and the ``max_t`` cut."""
+    if tg is not None:
+        g = tg < t
+        t[g], idx[g] = tg[g], GROUND
+    max_t = np.broadcast_to(np.asarray(max_t, dtype=DTYPE), t.shape)
+    far = t > max_t
+    t[far], idx[far] = max_t[far], NO_HIT
+    return t, idx
 
 
 def ray_box_intervals(
@@ -309,6 +320,7 @@ def first_hit(
         boxes: ``N`` boxes.
         max_t: scalar or ``(R,)`` farthest ``t`` that counts (e.g. sensor range for unit dirs).
         ground: whether rays pointing down (``dir_z < 0``) from ``z >= 0`` hit ``z = 0``.
+            Boxes with ``height <= 0`` (e.g. inactive actors) are never hit.
         ignore: boxes that rays pass through: ``None``; a box index (int) or ``(N,)`` bool mask
             for all rays (e.g. the sensor's own vehicle); ``(R,)`` or ``(R, K)`` int per-ray
             indices (negative = none); or an ``(R, N)`` bool mask.
@@ -325,8 +337,9 @@ def first_hit(
     dirs = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
     r, n = dirs.shape[0], len(boxes)
     keep, per_row = _ignore_spec(ignore, r, n)  # at most one of the two is set
+    keep = _solid(keep, boxes)
     box_ids = np.arange(n)
-    if keep is not None:  # ignored for all rays: drop them from the scene
+    if keep is not None:  # ignored for all rays, or flat: drop them from the scene
         boxes, box_ids = boxes.subset(keep), box_ids[keep]
         n = len(boxes)
     t = np.full(r, np.inf, DTYPE)
@@ -341,18 +354,12 @@ def first_hit(
                 t[sl] = a[np.arange(a.shape[0]), j]
                 idx[sl] = box_ids[j]
         idx[np.isinf(t)] = NO_HIT
+    tg = None
     if ground:
-        oz, dz = np.broadcast_to(origins[:, 2], (r,)), dirs[:, 2]
-        down = (dz < 0) & (oz >= 0)
-        tg = np.full(r, np.inf)
-        tg[down] = oz[down] / -dz[down]
-        tg = tg.astype(DTYPE)
-        g = tg < t
-        t[g], idx[g] = tg[g], GROUND
-    max_t = np.broadcast_to(np.asarray(max_t, dtype=DTYPE), (r,))
-    far = t > max_t
-    t[far], idx[far] = max_t[far], NO_HIT
-    return t, idx
+        oz, dz = origins[:, 2], dirs[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tg = np.where((dz < 0) & (oz >= 0), oz / -dz, np.inf).astype(DTYPE)
+    return _finish(t, idx, tg, max_t)
 
 
 def segments_blocked(
@@ -450,6 +457,7 @@ def first_hit_fan(
     keep, per_row = _ignore_spec(ignore, a, n)
     if per_row is not None:
         raise ValueError("first_hit_fan takes only a global ignore (int or (N,) bool mask)")
+    keep = _solid(keep, boxes)
     box_ids = np.arange(n)
     if keep is not None:
         boxes, box_ids = boxes.subset(keep), box_ids[keep]
@@ -481,12 +489,8 @@ def first_hit_fan(
                     t[r0 : r0 + rows] = np.take_along_axis(b_in, j[:, None], 1)[:, 0]
                     idx[r0 : r0 + rows] = box_ids[order[j, cols]]
         idx[np.isinf(t)] = NO_HIT
+    tg = None
     if ground and origin[2] >= 0:
         with np.errstate(divide="ignore"):
             tg = np.where(k < 0, DTYPE(origin[2]) / -k, DTYPE(np.inf))
-        g = tg < t
-        t[g], idx[g] = tg[g], GROUND
-    max_t = np.broadcast_to(np.asarray(max_t, dtype=DTYPE), (e, a))
-    far = t > max_t
-    t[far], idx[far] = max_t[far], NO_HIT
-    return t, idx
+    return _finish(t, idx, tg, max_t)

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .geometry import wrap_angle
+from .geometry import local_to_world_2d, wrap_angle
 from .raycast import Boxes, segments_blocked
 
 #: Sample heights as fractions of each box's height above its base.
@@ -54,15 +54,12 @@ def sample_points(boxes: Boxes, idx: np.ndarray) -> np.ndarray:
         positions first: centre, front-left, rear-left, rear-right, front-right).
     """
     idx = np.asarray(idx, dtype=np.intp).reshape(-1)
-    hl = XY_SHRINK * 0.5 * boxes.length[idx, None]  # (M, 1)
-    hw = XY_SHRINK * 0.5 * boxes.width[idx, None]
-    lx, ly = _XY[:, 0] * hl, _XY[:, 1] * hw  # (M, 5) local offsets
-    c, s = np.cos(boxes.yaw[idx, None]), np.sin(boxes.yaw[idx, None])
-    x = boxes.center[idx, 0, None] + c * lx - s * ly
-    y = boxes.center[idx, 1, None] + s * lx + c * ly
+    half = 0.5 * XY_SHRINK * np.stack([boxes.length[idx], boxes.width[idx]], -1)  # (M, 2)
+    local = _XY * half[:, None, :]  # (M, 5, 2)
+    xy = local_to_world_2d(local, boxes.center[idx, None, :], boxes.yaw[idx, None])
     z = boxes.z0[idx, None] + np.asarray(LEVELS) * boxes.height[idx, None]  # (M, L)
     m, nl, nxy = len(idx), len(LEVELS), len(_XY)
-    xy = np.broadcast_to(np.stack([x, y], -1)[:, None], (m, nl, nxy, 2))
+    xy = np.broadcast_to(xy[:, None], (m, nl, nxy, 2))
     zz = np.broadcast_to(z[:, :, None, None], (m, nl, nxy, 1))
     return np.concatenate([xy, zz], -1).reshape(m, nl * nxy, 3)
 

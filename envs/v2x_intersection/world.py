@@ -20,7 +20,15 @@ import numpy as np
 
 from .actors import DRIVER, EGO, PARKED, RIDER, WALKER, ActorTable, draw_size
 from .channel import Channel, ChannelConfig, empty_message, pack_objects, validate_message
-from .classes import BICYCLE, CAR, LARGE_VEHICLE, PEDESTRIAN, STATIC_OBSTACLE, TRAFFIC_LIGHT, TRAFFIC_SIGN
+from .classes import (
+    BICYCLE,
+    CAR,
+    LARGE_VEHICLE,
+    PEDESTRIAN,
+    STATIC_OBSTACLE,
+    TRAFFIC_LIGHT,
+    TRAFFIC_SIGN,
+)
 from .config import EnvConfig
 from .dynamics import VehicleParams, bicycle_step
 from .geometry import world_to_local_2d

@@ -1,0 +1,101 @@
+"""Objects-mode simulation speed, with highway-env ``intersection-v0`` measured in the same run.
+
+Prints a table and writes JSON (``--out``). Run: ``python benchmarks/env_speed.py``.
+
+V2XBench: ``gym.make("V2XIntersection-v0")`` on Town01 with the default population (30 NPC
+vehicles, 10 parked, 12 pedestrians, 3 bicycles + ego = 56 actors), the built-in RSU policy and a
+constant action; one ``env.step`` = one 0.1 s tick. highway-env: ``intersection-v0`` and
+``highway-fast-v0`` with their default configs and the idle action; one ``env.step`` there is one
+policy step (``simulation_frequency / policy_frequency`` physics frames, 1 s of simulated time in
+``intersection-v0``). Two ratios are printed: env steps per second, and simulated seconds per wall
+second (fairer, since the step lengths differ). Single process, ``torch`` not involved.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+
+def _rate(env, action, steps: int, seed: int = 0) -> float:
+    env.reset(seed=seed)
+    n = 0
+    t0 = time.perf_counter()
+    while n < steps:
+        _, _, term, trunc, _ = env.step(action)
+        n += 1
+        if term or trunc:
+            env.reset(seed=seed + n)
+    return n / (time.perf_counter() - t0)
+
+
+def measure(steps: int) -> dict:
+    """Measure V2XBench and highway-env step rates; returns a JSON-able dict."""
+    import gymnasium as gym
+    import numpy as np
+
+    import v2xbench  # noqa: F401  (registers the ids)
+
+    env = gym.make("V2XIntersection-v0")
+    env.reset(seed=0)
+    actors = int(env.unwrapped.world.table.active.sum())
+    ours = _rate(env, np.array([0.3, 0.0, 0.0], np.float32), steps)
+    rows = {"v2xbench_objects": {"steps_per_s": ours, "actors": actors, "sim_s_per_step": 0.1,
+                                 "sim_s_per_wall_s": ours * 0.1}}
+    try:
+        import highway_env  # noqa: F401
+
+        gym.register_envs(highway_env)
+        for name in ("intersection-v0", "highway-fast-v0"):
+            he = gym.make(name)
+            he.reset(seed=0)
+            idle = 1  # IDLE in DiscreteMetaAction
+            cfg = he.unwrapped.config
+            frames = cfg["simulation_frequency"] // cfg["policy_frequency"]
+            rate = _rate(he, idle, max(steps // 10, 20))
+            sim = 1.0 / cfg["policy_frequency"]
+            rows[name] = {"steps_per_s": rate, "frames_per_step": frames, "sim_s_per_step": sim,
+                          "sim_s_per_wall_s": rate * sim, "ratio_v2xbench_to_this": ours / rate,
+                          "sim_time_ratio": ours * 0.1 / (rate * sim)}
+    except ImportError:
+        rows["highway-env"] = {"error": "highway-env not installed (pip install -e '.[dev]')"}
+    return {
+        "benchmark": "env_speed", "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "machine": f"{platform.machine()} {os.cpu_count()} cpus, {platform.python_implementation()} "
+                   f"{platform.python_version()}",
+        "steps": steps, "results": rows, "goal": "v2xbench >= 50x highway-env intersection-v0 (later issue)",
+    }
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__)
+    p.add_argument("--steps", type=int, default=2000)
+    p.add_argument("--quick", action="store_true", help="tiny run for CI smoke tests")
+    p.add_argument("--out", default="benchmarks/results")
+    args = p.parse_args()
+    res = measure(100 if args.quick else args.steps)
+    print(f"{'env':18s} {'steps/s':>9s} {'sim s/step':>10s} {'sim s/wall s':>12s} {'step ratio':>10s} {'sim-time ratio':>14s}")
+    for name, r in res["results"].items():
+        if "error" in r:
+            print(f"{name:18s} {r['error']}")
+            continue
+        ratio, sratio = r.get("ratio_v2xbench_to_this"), r.get("sim_time_ratio")
+        print(f"{name:18s} {r['steps_per_s']:9.1f} {r['sim_s_per_step']:10.3f} {r['sim_s_per_wall_s']:12.1f} "
+              f"{'' if ratio is None else f'{ratio:10.2f}'} {'' if sratio is None else f'{sratio:14.2f}'}")
+    print("ratios: V2XBench over the row's env (step ratio: env steps/s; sim-time ratio: simulated seconds/s)")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "env_speed.json"
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(res, indent=2))
+    tmp.replace(path)
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()

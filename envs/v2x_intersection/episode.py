@@ -1,0 +1,90 @@
+"""Rewards, termination and info: shared by the PettingZoo, Gymnasium and TorchRL adapters.
+
+Reward = weighted sum of named terms (each visible as ``info["reward_<term>"]``):
+
+==============  =======  ====================================================
+term            weight   value per tick
+==============  =======  ====================================================
+progress        1.0      metres of route passed this tick / 10
+collision       -10.0    collisions this tick (pedestrian, vehicle, static)
+infraction      -2.0     red light, stop sign, off-road, wrong way this tick
+comfort         -0.01    ``abs(accel) / 4``, a mild smoothness penalty
+==============  =======  ====================================================
+
+An episode is *terminated* when the route is complete, the ego deviates more than 30 m from it,
+is blocked for 180 s, or (``terminate_on_collision``) collides; it is *truncated* at the time
+budget (``max_steps``, default ``route length / 2.5 m/s + 30 s``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import infractions as inf
+
+REWARD_WEIGHTS = {"progress": 1.0, "collision": -10.0, "infraction": -2.0, "comfort": -0.01}
+COLLISIONS = (inf.COLLISION_PEDESTRIAN, inf.COLLISION_VEHICLE, inf.COLLISION_STATIC)
+INFRACTIONS = (inf.RED_LIGHT, inf.STOP_SIGN, inf.OFF_ROAD, inf.WRONG_WAY)
+
+
+def time_budget_steps(world) -> int:
+    """The episode's tick budget (config ``max_steps`` or from the route length)."""
+    if world.config.max_steps is not None:
+        return world.config.max_steps
+    return int(np.ceil((world.route.length / 2.5 + 30.0) / world.config.dt))
+
+
+class EpisodeTracker:
+    """Turns a world's events into reward, termination flags and a numeric info dict."""
+
+    def __init__(self, world) -> None:
+        self.world = world
+        self.max_steps = time_budget_steps(world)
+        self.prev_s = float(world.route.s[world.monitor.progress])
+        self.done = False
+
+    def after_step(self, events: list) -> tuple[float, bool, bool, dict]:
+        """Reward, terminated, truncated, info for the tick just simulated."""
+        w = self.world
+        codes = np.array([e[0] for e in events], np.int64)
+        s = float(w.route.s[w.monitor.progress])
+        terms = {
+            "progress": (s - self.prev_s) / 10.0,
+            "collision": float(np.isin(codes, COLLISIONS).sum()),
+            "infraction": float(np.isin(codes, INFRACTIONS).sum()),
+            "comfort": abs(float(w.table.accel[0])) / 4.0,
+        }
+        self.prev_s = s
+        reward = float(sum(REWARD_WEIGHTS[k] * v for k, v in terms.items()))
+        counts = w.monitor.counts
+        terminated = bool(
+            w.is_route_complete() or counts[inf.ROUTE_DEVIATION] > 0 or counts[inf.BLOCKED] > 0
+            or (w.config.terminate_on_collision and terms["collision"] > 0)
+        )
+        truncated = bool(not terminated and w.tick >= self.max_steps)
+        self.done = terminated or truncated
+        return reward, terminated, truncated, self.info(terms)
+
+    def info(self, terms: dict | None = None) -> dict:
+        """Flat numeric info: tick, route completion, event counts (``events``, indexed by
+        ``infractions.EVENT_NAMES``), channel statistics and reward terms (``reward_<term>``)."""
+        w = self.world
+        stats = w.channel.stats()
+        out = {
+            "tick": w.tick,
+            "route_completion": w.monitor.route_completion,
+            "route_length": w.route.length,
+            "speed": float(w.table.speed[0]),
+            "events": w.monitor.counts.copy(),
+            "outside_lanes_m": w.monitor.outside_m,
+            "driven_m": w.monitor.driven_m,
+            "active_rsu": int(w.active_rsu[0]),
+            "v2x_bytes_total": int(stats["bytes_sent_total"]),
+            "v2x_bps": float(stats["bps"]),
+            "v2x_peak_bps": float(stats["peak_bps"]),
+            "v2x_messages_lost": int(stats["messages_lost"]),
+            "v2x_messages_dropped": int(stats["messages_dropped_bandwidth"]),
+        }
+        for k, v in (terms or dict.fromkeys(REWARD_WEIGHTS, 0.0)).items():
+            out[f"reward_{k}"] = float(v)
+        return out

@@ -1,0 +1,66 @@
+"""Single-agent Gymnasium environment: the ego drives, the RSU runs a built-in message policy.
+
+``gym.make("v2xbench:V2XIntersection-v0", **config)`` (any :class:`~.config.EnvConfig` key).
+
+- Observation: ``Dict`` (``observations.ego_space``): ego state, route ahead, objects the ego
+  sees, objects received over V2X (in the ego frame) and V2X metadata.
+- Action: ``Box(3)`` = throttle in [0, 1], steer in [-1, 1], brake in [0, 1]. Finite values out of
+  range are clipped; wrong shape, NaN or inf raise ``ValueError``.
+- RSU: ``config.rsu_policy`` = ``"share_objects"`` (send the objects it sees) or ``"none"``.
+- Reward, termination and info: :mod:`.episode`. ``render_mode="rgb_array"``: top-down view.
+
+Version history: v0 - first release.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from .config import make_config
+from .episode import EpisodeTracker
+from .observations import ego_action_space, ego_observation, ego_space, validate_control
+from .world import StepError, World
+
+
+class V2XIntersectionEnv(gym.Env):
+    """The ego vehicle as a single Gymnasium agent (see module docstring)."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+
+    def __init__(self, render_mode: str | None = None, **config: Any) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode={render_mode!r} not supported; use one of {self.metadata['render_modes']}")
+        self.config = make_config(**config)
+        self.world = World(self.config)
+        self.render_mode = render_mode
+        self.observation_space = ego_space(self.config)
+        self.action_space = ego_action_space()
+        self._tracker: EpisodeTracker | None = None
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        if seed is None:
+            seed = int(self.np_random.integers(2**31))
+        self.world.reset(seed=seed, route=(options or {}).get("route"))
+        self._tracker = EpisodeTracker(self.world)
+        return ego_observation(self.world), self._tracker.info()
+
+    def step(self, action):
+        if self._tracker is None:
+            raise StepError("step() called before reset()")
+        if self._tracker.done:
+            raise StepError("step() called after the episode ended; call reset()")
+        control = validate_control(action)
+        events = self.world.step(control, self.world.default_rsu_message())
+        reward, terminated, truncated, info = self._tracker.after_step(events)
+        return ego_observation(self.world), reward, terminated, truncated, info
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode != "rgb_array":
+            return None
+        from .render import render_topdown
+
+        return render_topdown(self.world, self.config.render_size)

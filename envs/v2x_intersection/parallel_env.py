@@ -1,0 +1,116 @@
+"""PettingZoo parallel environment: the ego vehicle and the active roadside unit(s) as agents.
+
+===================  ===========================================================================
+agents               ``"ego"``, ``"rsu"`` (``rsu_slots > 1``: ``"rsu"``, ``"rsu_1"``, ...)
+ego observation      ``observations.ego_space``: ego state, route, seen objects, received V2X
+ego action           ``Box(3)``: throttle [0, 1], steer [-1, 1], brake [0, 1] (clipped; NaN raises)
+rsu observation      ``observations.rsu_space``: unit id + pose, calibration, objects it sees
+rsu action           its V2X message: ``Dict(length=Discrete(L+1), payload=Box(L))`` (the
+                     channel serializes, counts bytes, delays, drops; BPS is measured there)
+rewards              ego: :mod:`.episode` terms; rsu: the same (a cooperative team reward)
+===================  ===========================================================================
+
+Each RSU agent always denotes *the currently active unit* of its slot (the nearest
+forward-facing one); which physical unit that is appears in its ``unit`` observation.
+Arguments: any :class:`~.config.EnvConfig` key. Version history: v0 - first release.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any
+
+from pettingzoo import ParallelEnv
+
+from .config import make_config
+from .episode import EpisodeTracker
+from .observations import (
+    ego_action_space,
+    ego_observation,
+    ego_space,
+    rsu_action_space,
+    rsu_observation,
+    rsu_space,
+    validate_control,
+)
+from .world import StepError, World
+
+
+def parallel_env(**config: Any) -> V2XParallelEnv:
+    """Create the PettingZoo parallel environment (see module docstring)."""
+    return V2XParallelEnv(**config)
+
+
+class V2XParallelEnv(ParallelEnv):
+    """Ego + RSU agents over one :class:`World`."""
+
+    metadata = {"name": "v2x_intersection_v0", "render_modes": ["rgb_array"], "render_fps": 10}
+
+    def __init__(self, render_mode: str | None = None, **config: Any) -> None:
+        self.config = make_config(**config)
+        self.world = World(self.config)
+        self.render_mode = render_mode
+        self.rsu_agents = ["rsu"] + [f"rsu_{k}" for k in range(1, self.config.rsu_slots)]
+        self.possible_agents = ["ego", *self.rsu_agents]
+        self.agents: list[str] = []
+        self._obs_spaces = {"ego": ego_space(self.config), **{a: rsu_space(self.config) for a in self.rsu_agents}}
+        msg_space = rsu_action_space(self.world.channel_config)
+        self._act_spaces = {"ego": ego_action_space(), **{a: msg_space for a in self.rsu_agents}}
+        self._tracker: EpisodeTracker | None = None
+
+    @functools.cache  # noqa: B019 - the same object on every call, as PettingZoo asks
+    def observation_space(self, agent: str):
+        return self._obs_spaces[agent]
+
+    @functools.cache  # noqa: B019
+    def action_space(self, agent: str):
+        return self._act_spaces[agent]
+
+    def _observe(self) -> dict:
+        obs = {"ego": ego_observation(self.world)}
+        for k, a in enumerate(self.rsu_agents):
+            obs[a] = rsu_observation(self.world, k)
+        return obs
+
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        self.world.reset(seed=seed, route=(options or {}).get("route"))
+        self._tracker = EpisodeTracker(self.world)
+        self.agents = list(self.possible_agents)
+        info = self._tracker.info()
+        return self._observe(), {a: dict(info) for a in self.agents}
+
+    def step(self, actions: dict):
+        if self._tracker is None or not self.agents:
+            raise StepError("step() called before reset() or after the episode ended")
+        unknown = set(actions) - set(self.agents)
+        if unknown:
+            raise ValueError(f"actions for unknown agents: {sorted(unknown)}")
+        if "ego" not in actions:
+            raise ValueError("actions must include 'ego'")
+        control = validate_control(actions["ego"], "ego action")
+        message = actions.get("rsu")  # only the first slot's unit transmits in v0
+        events = self.world.step(control, message)
+        reward, terminated, truncated, info = self._tracker.after_step(events)
+        agents = list(self.agents)
+        obs = self._observe()
+        rewards = dict.fromkeys(agents, reward)
+        terms = dict.fromkeys(agents, terminated)
+        truncs = dict.fromkeys(agents, truncated)
+        infos = {a: dict(info) for a in agents}
+        if terminated or truncated:
+            self.agents = []
+        return obs, rewards, terms, truncs, infos
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        from .render import render_topdown
+
+        return render_topdown(self.world, self.config.render_size)
+
+    def state(self):
+        """Global state: the ego observation plus the first RSU's (flattened, for CTDE)."""
+        import numpy as np
+
+        obs = self._observe()
+        return np.concatenate([v.ravel() for a in self.possible_agents for v in obs[a].values()])

@@ -1,0 +1,837 @@
+"""Top-down (bird's-eye) rendering of a :class:`~.world.World` and GIF/MP4 video writing.
+
+The picture is north-up: world +x points right, world +y points up, and the view is centred on
+the ego (or the active RSU, the whole map, or a given point). Everything static (ground, sidewalks,
+lanes, markings, crosswalks, parking, buildings, stop signs) is drawn once per town and scale
+into a big cached image; a frame crops that image and draws only what moves on top (signal
+states, the route, RSUs and the active unit's field of view, actors, visibility outlines and a
+text overlay), so a 512 x 512 frame costs a few milliseconds.
+
+Colour key (see :func:`render_legend`): ego orange; cars blue; large vehicles purple; pedestrians
+pink; bicycles teal (parked vehicles are shown faded); a cyan outline marks an actor the ego sees,
+a magenta outline one the active RSU sees (both outlines: seen by both); the active RSU is a
+magenta square with a translucent 120 deg wedge of its sensing range, other deployed units are
+white squares; traffic-light poles and the stop bars of their lanes take the signal colour; the
+ego's remaining route is a blue line.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib.util
+import os
+from collections import OrderedDict
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from PIL import Image, ImageDraw, ImageFont
+
+from .actors import PARKED, ActorTable
+from .classes import BICYCLE, CAR, LARGE_VEHICLE, PEDESTRIAN
+from .signals import GREEN, NO_SIGNAL, RED, YELLOW
+from .town.model import CONNECTOR, DRIVING, MERGE, PARKING, RAMP, Town
+from .traffic import STOP_LINE_SETBACK
+
+if TYPE_CHECKING:
+    from .world import World
+
+# ----------------------------------------------------------------------------- palette (RGB)
+BACKGROUND = (221, 226, 214)
+SIDEWALK = (226, 212, 182)
+ROAD = (92, 95, 102)
+PARKING_FILL = (122, 124, 130)
+CENTRE_LINE = (112, 115, 123)
+MARK_WHITE = (236, 236, 236)
+MARK_YELLOW = (242, 196, 44)
+CROSSWALK = (238, 238, 238)
+BUILDING_LOW = (204, 202, 197)
+BUILDING_HIGH = (134, 132, 140)
+BUILDING_EDGE = (98, 98, 104)
+STOP_SIGN = (204, 24, 34)
+EGO_COLOR = (255, 136, 0)
+CLASS_COLORS: dict[int, tuple[int, int, int]] = {
+    CAR: (52, 104, 196),
+    LARGE_VEHICLE: (118, 64, 170),
+    PEDESTRIAN: (232, 58, 140),
+    BICYCLE: (0, 150, 136),
+}
+OTHER_COLOR = (90, 90, 90)
+ACTOR_EDGE = (24, 24, 28)
+EGO_SEEN_COLOR = (0, 229, 255)
+RSU_SEEN_COLOR = (255, 0, 255)
+RSU_COLOR = (248, 248, 248)
+RSU_ACTIVE_COLOR = (255, 0, 255)
+RSU_FOV_RGB, RSU_FOV_ALPHA = (236, 64, 255), 0.14
+RSU_FOV_EDGE = (206, 92, 226)
+ROUTE_COLOR = (30, 112, 255)
+PARKED_TINT = (150, 152, 158)
+LIGHT_HOUSING = (28, 28, 32)
+LIGHT_COLORS: dict[int, tuple[int, int, int]] = {
+    GREEN: (36, 204, 72),
+    YELLOW: (255, 204, 0),
+    RED: (232, 28, 28),
+    NO_SIGNAL: (150, 150, 150),
+}
+
+RSU_HFOV_DEG = 120.0  # deg, the RSU LiDAR's horizontal field of view (as ``world.RSU_HFOV``)
+MAX_STATIC_PIXELS = 24_000_000  # cap on a cached static map (beyond it the map is coarser)
+_SUPERSAMPLE_PIXELS = 10_000_000  # static maps up to this size are drawn at 2x and reduced
+_MARGIN_M = 25.0  # m of ground around the town's bounds in the static map
+_CACHE_SIZE = 6
+
+
+# ----------------------------------------------------------------------------- geometry helpers
+def _offset(points: np.ndarray, d: float) -> np.ndarray:
+    """Offset a polyline ``(P, 2)`` by ``d`` metres to its left (negative: right)."""
+    seg = np.diff(points, axis=0)
+    seg /= np.maximum(np.linalg.norm(seg, axis=1, keepdims=True), 1e-9)
+    tang = np.concatenate([seg[:1], seg[:-1] + seg[1:], seg[-1:]], 0)
+    tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
+    return points + d * np.stack([-tang[:, 1], tang[:, 0]], -1)
+
+
+def _cut(points: np.ndarray, s0: float, s1: float) -> np.ndarray:
+    """The part of a polyline between arc lengths ``s0 < s1`` (empty if shorter than 2 points)."""
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    s0, s1 = max(s0, 0.0), min(s1, s[-1])
+    if s1 - s0 < 1e-6:
+        return np.zeros((0, 2))
+    inner = points[(s > s0) & (s < s1)]
+    a = [np.interp(s0, s, points[:, 0]), np.interp(s0, s, points[:, 1])]
+    b = [np.interp(s1, s, points[:, 0]), np.interp(s1, s, points[:, 1])]
+    return np.concatenate([[a], inner, [b]], 0)
+
+
+def _dashes(points: np.ndarray, on: float, off: float) -> list[np.ndarray]:
+    """Dashes of ``on`` metres every ``on + off`` metres along a polyline."""
+    total = float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+    return [_cut(points, a, a + on) for a in np.arange(0.0, total, on + off)]
+
+
+def _convex_hull(p: np.ndarray) -> np.ndarray:
+    """Convex hull (Andrew's monotone chain) of points ``(N, 2)``, counter-clockwise."""
+    pts = sorted({(round(float(x), 6), round(float(y), 6)) for x, y in p})
+    if len(pts) < 3:
+        return np.array(pts, float).reshape(-1, 2)
+
+    def half(seq: list) -> list:
+        out: list = []
+        for q in seq:
+            while len(out) >= 2 and (
+                (out[-1][0] - out[-2][0]) * (q[1] - out[-2][1])
+                - (out[-1][1] - out[-2][1]) * (q[0] - out[-2][0])
+            ) <= 0:
+                out.pop()
+            out.append(q)
+        return out
+
+    lower, upper = half(pts), half(pts[::-1])
+    return np.array(lower[:-1] + upper[:-1], float)
+
+
+def _quads(center: np.ndarray, yaw: np.ndarray, x0, x1, y0, y1) -> np.ndarray:
+    """World corners ``(N, 4, 2)`` of local rectangles ``[x0, x1] x [y0, y1]`` (arrays ``(N,)``)."""
+    lx = np.stack([x1, x0, x0, x1], -1)
+    ly = np.stack([y1, y1, y0, y0], -1)
+    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+    return np.stack([center[:, :1] + c * lx - s * ly, center[:, 1:] + s * lx + c * ly], -1)
+
+
+def _mix(a: tuple, b: tuple, t: float) -> tuple[int, int, int]:
+    """Linear blend of two RGB colours (``t = 0``: ``a``)."""
+    return tuple(int(round(x + (y - x) * t)) for x, y in zip(a, b))  # type: ignore[return-value]
+
+
+# ----------------------------------------------------------------------------- the static map
+@dataclass
+class StaticMap:
+    """A town's static layer rasterized at a fixed scale.
+
+    Attributes:
+        image: ``(H, W, 3)`` uint8 picture of the whole town (plus a margin).
+        x0: world x (m) of pixel column 0's centre. y1: world y (m) of pixel row 0's centre.
+        mpp: metres per pixel.
+        stop_bars: ``(K, 2, 2)`` world end points of the stop line of each signal-controlled
+            incoming lane; ``stop_lanes (K,)`` are those lanes' ids.
+    """
+
+    image: np.ndarray
+    x0: float
+    y1: float
+    mpp: float
+    stop_bars: np.ndarray
+    stop_lanes: np.ndarray
+
+
+_STATIC_CACHE: OrderedDict[tuple, StaticMap] = OrderedDict()
+
+
+def static_map(town: Town, mpp: float) -> StaticMap:
+    """The cached static map of ``town`` at ``mpp`` metres per pixel (built on first use).
+
+    Maps larger than :data:`MAX_STATIC_PIXELS` are built coarser (the returned ``mpp`` is then
+    larger than asked); frames are resampled from them.
+    """
+    xmin, ymin, xmax, ymax = (float(v) for v in town.bounds)
+    w_m, h_m = xmax - xmin + 2 * _MARGIN_M, ymax - ymin + 2 * _MARGIN_M
+    mpp = max(float(mpp), float(np.sqrt(w_m * h_m / MAX_STATIC_PIXELS)))
+    key = (town.name, town.template, town.seed, len(town.lanes), round(mpp, 9))
+    hit = _STATIC_CACHE.get(key)
+    if hit is not None:
+        _STATIC_CACHE.move_to_end(key)
+        return hit
+    sm = _build_static(town, mpp)
+    _STATIC_CACHE[key] = sm
+    while len(_STATIC_CACHE) > _CACHE_SIZE:
+        _STATIC_CACHE.popitem(last=False)
+    return sm
+
+
+def _build_static(town: Town, mpp: float) -> StaticMap:
+    xmin, ymin, xmax, ymax = (float(v) for v in town.bounds)
+    x0, y1 = xmin - _MARGIN_M, ymax + _MARGIN_M
+    W = int(np.ceil((xmax - xmin + 2 * _MARGIN_M) / mpp))
+    H = int(np.ceil((ymax - ymin + 2 * _MARGIN_M) / mpp))
+    ss = 2 if W * H <= _SUPERSAMPLE_PIXELS else 1
+    img = Image.new("RGB", (W * ss, H * ss), BACKGROUND)
+    d = ImageDraw.Draw(img, "RGBA")
+    k = ss / mpp  # supersampled pixels per metre
+
+    def px(p: np.ndarray) -> list[tuple[float, float]]:
+        p = np.asarray(p, float).reshape(-1, 2)
+        return list(zip(((p[:, 0] - x0) / mpp + 0.5) * ss - 0.5, ((y1 - p[:, 1]) / mpp + 0.5) * ss - 0.5))
+
+    def band(points: np.ndarray, width: float, fill: tuple) -> None:
+        poly = np.concatenate([_offset(points, width / 2), _offset(points, -width / 2)[::-1]], 0)
+        d.polygon(px(poly), fill=fill)
+
+    def line(points: np.ndarray, fill: tuple, width_m: float, min_px: float = 1.0) -> None:
+        if len(points) >= 2:
+            d.line(px(points), fill=fill, width=max(int(round(width_m * k)), int(round(min_px * ss))),
+                   joint="curve")
+
+    lanes = town.lanes
+    # sidewalks, with the corners of junctions paved
+    for sw in town.sidewalks:
+        band(sw.points, sw.width, SIDEWALK)
+    for j in town.junctions:
+        if j.control == MERGE:
+            continue
+        ends = [p for sw in town.sidewalks for p in (sw.points[0], sw.points[-1])
+                if np.linalg.norm(p - j.center) < j.radius + 8.0]
+        if len(ends) >= 3:
+            d.polygon(px(_convex_hull(np.array(ends))), fill=SIDEWALK)
+    # drivable area: parking lanes, lanes, junction areas
+    for ln in lanes:
+        if ln.kind == PARKING:
+            band(ln.points, ln.width, PARKING_FILL)
+    for ln in lanes:
+        if ln.kind != PARKING:
+            band(ln.points, ln.width, ROAD)
+    for j in town.junctions:
+        if j.control == MERGE:
+            continue
+        edge = []
+        for lid, ends in [(i, (-1,)) for i in j.incoming] + [(c, (0, -1)) for c in j.connectors]:
+            ln = lanes[lid]
+            for side in (0.5, -0.5):
+                off = _offset(ln.points, side * ln.width)
+                edge.extend(off[e] for e in ends)
+        if len(edge) >= 3:
+            d.polygon(px(_convex_hull(np.array(edge))), fill=ROAD)
+    # parking-slot separators
+    if len(town.parking):
+        hl, hw = 3.25, 1.25
+        for x, y, yaw in town.parking:
+            c, s = np.cos(yaw), np.sin(yaw)
+            for e in (-hl, hl):
+                a = np.array([x + c * e - s * hw, y + s * e + c * hw])
+                b = np.array([x + c * e + s * hw, y + s * e - c * hw])
+                line(np.stack([a, b]), MARK_WHITE, 0.12)
+    # faint lane centre lines (connectors show the turning paths)
+    for ln in lanes:
+        if ln.kind in (DRIVING, RAMP, CONNECTOR):
+            line(ln.points, CENTRE_LINE, 0.1)
+    # lane boundary markings, stopped short of junction mouths
+    for ln in lanes:
+        if ln.kind not in (DRIVING, RAMP):
+            continue
+        s0 = STOP_LINE_SETBACK if any(lanes[p].kind == CONNECTOR for p in ln.predecessors) else 0.0
+        s1 = ln.length - (STOP_LINE_SETBACK if ln.junction_ahead >= 0 else 0.0)
+        pts = _cut(ln.points, s0, s1)
+        if len(pts) < 2:
+            continue
+        left, right = _offset(pts, ln.width / 2), _offset(pts, -ln.width / 2)
+        if ln.left >= 0:
+            for dash in _dashes(left, 3.0, 6.0):
+                line(dash, MARK_WHITE, 0.15)
+        elif ln.opposite >= 0:
+            line(left, MARK_YELLOW, 0.2)
+        else:
+            line(left, MARK_WHITE, 0.15)
+        if ln.right < 0:
+            line(right, MARK_WHITE, 0.15)
+    # stop lines (signal lanes get a coloured bar on top at render time)
+    bars, bar_lanes = [], []
+    for ln in lanes:
+        if not ln.stop_at_end:
+            continue
+        p, h = town.index.pose_at(np.array([ln.id]), np.array([ln.length - STOP_LINE_SETBACK]))
+        n = np.array([-np.sin(h[0]), np.cos(h[0])]) * ln.width / 2
+        bar = np.stack([p[0] + n, p[0] - n])
+        line(bar, MARK_WHITE, 0.4)
+        bars.append(bar)
+        bar_lanes.append(ln.id)
+    # zebra crossings: bars along the road, repeated across it
+    for cw in town.crosswalks:
+        c = cw.corners
+        e1, e2 = c[1] - c[0], c[2] - c[1]
+        along, across = (e1, e2) if np.linalg.norm(e1) < np.linalg.norm(e2) else (e2, e1)
+        origin = c[1] if np.linalg.norm(e1) < np.linalg.norm(e2) else c[0]
+        L = float(np.linalg.norm(across))
+        u = across / max(L, 1e-9)
+        for a in np.arange(0.3, L - 0.3, 1.0):
+            q0 = origin + u * a
+            d.polygon(px(np.stack([q0, q0 + u * 0.55, q0 + u * 0.55 + along, q0 + along])),
+                      fill=CROSSWALK)
+    # buildings: soft shadow, then the box shaded by height
+    if len(town.buildings):
+        b = town.buildings
+        corners = _quads(b[:, :2], b[:, 4], -b[:, 2] / 2, b[:, 2] / 2, -b[:, 3] / 2, b[:, 3] / 2)
+        heights = town.building_heights
+        for q, h in zip(corners, heights):
+            d.polygon(px(q + np.array([0.12, -0.12]) * h), fill=(0, 0, 0, 38))
+        for q, h in zip(corners, heights):
+            t = float(np.clip((h - 5.0) / 20.0, 0.0, 1.0))
+            d.polygon(px(q), fill=_mix(BUILDING_LOW, BUILDING_HIGH, t), outline=BUILDING_EDGE,
+                      width=max(1, ss))
+    # stop signs
+    r = max(1.2 * k, 5.0 * ss)
+    for x, y, *_ in town.stop_signs:
+        (cx, cy), = px(np.array([x, y]))
+        d.regular_polygon((cx, cy, r), 8, rotation=22.5, fill=STOP_SIGN, outline=(255, 255, 255),
+                          width=max(1, ss))
+    if ss > 1:
+        img = img.reduce(ss)
+    return StaticMap(
+        image=np.asarray(img, dtype=np.uint8).copy(), x0=x0, y1=y1, mpp=mpp,
+        stop_bars=np.array(bars, float).reshape(-1, 2, 2),
+        stop_lanes=np.array(bar_lanes, np.int64),
+    )
+
+
+# ----------------------------------------------------------------------------- the view
+@dataclass(frozen=True)
+class TopDownView:
+    """Where a frame looks: world ``(x0, y1)`` at the centre of the top-left pixel, ``mpp``
+    metres per pixel, ``size`` pixels square, north-up (x right, y up)."""
+
+    x0: float
+    y1: float
+    mpp: float
+    size: int
+
+    def to_pixel(self, xy: np.ndarray) -> np.ndarray:
+        """World points ``(..., 2)`` (m) to pixel coordinates ``(..., 2)`` ``(column, row)``."""
+        xy = np.asarray(xy, dtype=np.float64)
+        return np.stack([(xy[..., 0] - self.x0) / self.mpp, (self.y1 - xy[..., 1]) / self.mpp], -1)
+
+
+def _center_point(world: World, center: str | Sequence[float]) -> np.ndarray:
+    if not isinstance(center, str):
+        return np.asarray(center, dtype=np.float64).reshape(2)
+    if center == "ego":
+        return world.table.pos[0].astype(np.float64)
+    if center == "rsu":
+        u = int(world.active_rsu[0]) if len(world.rsus) else -1
+        return world.rsus.pose[u, :2].astype(np.float64) if u >= 0 else world.table.pos[0]
+    if center == "map":
+        b = world.town.bounds
+        return np.array([(b[0] + b[2]) / 2, (b[1] + b[3]) / 2], np.float64)
+    raise ValueError(f"render: center={center!r}; use 'ego', 'rsu', 'map' or an (x, y) pair")
+
+
+def make_view(world: World, size: int = 512, view_m: float = 120.0,
+              center: str | Sequence[float] = "ego") -> tuple[TopDownView, StaticMap]:
+    """The view of a frame and the static map it is cut from (see :func:`render_topdown`)."""
+    if not isinstance(size, (int, np.integer)) or size < 16:
+        raise ValueError(f"render: size={size!r} must be an int >= 16")
+    if isinstance(center, str) and center == "map":
+        b = world.town.bounds
+        view_m = float(max(b[2] - b[0], b[3] - b[1])) + 2 * 10.0
+    if not view_m > 0:
+        raise ValueError(f"render: view_m={view_m!r} must be positive")
+    mpp = float(view_m) / size
+    sm = static_map(world.town, mpp)
+    c = _center_point(world, center)
+    x0, y1 = c[0] - (size - 1) / 2 * mpp, c[1] + (size - 1) / 2 * mpp
+    if abs(sm.mpp - mpp) < 1e-12:  # snap to the static map's pixel grid: a crop, no resampling
+        x0 = sm.x0 + round((x0 - sm.x0) / mpp) * mpp
+        y1 = sm.y1 - round((sm.y1 - y1) / mpp) * mpp
+    return TopDownView(float(x0), float(y1), mpp, int(size)), sm
+
+
+_BG = np.array(BACKGROUND, np.uint8)
+
+
+def _crop(sm: StaticMap, view: TopDownView) -> np.ndarray:
+    """The static layer under ``view`` as a writable ``(size, size, 3)`` array."""
+    n = view.size
+    H, W = sm.image.shape[:2]
+    if abs(sm.mpp - view.mpp) < 1e-12:
+        c0 = int(round((view.x0 - sm.x0) / sm.mpp))
+        r0 = int(round((sm.y1 - view.y1) / sm.mpp))
+        out = np.empty((n, n, 3), np.uint8)
+        a0, a1 = max(c0, 0), min(c0 + n, W)
+        b0, b1 = max(r0, 0), min(r0 + n, H)
+        if not (a0 == c0 and b0 == r0 and a1 == c0 + n and b1 == r0 + n):
+            out[:] = _BG  # part of the view lies outside the map
+        if a1 > a0 and b1 > b0:
+            out[b0 - r0 : b1 - r0, a0 - c0 : a1 - c0] = sm.image[b0:b1, a0:a1]
+        return out
+    # coarser static map: resample the covered box (with a background border for out-of-map)
+    f = view.mpp / sm.mpp
+    bx0 = (view.x0 - sm.x0) / sm.mpp - 0.5 * f + 0.5
+    by0 = (sm.y1 - view.y1) / sm.mpp - 0.5 * f + 0.5
+    bx1, by1 = bx0 + n * f, by0 + n * f
+    c0, r0 = int(np.floor(bx0)) - 1, int(np.floor(by0)) - 1
+    c1, r1 = int(np.ceil(bx1)) + 1, int(np.ceil(by1)) + 1
+    patch = np.empty((r1 - r0, c1 - c0, 3), np.uint8)
+    patch[:] = _BG
+    a0, a1, b0, b1 = max(c0, 0), min(c1, W), max(r0, 0), min(r1, H)
+    if a1 > a0 and b1 > b0:
+        patch[b0 - r0 : b1 - r0, a0 - c0 : a1 - c0] = sm.image[b0:b1, a0:a1]
+    im = Image.fromarray(patch).resize(
+        (n, n), Image.Resampling.BILINEAR, box=(bx0 - c0, by0 - r0, bx1 - c0, by1 - r0)
+    )
+    return np.array(im, dtype=np.uint8)
+
+
+@functools.lru_cache(maxsize=8)
+def _font(px: int) -> ImageFont.ImageFont | ImageFont.FreeTypeFont:
+    try:
+        return ImageFont.load_default(size=px)
+    except TypeError:  # Pillow < 10.1 has no scalable default font
+        return ImageFont.load_default()
+
+
+class _Glyphs:
+    """Text as alpha masks composed from per-character bitmaps rendered once (fast per frame)."""
+
+    def __init__(self, px: int) -> None:
+        self.font = _font(px)
+        asc, desc = self.font.getmetrics() if hasattr(self.font, "getmetrics") else (px, 2)
+        self.height = int(asc + desc)
+        self._cache: dict[str, tuple[np.ndarray, float]] = {}
+
+    def _glyph(self, ch: str) -> tuple[np.ndarray, float]:
+        g = self._cache.get(ch)
+        if g is None:
+            adv = float(self.font.getlength(ch))
+            im = Image.new("L", (int(np.ceil(adv)) + 4, self.height), 0)
+            ImageDraw.Draw(im).text((1, 0), ch, fill=255, font=self.font)
+            g = self._cache[ch] = (np.asarray(im, dtype=np.uint8), adv)
+        return g
+
+    def mask(self, s: str) -> np.ndarray:
+        """``(height, width)`` uint8 alpha mask of one line of text."""
+        glyphs = [self._glyph(ch) for ch in s]
+        xs = np.concatenate([[0.0], np.cumsum([a for _, a in glyphs])])
+        out = np.zeros((self.height, int(np.ceil(xs[-1])) + 4), np.uint8)
+        for (g, _), x in zip(glyphs, xs[:-1]):
+            x = int(round(x))
+            seg = out[:, x : x + g.shape[1]]
+            np.maximum(seg, g[:, : seg.shape[1]], out=seg)
+        return out
+
+
+@functools.lru_cache(maxsize=8)
+def _glyphs(px: int) -> _Glyphs:
+    return _Glyphs(px)
+
+
+def _tint_lut(color: tuple, alpha: float) -> list[int]:
+    """A ``point`` table blending every pixel ``alpha`` of the way toward ``color``."""
+    v = np.arange(256, dtype=np.float64)
+    return [int(round(x)) for c in color for x in v * (1.0 - alpha) + c * alpha]
+
+
+_FOV_LUT = _tint_lut(RSU_FOV_RGB, RSU_FOV_ALPHA)
+_PANEL_LUT = _tint_lut((14, 16, 22), 0.68)
+_SCALE_LUT = _tint_lut((255, 255, 255), 0.7)
+
+
+def _tint(im: Image.Image, lut: list[int], box: tuple[int, int, int, int],
+          polygon: list[tuple[float, float]] | None = None) -> None:
+    """Blend the pixels of ``box`` (inside ``polygon`` if given) toward a colour, in place."""
+    x0, y0 = max(int(box[0]), 0), max(int(box[1]), 0)
+    x1, y1 = min(int(np.ceil(box[2])), im.width), min(int(np.ceil(box[3])), im.height)
+    if x1 <= x0 or y1 <= y0:
+        return
+    region = im.crop((x0, y0, x1, y1))
+    if polygon is None:
+        im.paste(region.point(lut), (x0, y0))
+        return
+    mask = Image.new("1", (x1 - x0, y1 - y0), 0)
+    ImageDraw.Draw(mask).polygon([(x - x0, y - y0) for x, y in polygon], fill=1)
+    im.paste(region.point(lut), (x0, y0), mask)
+
+
+# ----------------------------------------------------------------------------- render a frame
+def render_topdown(
+    world: World,
+    size: int = 512,
+    view_m: float = 120.0,
+    center: str | Sequence[float] = "ego",
+    legend: bool = False,
+    text: bool = True,
+) -> np.ndarray:
+    """Draw the world from above, north-up (world x to the right, y up).
+
+    Static layers come from a per-town cache (:func:`static_map`); this call crops it and draws
+    the signal states (stop bars and light poles), the ego's route ahead, the RSUs (the active
+    one highlighted, with its 120 deg field of view out to ``config.rsu_range``), the actors as
+    oriented boxes coloured by class, visibility outlines (cyan: the ego sees the actor;
+    magenta: the active RSU sees it) and a text overlay (tick, speed, route completion, V2X
+    bytes/s, visible counts) with a scale bar.
+
+    Args:
+        world: a world after ``reset``.
+        size: picture side in pixels.
+        view_m: side of the viewed square in metres (ignored for ``center="map"``).
+        center: ``"ego"``, ``"rsu"`` (the active unit), ``"map"`` (the whole town) or an
+            ``(x, y)`` world point.
+        legend: append the colour key (:func:`render_legend`) below the picture; the result is
+            then taller than ``size``.
+        text: draw the text overlay and the scale bar.
+
+    Returns:
+        ``(size, size, 3)`` uint8 RGB image (``(size + legend height, size, 3)`` with ``legend``).
+    """
+    from .world import VISIBLE_THRESHOLD  # local: the world module may import this one
+
+    view, sm = make_view(world, size, view_m, center)
+    frame = Image.fromarray(_crop(sm, view))
+    d = ImageDraw.Draw(frame)
+    mpp, n = view.mpp, view.size
+    P = view.to_pixel
+    half_span = 0.5 * n * mpp * np.sqrt(2.0)
+    mid = np.array([view.x0 + (n - 1) / 2 * mpp, view.y1 - (n - 1) / 2 * mpp])
+    t = world.table
+
+    # the active RSU's field of view, under everything that moves
+    rsus = world.rsus
+    active = int(world.active_rsu[0]) if len(rsus) else -1
+    if active >= 0:
+        rx, ry, _, ryaw = rsus.pose[active]
+        ((cx, cy),) = P(np.array([[rx, ry]]))
+        r = world.config.rsu_range / mpp
+        ang = -ryaw + np.radians(np.linspace(-RSU_HFOV_DEG / 2, RSU_HFOV_DEG / 2, 49))
+        arc = list(zip(cx + r * np.cos(ang), cy + r * np.sin(ang)))  # image y points down
+        wedge = [(cx, cy), *arc]
+        xs, ys = [p[0] for p in wedge], [p[1] for p in wedge]
+        _tint(frame, _FOV_LUT, (min(xs) - 1, min(ys) - 1, max(xs) + 2, max(ys) + 2), wedge)
+        d.line(wedge + [(cx, cy)], fill=RSU_FOV_EDGE, width=1)
+
+    # signal states on the stop lines of the controlled lanes
+    states = world.lane_signal
+    if len(sm.stop_lanes):
+        st = states[sm.stop_lanes]
+        near = np.linalg.norm(sm.stop_bars[:, 0] - mid, axis=1) < half_span + 5.0
+        keep = (st != NO_SIGNAL) & near
+        bw = max(2, int(round(0.6 / mpp)))
+        for bar, s in zip(P(sm.stop_bars[keep]), st[keep]):
+            d.line([tuple(bar[0]), tuple(bar[1])], fill=LIGHT_COLORS[int(s)], width=bw)
+
+    # the route ahead, from the ego to the goal
+    route = world.route
+    k0 = int(getattr(world.monitor, "progress", 0))
+    ahead = route.points[k0 + 1 :]
+    if len(ahead) > 1:
+        step = max(1, int(0.5 * mpp / 0.25))  # about one point per 2 pixels
+        pts = np.concatenate([t.pos[:1], ahead[::step], ahead[-1:]], 0)
+        d.line([tuple(p) for p in P(pts)], fill=ROUTE_COLOR, width=max(2, int(round(0.5 / mpp))),
+               joint="curve")
+    ((gx, gy),) = P(route.points[-1:])
+    gr = max(3.0, 0.9 / mpp)
+    d.ellipse((gx - gr, gy - gr, gx + gr, gy + gr), fill=ROUTE_COLOR, outline=(255, 255, 255),
+              width=max(1, int(gr / 3)))
+
+    # RSU poles: every deployed unit a small square, the active one larger and magenta
+    if len(rsus):
+        q = max(2.5, 0.7 / mpp)
+        for u, (x, y) in enumerate(P(rsus.pose[:, :2])):
+            if u != active:
+                d.rectangle((x - q, y - q, x + q, y + q), fill=RSU_COLOR, outline=ACTOR_EDGE)
+        if active >= 0:
+            qa = q * 1.6
+            d.rectangle((cx - qa, cy - qa, cx + qa, cy + qa), fill=ACTOR_EDGE)
+            d.rectangle((cx - qa + 1, cy - qa + 1, cx + qa - 1, cy + qa - 1), fill=(255, 255, 255))
+            d.rectangle((cx - qa + 3, cy - qa + 3, cx + qa - 3, cy + qa - 3), fill=RSU_ACTIVE_COLOR)
+
+    # traffic-light poles: a dark signal head lit in the state of the lane it controls
+    lights = world.town.lights
+    if len(lights):
+        near = np.linalg.norm(lights[:, :2] - mid, axis=1) < half_span + 2.0
+        lr = max(3.0, 0.7 / mpp)
+        for (x, y), lid in zip(P(lights[near, :2]), lights[near, 3].astype(np.int64)):
+            col = LIGHT_COLORS[int(states[lid])]
+            h = lr + max(1.5, 0.25 / mpp)
+            d.rounded_rectangle((x - h, y - h, x + h, y + h), radius=h / 2, fill=LIGHT_HOUSING)
+            d.ellipse((x - lr, y - lr, x + lr, y + lr), fill=col)
+
+    # actors, then the ego on top
+    idx = np.flatnonzero(t.active)
+    idx = idx[(idx > 0) & (np.linalg.norm(t.pos[idx] - mid, axis=1) < half_span + 12.0)]
+    ego_seen = world.ego_vis[idx] >= VISIBLE_THRESHOLD
+    if len(world.rsu_vis):
+        rsu_seen = world.rsu_vis[0][idx] >= VISIBLE_THRESHOLD
+    else:
+        rsu_seen = np.zeros(len(idx), bool)
+    _draw_actors(d, t, idx, ego_seen, rsu_seen, view)
+    _draw_actors(d, t, np.array([0]), np.zeros(1, bool), np.zeros(1, bool), view, ego=True)
+
+    if text:
+        _draw_overlay(frame, d, world, view, ego_seen, rsu_seen, active)
+    out = np.array(frame, dtype=np.uint8)
+    if legend:
+        out = np.concatenate([out, render_legend(n)], 0)
+    return out
+
+
+def _draw_actors(
+    d: ImageDraw.ImageDraw,
+    t: ActorTable,
+    idx: np.ndarray,
+    ego_seen: np.ndarray,
+    rsu_seen: np.ndarray,
+    view: TopDownView,
+    ego: bool = False,
+) -> None:
+    """Oriented boxes (pedestrians: discs) with a windshield mark and visibility outlines."""
+    if len(idx) == 0:
+        return
+    mpp = view.mpp
+    kind = t.kind[idx]
+    pos, yaw = t.pos[idx], t.yaw[idx]
+    L = np.maximum(t.length[idx], 4.0 * mpp)
+    W = np.maximum(t.width[idx], 3.0 * mpp)
+    both = ego_seen & rsu_seen
+    # outline rings just outside the box: cyan (ego) inside, magenta (RSU) outside when both
+    r_ego = np.full(len(idx), 2.0 * mpp)
+    r_rsu = np.where(both, 4.0 * mpp, 2.0 * mpp)
+    quads = np.concatenate([
+        _quads(pos, yaw, -L / 2, L / 2, -W / 2, W / 2),
+        _quads(pos, yaw, 0.1 * L, 0.3 * L, -0.36 * W, 0.36 * W),
+        _quads(pos, yaw, -L / 2 - r_ego, L / 2 + r_ego, -W / 2 - r_ego, W / 2 + r_ego),
+        _quads(pos, yaw, -L / 2 - r_rsu, L / 2 + r_rsu, -W / 2 - r_rsu, W / 2 + r_rsu),
+    ], 1)
+    px = view.to_pixel(quads).tolist()
+    center = view.to_pixel(pos).tolist()
+    parked = (t.behaviour[idx] == PARKED).tolist()
+    pr = max(2.5, 0.35 / mpp)
+    for i, k in enumerate(kind.tolist()):
+        col = EGO_COLOR if ego else CLASS_COLORS.get(k, OTHER_COLOR)
+        if parked[i]:
+            col = _mix(col, PARKED_TINT, 0.45)
+        q = px[i]
+        if k == PEDESTRIAN:
+            cx, cy = center[i]
+            if rsu_seen[i]:
+                rr = pr + (5.0 if both[i] else 2.5)
+                d.ellipse((cx - rr, cy - rr, cx + rr, cy + rr), outline=RSU_SEEN_COLOR, width=2)
+            if ego_seen[i]:
+                rr = pr + 2.5
+                d.ellipse((cx - rr, cy - rr, cx + rr, cy + rr), outline=EGO_SEEN_COLOR, width=2)
+            d.ellipse((cx - pr, cy - pr, cx + pr, cy + pr), fill=col, outline=ACTOR_EDGE)
+            continue
+        if rsu_seen[i]:
+            d.polygon([tuple(p) for p in q[12:16]], outline=RSU_SEEN_COLOR, width=2)
+        if ego_seen[i]:
+            d.polygon([tuple(p) for p in q[8:12]], outline=EGO_SEEN_COLOR, width=2)
+        d.polygon([tuple(p) for p in q[0:4]], fill=col, outline=ACTOR_EDGE)
+        if k != BICYCLE:
+            d.polygon([tuple(p) for p in q[4:8]], fill=_mix(col, (255, 255, 255), 0.6))
+
+
+def _nice_length(target: float) -> float:
+    """A round scale-bar length (m) close to ``target``."""
+    steps = np.array([1, 2, 5, 10, 20, 25, 50, 100, 200, 250, 500, 1000, 2000], float)
+    return float(steps[np.argmin(np.abs(np.log(steps / max(target, 1e-3))))])
+
+
+def _draw_overlay(
+    frame: Image.Image,
+    d: ImageDraw.ImageDraw,
+    world: World,
+    view: TopDownView,
+    ego_seen: np.ndarray,
+    rsu_seen: np.ndarray,
+    active: int,
+) -> None:
+    """Text panel (top left) and scale bar (bottom right)."""
+    n = view.size
+    fs = max(9, int(round(n * 0.025)))
+    glyphs = _glyphs(fs)
+    t = world.table
+    bps = float(world.channel.stats()["bps"])
+    v = float(t.speed[0])
+    lines = [
+        f"tick {world.tick}   t = {world.tick * world.config.dt:.1f} s",
+        f"speed {v:.1f} m/s  ({v * 3.6:.0f} km/h)",
+        f"route {float(world.monitor.route_completion):.1f} %",
+        f"V2X {bps / 1000:.2f} kB/s" if bps >= 1000 else f"V2X {bps:.0f} B/s",
+        f"seen: ego {int(ego_seen.sum())}  RSU {int(rsu_seen.sum())}"
+        + (f" (unit {active})" if active >= 0 else ""),
+    ]
+    masks = [glyphs.mask(s) for s in lines]
+    pad, lh = max(3, fs // 3), glyphs.height + max(0, fs // 8)
+    w = max(m.shape[1] for m in masks) + 2 * pad
+    h = lh * len(masks) + 2 * pad
+    _tint(frame, _PANEL_LUT, (4, 4, 4 + w, 4 + h))
+    for i, m in enumerate(masks):
+        frame.paste((255, 255, 255), (4 + pad, 4 + pad + i * lh), Image.fromarray(m))
+    # scale bar
+    metres = _nice_length(n * view.mpp / 5.0)
+    length = metres / view.mpp
+    label = glyphs.mask(f"{metres:g} m")
+    x1, yb = n - 10, n - 9
+    x0 = x1 - length
+    _tint(frame, _SCALE_LUT, (x0 - 6, yb - label.shape[0] - 8, x1 + 7, yb + 6))
+    d.line([(x0, yb), (x1, yb)], fill=(20, 20, 20), width=3)
+    for x in (x0, x1):
+        d.line([(x, yb - 5), (x, yb + 1)], fill=(20, 20, 20), width=2)
+    lx = int(round((x0 + x1 - label.shape[1]) / 2))
+    frame.paste((20, 20, 20), (lx, yb - label.shape[0] - 5), Image.fromarray(label))
+
+
+# ----------------------------------------------------------------------------- legend
+def render_legend(width: int = 512) -> np.ndarray:
+    """A colour key strip ``(H, width, 3)`` uint8 matching :func:`render_topdown`."""
+    fs = max(9, int(round(width * 0.022)))
+    font = _font(fs)
+    items: list[tuple[str, str, tuple]] = [
+        ("box", "ego", EGO_COLOR),
+        ("box", "car", CLASS_COLORS[CAR]),
+        ("box", "large vehicle", CLASS_COLORS[LARGE_VEHICLE]),
+        ("disc", "pedestrian", CLASS_COLORS[PEDESTRIAN]),
+        ("box", "bicycle", CLASS_COLORS[BICYCLE]),
+        ("ring", "ego sees", EGO_SEEN_COLOR),
+        ("ring", "RSU sees", RSU_SEEN_COLOR),
+        ("square", "active RSU + FOV", RSU_ACTIVE_COLOR),
+        ("square", "RSU", RSU_COLOR),
+        ("disc", "green", LIGHT_COLORS[GREEN]),
+        ("disc", "yellow", LIGHT_COLORS[YELLOW]),
+        ("disc", "red", LIGHT_COLORS[RED]),
+        ("oct", "stop sign", STOP_SIGN),
+        ("line", "route", ROUTE_COLOR),
+    ]
+    probe = ImageDraw.Draw(Image.new("RGB", (1, 1)))
+    sw, gap, pad = fs, max(4, fs // 2), 6
+    cells = [sw + 4 + probe.textlength(label, font=font) for _, label, _ in items]
+    rows: list[list[int]] = [[]]
+    x = pad
+    for i, w in enumerate(cells):
+        if rows[-1] and x + w > width - pad:
+            rows.append([])
+            x = pad
+        rows[-1].append(i)
+        x += w + 2 * gap
+    row_h = fs + 8
+    img = Image.new("RGB", (width, len(rows) * row_h + 2 * pad - 8 + 4), (246, 246, 244))
+    d = ImageDraw.Draw(img)
+    y = pad
+    for row in rows:
+        x = pad
+        for i in row:
+            shape, label, col = items[i]
+            box = (x, y + 1, x + sw - 2, y + sw - 1)
+            if shape == "box":
+                d.rectangle(box, fill=col, outline=ACTOR_EDGE)
+            elif shape == "disc":
+                d.ellipse(box, fill=col, outline=ACTOR_EDGE)
+            elif shape == "ring":
+                d.rectangle(box, outline=col, width=2)
+            elif shape == "square":
+                d.rectangle(box, fill=col, outline=ACTOR_EDGE)
+            elif shape == "oct":
+                c = ((box[0] + box[2]) / 2, (box[1] + box[3]) / 2, (sw - 2) / 2)
+                d.regular_polygon(c, 8, rotation=22.5, fill=col)
+            else:
+                d.line([(box[0], (box[1] + box[3]) / 2), (box[2], (box[1] + box[3]) / 2)],
+                       fill=col, width=3)
+            d.text((x + sw + 2, y), label, fill=(30, 30, 30), font=font)
+            x += cells[i] + 2 * gap
+        y += row_h
+    return np.asarray(img, dtype=np.uint8)
+
+
+# ----------------------------------------------------------------------------- video
+def _have_ffmpeg() -> bool:
+    return importlib.util.find_spec("imageio_ffmpeg") is not None
+
+
+def save_video(frames: Sequence[np.ndarray], path: str | Path, fps: int = 10) -> Path:
+    """Write frames to an animated GIF (or MP4 when imageio-ffmpeg is installed), atomically.
+
+    The file is written next to ``path`` under a temporary name and renamed into place, so a
+    reader never sees a half-written video.
+
+    Args:
+        frames: ``(H, W, 3)`` uint8 RGB frames, all the same shape (e.g. from
+            :func:`render_topdown`).
+        path: destination ending in ``.gif`` or ``.mp4``.
+        fps: frames per second (the simulator's 10 Hz plays in real time at 10).
+
+    Returns:
+        The written path.
+
+    Raises:
+        ValueError: no frames, frames of different shapes or dtypes, bad ``fps`` or suffix.
+        RuntimeError: ``.mp4`` asked but no ffmpeg backend (imageio-ffmpeg) is installed.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (".gif", ".mp4"):
+        raise ValueError(f"save_video: {path.name!r} must end in .gif or .mp4")
+    if not isinstance(fps, (int, float)) or not fps > 0:
+        raise ValueError(f"save_video: fps={fps!r} must be positive")
+    if len(frames) == 0:
+        raise ValueError("save_video: no frames to write")
+    shape = np.shape(frames[0])
+    for i, f in enumerate(frames):
+        f = np.asarray(f)
+        if f.shape != shape or f.ndim != 3 or f.shape[2] != 3 or f.dtype != np.uint8:
+            raise ValueError(f"save_video: frame {i} is {f.dtype} {f.shape}; all frames must be "
+                             f"uint8 (H, W, 3) like frame 0 {shape}")
+    if suffix == ".mp4" and not _have_ffmpeg():
+        raise RuntimeError(
+            f"save_video: writing {path.name!r} needs an ffmpeg backend (pip install "
+            "imageio-ffmpeg), which is not installed; save as .gif instead")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{suffix}")
+    try:
+        if suffix == ".gif":
+            images = [Image.fromarray(np.asarray(f)) for f in frames]
+            images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:],
+                           duration=int(round(1000.0 / fps)), loop=0, optimize=False,
+                           disposal=1)
+        else:
+            import imageio.v2 as imageio
+
+            imageio.mimwrite(tmp, [np.asarray(f) for f in frames], fps=fps, format="FFMPEG",
+                             macro_block_size=1)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+__all__ = [
+    "CLASS_COLORS", "EGO_COLOR", "EGO_SEEN_COLOR", "LIGHT_COLORS", "RSU_SEEN_COLOR", "StaticMap",
+    "TopDownView", "make_view", "render_legend", "render_topdown", "save_video", "static_map",
+]

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 from v2xbench.envs.v2x_intersection.dynamics import IDMParams, idm_accel
-from v2xbench.envs.v2x_intersection.observations import STOP_SIGN
+from v2xbench.envs.v2x_intersection.observations import LIGHT_STOP_SIGN as STOP_SIGN
 from v2xbench.envs.v2x_intersection.signals import RED, YELLOW
 
 from .controller import WaypointController
@@ -45,14 +45,14 @@ class RouteFollower:
         gap, dv = self._leader(obs, v)
         accel = float(idm_accel(np.float64(v), np.float64(target), np.float64(gap), np.float64(dv), self.idm))
         light, dist_line = ego[6], ego[7]
-        if light == STOP_SIGN and dist_line > 0:
-            self._stopped = self._stopped or (v < 0.3 and dist_line < 12.0)
+        if light == STOP_SIGN and dist_line > -2.0:
+            self._stopped = self._stopped or (v < 0.3 and dist_line < 8.0)
             if not self._stopped:
                 light = RED
         elif light != STOP_SIGN:
             self._stopped = False
-        if light in (RED, YELLOW) and dist_line > 0:
-            stop_gap = max(dist_line - 4.5 - 2.5, 0.0)
+        if light in (RED, YELLOW) and dist_line > -1.0:
+            stop_gap = max(dist_line - 2.5, 0.0)  # front bumper ~2.4 m ahead of the centre
             if light == RED or stop_gap > v * v / 6.0:
                 accel = min(accel, float(idm_accel(np.float64(v), np.float64(target), np.float64(stop_gap),
                                                    np.float64(v), self.idm)))

@@ -13,7 +13,8 @@ import numpy as np
 from .classes import BICYCLE, CAR, LARGE_VEHICLE, PEDESTRIAN
 
 # behaviour codes
-EGO, DRIVER, PARKED, WALKER, RIDER, STATIC = 0, 1, 2, 3, 4, 5
+EGO, DRIVER, PARKED, WALKER, RIDER, STATIC, SCRIPTED = 0, 1, 2, 3, 4, 5, 6
+BEHAVIOUR_NAMES = ("ego", "driver", "parked", "walker", "rider", "static", "scripted")
 
 #: (length, width, height) ranges per class (m)
 SIZES = {
@@ -29,7 +30,8 @@ class ActorTable:
     """Struct-of-arrays state of ``N`` actors (shapes ``(N,)`` unless noted).
 
     Attributes:
-        kind: class id (``classes``). behaviour: ``EGO | DRIVER | PARKED | WALKER | RIDER | STATIC``.
+        kind: class id (``classes``). behaviour: ``EGO | DRIVER | PARKED | WALKER | RIDER | STATIC |
+            SCRIPTED`` (scripted actors are moved by their scenario, not by the world).
         actor_id: unique id within the episode. active: present in the world.
         pos: ``(N, 2)`` box centre (m). yaw (rad). speed (m/s, along yaw). accel (m/s^2).
         length, width, height: box size (m).
@@ -40,6 +42,11 @@ class ActorTable:
         path, path_s, path_dir: for pedestrians: sidewalk id (or -1 while crossing), arc length, +-1.
         cross_from, cross_to: ``(N, 2)`` straight crossing segment for crossing pedestrians (m).
         color: ``(N,)`` colour index for rendering.
+        hold: the actor waits in place (scenario actors before their trigger).
+        ignore_rules: a follower that ignores lights, stop signs and junction yielding.
+        plan: index into ``World.plans`` (a fixed lane sequence to follow; -1: random successors).
+        plan_pos: position of the current lane in that plan.
+        scenario: index of the scenario owning the actor (-1: background traffic).
     """
 
     kind: np.ndarray
@@ -65,6 +72,11 @@ class ActorTable:
     cross_from: np.ndarray
     cross_to: np.ndarray
     color: np.ndarray
+    hold: np.ndarray
+    ignore_rules: np.ndarray
+    plan: np.ndarray
+    plan_pos: np.ndarray
+    scenario: np.ndarray
 
     @classmethod
     def empty(cls, n: int) -> ActorTable:
@@ -76,6 +88,8 @@ class ActorTable:
             width=f(n), height=f(n), lane=np.full(n, -1, np.int64), s=f(n), lat=f(n), v0=f(n),
             wait=f(n), stopped_at_sign=f(n, bool), path=np.full(n, -1, np.int64), path_s=f(n),
             path_dir=np.ones(n), cross_from=f((n, 2)), cross_to=f((n, 2)), color=f(n, np.int64),
+            hold=f(n, bool), ignore_rules=f(n, bool), plan=np.full(n, -1, np.int64),
+            plan_pos=f(n, np.int64), scenario=np.full(n, -1, np.int64),
         )
 
     def __len__(self) -> int:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 OBS_MODES = ("objects",)
@@ -27,7 +27,7 @@ class EnvConfig:
         obs_mode: observation mode (``objects``; ``sensors`` and ``bev`` come with the sensors).
         max_objects: object slots in the ego's and RSU's object lists.
         route_points: route points ahead in the observation (every ``route_step`` m).
-        route_step: spacing of observed route points (m).
+        route_step: spacing of observed route points (m, a whole number: route points are 1 m apart).
         ego_range, rsu_range: sensing ranges (m).
         rsu_policy: built-in RSU message policy for the single-agent Gymnasium env.
         rsu_slots: RSU agents in the PettingZoo env (the nearest forward-facing units).
@@ -50,7 +50,7 @@ class EnvConfig:
     obs_mode: str = "objects"
     max_objects: int = 32
     route_points: int = 20
-    route_step: float = 2.0
+    route_step: int = 2
     ego_range: float = 60.0
     rsu_range: float = 75.0
     rsu_policy: str = "share_objects"
@@ -64,7 +64,6 @@ class EnvConfig:
     terminate_on_collision: bool = False
     render_size: int = 512
     dt: float = 0.1
-    extra: dict = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         from .town import NAMED_TOWNS
@@ -78,11 +77,11 @@ class EnvConfig:
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or not 0 <= v <= 500:
                 bad(name, "must be an int in [0, 500]")
-        for name in ("max_objects", "route_points", "rsu_slots", "max_payload_floats", "render_size"):
+        for name in ("max_objects", "route_points", "route_step", "rsu_slots", "max_payload_floats", "render_size"):
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 1:
                 bad(name, "must be a positive int")
-        for name in ("route_length", "route_step", "ego_range", "rsu_range"):
+        for name in ("route_length", "ego_range", "rsu_range"):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not v > 0:
                 bad(name, "must be a positive number")
@@ -97,8 +96,9 @@ class EnvConfig:
         if not isinstance(self.latency_ticks, int) or self.latency_ticks < 1:
             bad("latency_ticks", "must be an int >= 1 (a message made from the RSU's observation at "
                 "tick t reaches the ego's observation at tick t + latency_ticks)")
-        if self.bandwidth_bytes_per_s is not None and not self.bandwidth_bytes_per_s > 0:
-            bad("bandwidth_bytes_per_s", "must be positive or None")
+        bw = self.bandwidth_bytes_per_s
+        if bw is not None and (not isinstance(bw, (int, float)) or not 0 < bw < float("inf")):
+            bad("bandwidth_bytes_per_s", "must be a positive finite number or None")
         if self.encoding not in ("float16", "float32"):
             bad("encoding", "must be 'float16' or 'float32'")
         if self.max_steps is not None and (not isinstance(self.max_steps, int) or self.max_steps < 1):
@@ -107,7 +107,7 @@ class EnvConfig:
             bad("dt", "is fixed at 0.1 s (10 Hz)")
 
 
-CONFIG_FIELDS = tuple(f.name for f in dataclasses.fields(EnvConfig) if f.name != "extra")
+CONFIG_FIELDS = tuple(f.name for f in dataclasses.fields(EnvConfig))
 
 
 def make_config(config: EnvConfig | None = None, **kwargs: Any) -> EnvConfig:

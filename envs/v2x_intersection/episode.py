@@ -80,7 +80,9 @@ class EpisodeTracker:
             "driven_m": w.monitor.driven_m,
             "active_rsu": int(w.active_rsu[0]),
             "v2x_bytes_total": int(stats["bytes_sent_total"]),
-            "v2x_bps": float(stats["bps"]),
+            # bytes counted by the channel / simulated seconds of this episode (the channel's own
+            # ``bps`` also counts the interval of the tick in progress)
+            "v2x_bps": float(stats["bytes_sent_total"]) / max(w.tick * w.config.dt, 1e-9) if w.tick else 0.0,
             "v2x_peak_bps": float(stats["peak_bps"]),
             "v2x_messages_lost": int(stats["messages_lost"]),
             "v2x_messages_dropped": int(stats["messages_dropped_bandwidth"]),

@@ -1,6 +1,6 @@
 """Frames, transforms, box corners and calibration matrices: the one home for geometry.
 
-Conventions (see ``docs/frames.md``): SI units, right-handed frames, z up, yaw counter-clockwise
+Conventions (see ``docs/environment.md``): SI units, right-handed frames, z up, yaw counter-clockwise
 from +x. An actor's local frame has x forward, y left, z up, origin at the box centre on the ground.
 Poses are ``(x, y, z, yaw)`` or 4x4 homogeneous matrices ``T_a_b`` that map points expressed in
 frame ``b`` into frame ``a`` (``p_a = T_a_b @ p_b``).
@@ -70,7 +70,7 @@ def pose_matrix(x: float, y: float, z: float, yaw: float, pitch: float = 0.0, ro
     cp, sp = np.cos(pitch), np.sin(pitch)
     cr, sr = np.cos(roll), np.sin(roll)
     rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
-    # pitch about +y by -pitch so that positive pitch points x downward
+    # rotation about +y by +pitch: with z up, positive pitch tilts the x axis downward
     ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
     rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
     t = np.eye(4)

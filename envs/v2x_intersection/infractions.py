@@ -17,9 +17,10 @@ from .town.model import CONNECTOR, PARKING, Town
 from .traffic import STOP_LINE_SETBACK
 
 (COLLISION_PEDESTRIAN, COLLISION_VEHICLE, COLLISION_STATIC, RED_LIGHT, STOP_SIGN, OUTSIDE_LANES,
- OFF_ROAD, WRONG_WAY, ROUTE_DEVIATION, BLOCKED) = range(10)
+ OFF_ROAD, WRONG_WAY, ROUTE_DEVIATION, BLOCKED, SCENARIO_TIMEOUT, YIELD_EMERGENCY) = range(12)
 EVENT_NAMES = ("collision_pedestrian", "collision_vehicle", "collision_static", "red_light",
-               "stop_sign", "outside_lanes", "off_road", "wrong_way", "route_deviation", "blocked")
+               "stop_sign", "outside_lanes", "off_road", "wrong_way", "route_deviation", "blocked",
+               "scenario_timeout", "yield_emergency")
 NUM_EVENTS = len(EVENT_NAMES)
 
 REPEAT_COLLISION_S = 3.0  # s: repeated contacts with the same actor inside this window count once
@@ -54,9 +55,10 @@ class EventMonitor:
         self._wrong_way_active = False
         self._outside_active = False
         self._off_road_active = False
-        self._driving = np.array([ln.id for ln in town.lanes if ln.kind != PARKING])
+        self._driving_pts = town.index.point_ids(np.array([ln.id for ln in town.lanes if ln.kind != PARKING]))
 
-    def _emit(self, code: int, tick: int, other: int = -1, value: float = 0.0) -> None:
+    def emit(self, code: int, tick: int, other: int = -1, value: float = 0.0) -> None:
+        """Record an event (scenarios emit ``SCENARIO_TIMEOUT`` and ``YIELD_EMERGENCY`` here)."""
         self.counts[code] += 1
         self.events.append((code, tick, other, value))
 
@@ -79,12 +81,12 @@ class EventMonitor:
             if last is not None and (tick - last) * self.dt < REPEAT_COLLISION_S:
                 continue
             if c < 0:
-                self._emit(COLLISION_STATIC, tick, key)
+                self.emit(COLLISION_STATIC, tick, key)
                 continue
             kind = int(t.kind[c])
             code = (COLLISION_PEDESTRIAN if kind in (PEDESTRIAN, BICYCLE) else
                     COLLISION_VEHICLE if kind in (CAR, LARGE_VEHICLE) else COLLISION_STATIC)
-            self._emit(code, tick, int(t.actor_id[c]))
+            self.emit(code, tick, int(t.actor_id[c]))
         # route progress: furthest route point within 3 m ahead in a window
         r = self.route
         hi = min(self.progress + 40, len(r.points))
@@ -94,25 +96,25 @@ class EventMonitor:
             self.progress += int(close[-1])
         dev = float(np.min(np.linalg.norm(r.points[max(self.progress - 20, 0): self.progress + 40] - ego, axis=1)))
         if dev > ROUTE_DEVIATION_M and not self.counts[ROUTE_DEVIATION]:
-            self._emit(ROUTE_DEVIATION, tick, -1, dev)
+            self.emit(ROUTE_DEVIATION, tick, -1, dev)
         # lane-relative checks: nearest lane among drivable lanes
-        lane, s, dist = self.town.index.project(ego[None], self._driving)
+        lane, s, dist = self.town.index.project(ego[None], point_ids=self._driving_pts)
         lane, s, dist = int(lane[0]), float(s[0]), float(dist[0])
         width = self.town.index.width[lane]
         outside = dist > width / 2.0 + 0.3
         if outside:
             self.outside_m += moved
         if outside and not self._outside_active:
-            self._emit(OUTSIDE_LANES, tick, -1, dist)
+            self.emit(OUTSIDE_LANES, tick, -1, dist)
         off_road = dist > width / 2.0 + 2.0
         if off_road and not self._off_road_active:
-            self._emit(OFF_ROAD, tick, -1, dist)
+            self.emit(OFF_ROAD, tick, -1, dist)
         self._outside_active, self._off_road_active = outside, off_road
         _, heading = self.town.index.pose_at(np.array([lane]), np.array([s]))
         wrong = v > 1.0 and not outside and abs(((yaw - heading[0] + np.pi) % (2 * np.pi)) - np.pi) > 2.1
         wrong &= self.town.index.kind[lane] != CONNECTOR
         if wrong and not self._wrong_way_active:
-            self._emit(WRONG_WAY, tick, -1, float(lane))
+            self.emit(WRONG_WAY, tick, -1, float(lane))
         self._wrong_way_active = wrong
         # stop lines: red lights and stop signs, when crossing the line of the current lane
         ix = self.town.index
@@ -122,9 +124,9 @@ class EventMonitor:
                 self._min_speed_near_line = min(self._min_speed_near_line, v)
             if ix.stop_at_end[lane] and self._s_on_lane < line <= s:
                 if lane_signal[lane] == RED:
-                    self._emit(RED_LIGHT, tick, -1, float(lane))
+                    self.emit(RED_LIGHT, tick, -1, float(lane))
                 elif lane_signal[lane] == -1 and self._is_stop_lane(lane) and self._min_speed_near_line > STOP_SPEED:
-                    self._emit(STOP_SIGN, tick, -1, float(lane))
+                    self.emit(STOP_SIGN, tick, -1, float(lane))
         else:
             self._min_speed_near_line = np.inf
         self._lane, self._s_on_lane = lane, s
@@ -132,7 +134,7 @@ class EventMonitor:
         self.still_s = self.still_s + self.dt if v < 0.1 else 0.0
         red_ahead = ix.stop_at_end[lane] and lane_signal[lane] == RED
         if self.still_s >= BLOCKED_S and not red_ahead:
-            self._emit(BLOCKED, tick, -1, self.still_s)
+            self.emit(BLOCKED, tick, -1, self.still_s)
             self.still_s = 0.0
         return self.events[n0:]
 

@@ -32,6 +32,7 @@ from .geometry import (
     wrap_angle,
 )
 from .rsu import RSU_PITCH
+from .traffic import STOP_LINE_SETBACK
 
 EGO_FEATURES = ("speed", "accel", "yaw_rate", "throttle", "steer", "brake", "light_state",
                 "dist_to_stop_line", "route_completion")
@@ -40,10 +41,10 @@ OBJECT_FEATURES = ("present", "class_id", "x", "y", "yaw", "length", "width", "h
 V2X_INFO_FEATURES = ("received", "age_ticks", "num_objects", "rsu_x", "rsu_y", "rsu_yaw")
 UNIT_FEATURES = ("unit_id", "x", "y", "z", "yaw", "pitch")
 BIG = 1e4  # bound of the observation boxes
-#: received objects are shown until they are this many ticks old (then the slots are zeroed)
+#: received objects stay in the observation this many ticks after their delivery (then zeroed)
 V2X_HOLD_TICKS = 5
 #: ``light_state`` value for a stop sign (other values: -1 none, 0 green, 1 yellow, 2 red)
-STOP_SIGN = 3
+LIGHT_STOP_SIGN = 3
 
 
 def _box(*shape: int, low: float = -BIG, high: float = BIG) -> spaces.Box:
@@ -121,7 +122,7 @@ def ego_observation(world) -> dict[str, np.ndarray]:
     # route ahead
     r = world.route
     k0 = world.monitor.progress
-    ks = np.minimum(k0 + np.arange(cfg.route_points) * int(round(cfg.route_step)), len(r.points) - 1)
+    ks = np.minimum(k0 + np.arange(cfg.route_points) * cfg.route_step, len(r.points) - 1)
     route = np.zeros((cfg.route_points, 3), np.float32)
     route[:, :2] = world_to_local_2d(r.points[ks], ego_xy, ego_yaw)
     route[:, 2] = r.commands[ks]
@@ -131,8 +132,11 @@ def ego_observation(world) -> dict[str, np.ndarray]:
     light = float(world.lane_signal[lane])
     jid = ix.junction_ahead[lane]
     if light < 0 and jid >= 0 and lane in world.town.junctions[jid].stop_lanes:
-        light = float(STOP_SIGN)
-    dist_line = float(ix.length[lane] - world.monitor._s_on_lane) if ix.stop_at_end[lane] else -1.0
+        light = float(LIGHT_STOP_SIGN)
+    dist_line = -1.0
+    if ix.stop_at_end[lane]:
+        _, s_lane, _ = ix.project(ego_xy[None], point_ids=ix.point_ids(np.array([lane])))
+        dist_line = float(ix.length[lane] - STOP_LINE_SETBACK - s_lane[0])
     yaw_rate = t.speed[0] * np.tan(world.last_control[1] * world.params.max_steer) / world.params.wheelbase
     ego = np.array([t.speed[0], t.accel[0], yaw_rate, *world.last_control, light, dist_line,
                     world.monitor.route_completion], np.float32)
@@ -144,7 +148,7 @@ def ego_observation(world) -> dict[str, np.ndarray]:
 def _v2x(world, ego_xy: np.ndarray, ego_yaw: float) -> tuple[np.ndarray, np.ndarray]:
     cfg = world.config
     info = np.zeros(len(V2X_INFO_FEATURES), np.float32)
-    if world.inbox is None or world.tick - world.inbox[1] > V2X_HOLD_TICKS:
+    if world.inbox is None or world.tick - world.inbox[1] >= cfg.latency_ticks + V2X_HOLD_TICKS:
         return np.zeros((cfg.max_objects, len(OBJECT_FEATURES)), np.float32), info
     sender, sent_tick, payload = world.inbox
     rows = unpack_objects(payload, len(payload) - len(payload) % NUM_OBJECT_FIELDS)

@@ -51,7 +51,7 @@ def step_walkers(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, 
     """Advance all pedestrians by one tick, in place."""
     if net.index is None:
         return
-    idx = np.flatnonzero(t.active & (t.behaviour == WALKER))
+    idx = np.flatnonzero(t.active & ~t.hold & (t.behaviour == WALKER))
     if len(idx) == 0:
         return
     walking = idx[t.path[idx] >= 0]
@@ -66,7 +66,8 @@ def step_walkers(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, 
         u = seg / np.maximum(np.linalg.norm(seg, axis=1, keepdims=True), 1e-9)
         t.pos[crossing] += u * np.minimum(step, dist)[:, None]
         t.yaw[crossing] = np.arctan2(u[:, 1], u[:, 0])
-        done = crossing[dist <= step]
+        done = crossing[(dist <= step) & (t.scenario[crossing] < 0)]  # scenario walkers stop at the end
+        t.speed[crossing[(dist <= step) & (t.scenario[crossing] >= 0)]] = 0.0
         if len(done):
             sw, s, _ = net.index.project(t.pos[done])
             t.path[done], t.path_s[done] = sw, s

@@ -64,7 +64,7 @@ EGO_SEEN_COLOR = (0, 229, 255)
 RSU_SEEN_COLOR = (255, 0, 255)
 RSU_COLOR = (248, 248, 248)
 RSU_ACTIVE_COLOR = (255, 0, 255)
-RSU_FOV_RGB, RSU_FOV_ALPHA = (236, 64, 255), 0.14
+RSU_FOV_RGB, RSU_FOV_ALPHA = (236, 64, 255), 0.12
 RSU_FOV_EDGE = (206, 92, 226)
 ROUTE_COLOR = (30, 112, 255)
 PARKED_TINT = (150, 152, 158)
@@ -76,11 +76,11 @@ LIGHT_COLORS: dict[int, tuple[int, int, int]] = {
     NO_SIGNAL: (150, 150, 150),
 }
 
-RSU_HFOV_DEG = 120.0  # deg, the RSU LiDAR's horizontal field of view (as ``world.RSU_HFOV``)
-MAX_STATIC_PIXELS = 24_000_000  # cap on a cached static map (beyond it the map is coarser)
+MAX_STATIC_PIXELS = 30_000_000  # cap on a cached static map (beyond it the map is coarser)
 _SUPERSAMPLE_PIXELS = 10_000_000  # static maps up to this size are drawn at 2x and reduced
 _MARGIN_M = 25.0  # m of ground around the town's bounds in the static map
-_CACHE_SIZE = 6
+_CACHE_SIZE = 6  # static maps kept (least recently used dropped first) ...
+_CACHE_BYTES = 320 * 2**20  # ... and at most this many bytes of them
 
 
 # ----------------------------------------------------------------------------- geometry helpers
@@ -120,10 +120,14 @@ def _convex_hull(p: np.ndarray) -> np.ndarray:
     def half(seq: list) -> list:
         out: list = []
         for q in seq:
-            while len(out) >= 2 and (
-                (out[-1][0] - out[-2][0]) * (q[1] - out[-2][1])
-                - (out[-1][1] - out[-2][1]) * (q[0] - out[-2][0])
-            ) <= 0:
+            while (
+                len(out) >= 2
+                and (
+                    (out[-1][0] - out[-2][0]) * (q[1] - out[-2][1])
+                    - (out[-1][1] - out[-2][1]) * (q[0] - out[-2][0])
+                )
+                <= 0
+            ):
                 out.pop()
             out.append(q)
         return out
@@ -172,37 +176,51 @@ _STATIC_CACHE: OrderedDict[tuple, StaticMap] = OrderedDict()
 def static_map(town: Town, mpp: float) -> StaticMap:
     """The cached static map of ``town`` at ``mpp`` metres per pixel (built on first use).
 
-    Maps larger than :data:`MAX_STATIC_PIXELS` are built coarser (the returned ``mpp`` is then
-    larger than asked); frames are resampled from them.
+    Building takes 0.1 to 1.5 s per town and scale (drawn at 2x and reduced, for smooth
+    edges); the last few maps are kept (least recently used dropped first).
+
+    Args:
+        town: the road network.
+        mpp: metres per pixel; maps that would exceed :data:`MAX_STATIC_PIXELS` are built
+            coarser (the returned ``mpp`` is then larger than asked and frames are resampled).
+
+    Returns:
+        The :class:`StaticMap`.
     """
     xmin, ymin, xmax, ymax = (float(v) for v in town.bounds)
     w_m, h_m = xmax - xmin + 2 * _MARGIN_M, ymax - ymin + 2 * _MARGIN_M
     mpp = max(float(mpp), float(np.sqrt(w_m * h_m / MAX_STATIC_PIXELS)))
-    key = (town.name, town.template, town.seed, len(town.lanes), round(mpp, 9))
+    key = (town.name, town.template, town.seed, len(town.lanes), len(town.buildings), round(mpp, 9))
     hit = _STATIC_CACHE.get(key)
     if hit is not None:
         _STATIC_CACHE.move_to_end(key)
         return hit
     sm = _build_static(town, mpp)
     _STATIC_CACHE[key] = sm
-    while len(_STATIC_CACHE) > _CACHE_SIZE:
+    while len(_STATIC_CACHE) > 1 and (
+        len(_STATIC_CACHE) > _CACHE_SIZE
+        or sum(m.image.nbytes for m in _STATIC_CACHE.values()) > _CACHE_BYTES
+    ):
         _STATIC_CACHE.popitem(last=False)
     return sm
 
 
 def _build_static(town: Town, mpp: float) -> StaticMap:
+    """Rasterize a town's static layers (back to front) at ``mpp`` metres per pixel."""
     xmin, ymin, xmax, ymax = (float(v) for v in town.bounds)
     x0, y1 = xmin - _MARGIN_M, ymax + _MARGIN_M
     W = int(np.ceil((xmax - xmin + 2 * _MARGIN_M) / mpp))
     H = int(np.ceil((ymax - ymin + 2 * _MARGIN_M) / mpp))
     ss = 2 if W * H <= _SUPERSAMPLE_PIXELS else 1
     img = Image.new("RGB", (W * ss, H * ss), BACKGROUND)
-    d = ImageDraw.Draw(img, "RGBA")
+    d = ImageDraw.Draw(img)
     k = ss / mpp  # supersampled pixels per metre
 
     def px(p: np.ndarray) -> list[tuple[float, float]]:
         p = np.asarray(p, float).reshape(-1, 2)
-        return list(zip(((p[:, 0] - x0) / mpp + 0.5) * ss - 0.5, ((y1 - p[:, 1]) / mpp + 0.5) * ss - 0.5))
+        return list(
+            zip(((p[:, 0] - x0) / mpp + 0.5) * ss - 0.5, ((y1 - p[:, 1]) / mpp + 0.5) * ss - 0.5)
+        )
 
     def band(points: np.ndarray, width: float, fill: tuple) -> None:
         poly = np.concatenate([_offset(points, width / 2), _offset(points, -width / 2)[::-1]], 0)
@@ -210,8 +228,12 @@ def _build_static(town: Town, mpp: float) -> StaticMap:
 
     def line(points: np.ndarray, fill: tuple, width_m: float, min_px: float = 1.0) -> None:
         if len(points) >= 2:
-            d.line(px(points), fill=fill, width=max(int(round(width_m * k)), int(round(min_px * ss))),
-                   joint="curve")
+            d.line(
+                px(points),
+                fill=fill,
+                width=max(int(round(width_m * k)), int(round(min_px * ss))),
+                joint="curve",
+            )
 
     lanes = town.lanes
     # sidewalks, with the corners of junctions paved
@@ -220,8 +242,12 @@ def _build_static(town: Town, mpp: float) -> StaticMap:
     for j in town.junctions:
         if j.control == MERGE:
             continue
-        ends = [p for sw in town.sidewalks for p in (sw.points[0], sw.points[-1])
-                if np.linalg.norm(p - j.center) < j.radius + 8.0]
+        ends = [
+            p
+            for sw in town.sidewalks
+            for p in (sw.points[0], sw.points[-1])
+            if np.linalg.norm(p - j.center) < j.radius + 8.0
+        ]
         if len(ends) >= 3:
             d.polygon(px(_convex_hull(np.array(ends))), fill=SIDEWALK)
     # drivable area: parking lanes, lanes, junction areas
@@ -295,29 +321,40 @@ def _build_static(town: Town, mpp: float) -> StaticMap:
         u = across / max(L, 1e-9)
         for a in np.arange(0.3, L - 0.3, 1.0):
             q0 = origin + u * a
-            d.polygon(px(np.stack([q0, q0 + u * 0.55, q0 + u * 0.55 + along, q0 + along])),
-                      fill=CROSSWALK)
+            d.polygon(
+                px(np.stack([q0, q0 + u * 0.55, q0 + u * 0.55 + along, q0 + along])), fill=CROSSWALK
+            )
     # buildings: soft shadow, then the box shaded by height
     if len(town.buildings):
         b = town.buildings
         corners = _quads(b[:, :2], b[:, 4], -b[:, 2] / 2, b[:, 2] / 2, -b[:, 3] / 2, b[:, 3] / 2)
         heights = town.building_heights
-        for q, h in zip(corners, heights):
-            d.polygon(px(q + np.array([0.12, -0.12]) * h), fill=(0, 0, 0, 38))
+        for q, h in zip(corners, heights):  # translucent shadow, blended in its own box
+            sq = np.array(px(q + np.array([0.12, -0.12]) * h))
+            b0 = np.maximum(np.floor(sq.min(0)).astype(int) - 1, 0)
+            b1 = np.minimum(np.ceil(sq.max(0)).astype(int) + 2, img.size)
+            if np.all(b1 > b0):
+                mask = Image.new("L", tuple(int(v) for v in b1 - b0), 0)
+                ImageDraw.Draw(mask).polygon([tuple(p) for p in sq - b0], fill=40)
+                img.paste((0, 0, 0), (int(b0[0]), int(b0[1])), mask)
         for q, h in zip(corners, heights):
             t = float(np.clip((h - 5.0) / 20.0, 0.0, 1.0))
-            d.polygon(px(q), fill=_mix(BUILDING_LOW, BUILDING_HIGH, t), outline=BUILDING_EDGE,
-                      width=max(1, ss))
+            ring = px(q)
+            d.polygon(ring, fill=_mix(BUILDING_LOW, BUILDING_HIGH, t))
+            d.line(ring + ring[:1], fill=BUILDING_EDGE, width=ss)
     # stop signs
     r = max(1.2 * k, 5.0 * ss)
     for x, y, *_ in town.stop_signs:
-        (cx, cy), = px(np.array([x, y]))
-        d.regular_polygon((cx, cy, r), 8, rotation=22.5, fill=STOP_SIGN, outline=(255, 255, 255),
-                          width=max(1, ss))
+        ((cx, cy),) = px(np.array([x, y]))
+        d.regular_polygon((cx, cy, r + 1.2 * ss), 8, rotation=22.5, fill=(255, 255, 255))
+        d.regular_polygon((cx, cy, r), 8, rotation=22.5, fill=STOP_SIGN)
     if ss > 1:
         img = img.reduce(ss)
     return StaticMap(
-        image=np.asarray(img, dtype=np.uint8).copy(), x0=x0, y1=y1, mpp=mpp,
+        image=np.asarray(img, dtype=np.uint8).copy(),
+        x0=x0,
+        y1=y1,
+        mpp=mpp,
         stop_bars=np.array(bars, float).reshape(-1, 2, 2),
         stop_lanes=np.array(bar_lanes, np.int64),
     )
@@ -354,9 +391,20 @@ def _center_point(world: World, center: str | Sequence[float]) -> np.ndarray:
     raise ValueError(f"render: center={center!r}; use 'ego', 'rsu', 'map' or an (x, y) pair")
 
 
-def make_view(world: World, size: int = 512, view_m: float = 120.0,
-              center: str | Sequence[float] = "ego") -> tuple[TopDownView, StaticMap]:
-    """The view of a frame and the static map it is cut from (see :func:`render_topdown`)."""
+def make_view(
+    world: World, size: int = 512, view_m: float = 120.0, center: str | Sequence[float] = "ego"
+) -> tuple[TopDownView, StaticMap]:
+    """The view of a frame and the static map it is cut from.
+
+    Args:
+        world, size, view_m, center: as :func:`render_topdown`.
+
+    Returns:
+        ``(view, static_map)``; ``view.to_pixel(xy)`` maps world points to the frame's pixels.
+
+    Raises:
+        ValueError: bad ``size``, ``view_m`` or ``center``.
+    """
     if not isinstance(size, (int, np.integer)) or size < 16:
         raise ValueError(f"render: size={size!r} must be an int >= 16")
     if isinstance(center, str) and center == "map":
@@ -426,25 +474,28 @@ class _Glyphs:
         asc, desc = self.font.getmetrics() if hasattr(self.font, "getmetrics") else (px, 2)
         self.height = int(asc + desc)
         self._cache: dict[str, tuple[np.ndarray, float]] = {}
+        self._lines: dict[str, np.ndarray] = {}
 
     def _glyph(self, ch: str) -> tuple[np.ndarray, float]:
         g = self._cache.get(ch)
         if g is None:
             adv = float(self.font.getlength(ch))
-            im = Image.new("L", (int(np.ceil(adv)) + 4, self.height), 0)
-            ImageDraw.Draw(im).text((1, 0), ch, fill=255, font=self.font)
+            im = Image.new("L", (int(np.ceil(adv)) + 2, self.height), 0)
+            ImageDraw.Draw(im).text((0, 0), ch, fill=255, font=self.font)
             g = self._cache[ch] = (np.asarray(im, dtype=np.uint8), adv)
         return g
 
     def mask(self, s: str) -> np.ndarray:
         """``(height, width)`` uint8 alpha mask of one line of text."""
-        glyphs = [self._glyph(ch) for ch in s]
-        xs = np.concatenate([[0.0], np.cumsum([a for _, a in glyphs])])
-        out = np.zeros((self.height, int(np.ceil(xs[-1])) + 4), np.uint8)
-        for (g, _), x in zip(glyphs, xs[:-1]):
-            x = int(round(x))
-            seg = out[:, x : x + g.shape[1]]
-            np.maximum(seg, g[:, : seg.shape[1]], out=seg)
+        out = self._lines.get(s)
+        if out is not None:
+            return out
+        glyphs = [self._glyph(ch) for ch in s] or [self._glyph(" ")]
+        xs = np.round(np.cumsum([0.0] + [a for _, a in glyphs])).astype(np.int64)
+        out = np.concatenate([g[:, :w] for (g, _), w in zip(glyphs, np.diff(xs))], 1)
+        if len(self._lines) > 512:
+            self._lines.clear()
+        self._lines[s] = out
         return out
 
 
@@ -453,31 +504,27 @@ def _glyphs(px: int) -> _Glyphs:
     return _Glyphs(px)
 
 
-def _tint_lut(color: tuple, alpha: float) -> list[int]:
-    """A ``point`` table blending every pixel ``alpha`` of the way toward ``color``."""
-    v = np.arange(256, dtype=np.float64)
-    return [int(round(x)) for c in color for x in v * (1.0 - alpha) + c * alpha]
-
-
-_FOV_LUT = _tint_lut(RSU_FOV_RGB, RSU_FOV_ALPHA)
-_PANEL_LUT = _tint_lut((14, 16, 22), 0.68)
-_SCALE_LUT = _tint_lut((255, 255, 255), 0.7)
-
-
-def _tint(im: Image.Image, lut: list[int], box: tuple[int, int, int, int],
-          polygon: list[tuple[float, float]] | None = None) -> None:
-    """Blend the pixels of ``box`` (inside ``polygon`` if given) toward a colour, in place."""
+def _tint(
+    im: Image.Image,
+    color: tuple,
+    alpha: float,
+    box: tuple[float, float, float, float],
+    polygon: list[tuple[float, float]] | None = None,
+) -> None:
+    """Blend the pixels of ``box`` (inside ``polygon`` if given) ``alpha`` of the way toward
+    ``color``, in place (a translucent fill without Pillow's full-image RGBA path)."""
     x0, y0 = max(int(box[0]), 0), max(int(box[1]), 0)
     x1, y1 = min(int(np.ceil(box[2])), im.width), min(int(np.ceil(box[3])), im.height)
     if x1 <= x0 or y1 <= y0:
         return
     region = im.crop((x0, y0, x1, y1))
+    tinted = Image.blend(region, Image.new("RGB", region.size, color), alpha)
     if polygon is None:
-        im.paste(region.point(lut), (x0, y0))
+        im.paste(tinted, (x0, y0))
         return
-    mask = Image.new("1", (x1 - x0, y1 - y0), 0)
+    mask = Image.new("1", region.size, 0)
     ImageDraw.Draw(mask).polygon([(x - x0, y - y0) for x, y in polygon], fill=1)
-    im.paste(region.point(lut), (x0, y0), mask)
+    im.paste(tinted, (x0, y0), mask)
 
 
 # ----------------------------------------------------------------------------- render a frame
@@ -493,10 +540,11 @@ def render_topdown(
 
     Static layers come from a per-town cache (:func:`static_map`); this call crops it and draws
     the signal states (stop bars and light poles), the ego's route ahead, the RSUs (the active
-    one highlighted, with its 120 deg field of view out to ``config.rsu_range``), the actors as
-    oriented boxes coloured by class, visibility outlines (cyan: the ego sees the actor;
-    magenta: the active RSU sees it) and a text overlay (tick, speed, route completion, V2X
-    bytes/s, visible counts) with a scale bar.
+    one highlighted, with its field of view: ``world.RSU_HFOV`` wide, ``config.rsu_range``
+    deep), the actors as oriented boxes coloured by class, visibility outlines (cyan: the ego
+    sees the actor; magenta: the active RSU sees it; both: both rings) and a text overlay
+    (tick, speed, route completion, V2X bytes/s from the channel, visible counts) with a scale
+    bar. A 512 px frame costs about 5 ms once the town's static map is cached.
 
     Args:
         world: a world after ``reset``.
@@ -511,8 +559,10 @@ def render_topdown(
     Returns:
         ``(size, size, 3)`` uint8 RGB image (``(size + legend height, size, 3)`` with ``legend``).
     """
-    from .world import VISIBLE_THRESHOLD  # local: the world module may import this one
+    from .world import RSU_HFOV, VISIBLE_THRESHOLD  # local: the world may import this module
 
+    if getattr(world, "table", None) is None:
+        raise RuntimeError("render: the world has not been reset; call world.reset(seed) first")
     view, sm = make_view(world, size, view_m, center)
     frame = Image.fromarray(_crop(sm, view))
     d = ImageDraw.Draw(frame)
@@ -529,11 +579,17 @@ def render_topdown(
         rx, ry, _, ryaw = rsus.pose[active]
         ((cx, cy),) = P(np.array([[rx, ry]]))
         r = world.config.rsu_range / mpp
-        ang = -ryaw + np.radians(np.linspace(-RSU_HFOV_DEG / 2, RSU_HFOV_DEG / 2, 49))
+        ang = -ryaw + np.linspace(-RSU_HFOV / 2, RSU_HFOV / 2, 49)
         arc = list(zip(cx + r * np.cos(ang), cy + r * np.sin(ang)))  # image y points down
         wedge = [(cx, cy), *arc]
         xs, ys = [p[0] for p in wedge], [p[1] for p in wedge]
-        _tint(frame, _FOV_LUT, (min(xs) - 1, min(ys) - 1, max(xs) + 2, max(ys) + 2), wedge)
+        _tint(
+            frame,
+            RSU_FOV_RGB,
+            RSU_FOV_ALPHA,
+            (min(xs) - 1, min(ys) - 1, max(xs) + 2, max(ys) + 2),
+            wedge,
+        )
         d.line(wedge + [(cx, cy)], fill=RSU_FOV_EDGE, width=1)
 
     # signal states on the stop lines of the controlled lanes
@@ -549,16 +605,22 @@ def render_topdown(
     # the route ahead, from the ego to the goal
     route = world.route
     k0 = int(getattr(world.monitor, "progress", 0))
-    ahead = route.points[k0 + 1 :]
-    if len(ahead) > 1:
-        step = max(1, int(0.5 * mpp / 0.25))  # about one point per 2 pixels
-        pts = np.concatenate([t.pos[:1], ahead[::step], ahead[-1:]], 0)
-        d.line([tuple(p) for p in P(pts)], fill=ROUTE_COLOR, width=max(2, int(round(0.5 / mpp))),
-               joint="curve")
+    ahead = np.concatenate([t.pos[:1], route.points[k0 + 1 :]], 0)
+    inside = np.flatnonzero(np.linalg.norm(ahead - mid, axis=1) < half_span + 10.0)
+    rw = max(2, int(round(0.5 / mpp)))
+    if len(inside) > 1:  # draw each run of points inside the view as its own polyline
+        cuts = np.flatnonzero(np.diff(inside) > 1) + 1
+        for run in np.split(inside, cuts):
+            if len(run) > 1:
+                d.line(P(ahead[run]).ravel().tolist(), fill=ROUTE_COLOR, width=rw, joint="curve")
     ((gx, gy),) = P(route.points[-1:])
     gr = max(3.0, 0.9 / mpp)
-    d.ellipse((gx - gr, gy - gr, gx + gr, gy + gr), fill=ROUTE_COLOR, outline=(255, 255, 255),
-              width=max(1, int(gr / 3)))
+    d.ellipse(
+        (gx - gr, gy - gr, gx + gr, gy + gr),
+        fill=ROUTE_COLOR,
+        outline=(255, 255, 255),
+        width=max(1, int(gr / 3)),
+    )
 
     # RSU poles: every deployed unit a small square, the active one larger and magenta
     if len(rsus):
@@ -623,12 +685,15 @@ def _draw_actors(
     # outline rings just outside the box: cyan (ego) inside, magenta (RSU) outside when both
     r_ego = np.full(len(idx), 2.0 * mpp)
     r_rsu = np.where(both, 4.0 * mpp, 2.0 * mpp)
-    quads = np.concatenate([
-        _quads(pos, yaw, -L / 2, L / 2, -W / 2, W / 2),
-        _quads(pos, yaw, 0.1 * L, 0.3 * L, -0.36 * W, 0.36 * W),
-        _quads(pos, yaw, -L / 2 - r_ego, L / 2 + r_ego, -W / 2 - r_ego, W / 2 + r_ego),
-        _quads(pos, yaw, -L / 2 - r_rsu, L / 2 + r_rsu, -W / 2 - r_rsu, W / 2 + r_rsu),
-    ], 1)
+    quads = np.concatenate(
+        [
+            _quads(pos, yaw, -L / 2, L / 2, -W / 2, W / 2),
+            _quads(pos, yaw, 0.1 * L, 0.3 * L, -0.36 * W, 0.36 * W),
+            _quads(pos, yaw, -L / 2 - r_ego, L / 2 + r_ego, -W / 2 - r_ego, W / 2 + r_ego),
+            _quads(pos, yaw, -L / 2 - r_rsu, L / 2 + r_rsu, -W / 2 - r_rsu, W / 2 + r_rsu),
+        ],
+        1,
+    )
     px = view.to_pixel(quads).tolist()
     center = view.to_pixel(pos).tolist()
     parked = (t.behaviour[idx] == PARKED).tolist()
@@ -648,10 +713,10 @@ def _draw_actors(
                 d.ellipse((cx - rr, cy - rr, cx + rr, cy + rr), outline=EGO_SEEN_COLOR, width=2)
             d.ellipse((cx - pr, cy - pr, cx + pr, cy + pr), fill=col, outline=ACTOR_EDGE)
             continue
-        if rsu_seen[i]:
-            d.polygon([tuple(p) for p in q[12:16]], outline=RSU_SEEN_COLOR, width=2)
+        if rsu_seen[i]:  # closed wide lines: Pillow's wide polygon outlines cost a full mask
+            d.line([tuple(p) for p in q[12:16] + q[12:13]], fill=RSU_SEEN_COLOR, width=2)
         if ego_seen[i]:
-            d.polygon([tuple(p) for p in q[8:12]], outline=EGO_SEEN_COLOR, width=2)
+            d.line([tuple(p) for p in q[8:12] + q[8:9]], fill=EGO_SEEN_COLOR, width=2)
         d.polygon([tuple(p) for p in q[0:4]], fill=col, outline=ACTOR_EDGE)
         if k != BICYCLE:
             d.polygon([tuple(p) for p in q[4:8]], fill=_mix(col, (255, 255, 255), 0.6))
@@ -691,7 +756,7 @@ def _draw_overlay(
     pad, lh = max(3, fs // 3), glyphs.height + max(0, fs // 8)
     w = max(m.shape[1] for m in masks) + 2 * pad
     h = lh * len(masks) + 2 * pad
-    _tint(frame, _PANEL_LUT, (4, 4, 4 + w, 4 + h))
+    _tint(frame, (14, 16, 22), 0.68, (4, 4, 4 + w, 4 + h))
     for i, m in enumerate(masks):
         frame.paste((255, 255, 255), (4 + pad, 4 + pad + i * lh), Image.fromarray(m))
     # scale bar
@@ -700,7 +765,7 @@ def _draw_overlay(
     label = glyphs.mask(f"{metres:g} m")
     x1, yb = n - 10, n - 9
     x0 = x1 - length
-    _tint(frame, _SCALE_LUT, (x0 - 6, yb - label.shape[0] - 8, x1 + 7, yb + 6))
+    _tint(frame, (255, 255, 255), 0.7, (x0 - 6, yb - label.shape[0] - 8, x1 + 7, yb + 6))
     d.line([(x0, yb), (x1, yb)], fill=(20, 20, 20), width=3)
     for x in (x0, x1):
         d.line([(x, yb - 5), (x, yb + 1)], fill=(20, 20, 20), width=2)
@@ -761,8 +826,11 @@ def render_legend(width: int = 512) -> np.ndarray:
                 c = ((box[0] + box[2]) / 2, (box[1] + box[3]) / 2, (sw - 2) / 2)
                 d.regular_polygon(c, 8, rotation=22.5, fill=col)
             else:
-                d.line([(box[0], (box[1] + box[3]) / 2), (box[2], (box[1] + box[3]) / 2)],
-                       fill=col, width=3)
+                d.line(
+                    [(box[0], (box[1] + box[3]) / 2), (box[2], (box[1] + box[3]) / 2)],
+                    fill=col,
+                    width=3,
+                )
             d.text((x + sw + 2, y), label, fill=(30, 30, 30), font=font)
             x += cells[i] + 2 * gap
         y += row_h
@@ -805,25 +873,36 @@ def save_video(frames: Sequence[np.ndarray], path: str | Path, fps: int = 10) ->
     for i, f in enumerate(frames):
         f = np.asarray(f)
         if f.shape != shape or f.ndim != 3 or f.shape[2] != 3 or f.dtype != np.uint8:
-            raise ValueError(f"save_video: frame {i} is {f.dtype} {f.shape}; all frames must be "
-                             f"uint8 (H, W, 3) like frame 0 {shape}")
+            raise ValueError(
+                f"save_video: frame {i} is {f.dtype} {f.shape}; all frames must be "
+                f"uint8 (H, W, 3) like frame 0 {shape}"
+            )
     if suffix == ".mp4" and not _have_ffmpeg():
         raise RuntimeError(
             f"save_video: writing {path.name!r} needs an ffmpeg backend (pip install "
-            "imageio-ffmpeg), which is not installed; save as .gif instead")
+            "imageio-ffmpeg), which is not installed; save as .gif instead"
+        )
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{suffix}")
     try:
         if suffix == ".gif":
             images = [Image.fromarray(np.asarray(f)) for f in frames]
-            images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:],
-                           duration=int(round(1000.0 / fps)), loop=0, optimize=False,
-                           disposal=1)
+            images[0].save(
+                tmp,
+                format="GIF",
+                save_all=True,
+                append_images=images[1:],
+                duration=int(round(1000.0 / fps)),
+                loop=0,
+                optimize=False,
+                disposal=1,
+            )
         else:
             import imageio.v2 as imageio
 
-            imageio.mimwrite(tmp, [np.asarray(f) for f in frames], fps=fps, format="FFMPEG",
-                             macro_block_size=1)
+            imageio.mimwrite(
+                tmp, [np.asarray(f) for f in frames], fps=fps, format="FFMPEG", macro_block_size=1
+            )
         os.replace(tmp, path)
     finally:
         if tmp.exists():
@@ -832,6 +911,16 @@ def save_video(frames: Sequence[np.ndarray], path: str | Path, fps: int = 10) ->
 
 
 __all__ = [
-    "CLASS_COLORS", "EGO_COLOR", "EGO_SEEN_COLOR", "LIGHT_COLORS", "RSU_SEEN_COLOR", "StaticMap",
-    "TopDownView", "make_view", "render_legend", "render_topdown", "save_video", "static_map",
+    "CLASS_COLORS",
+    "EGO_COLOR",
+    "EGO_SEEN_COLOR",
+    "LIGHT_COLORS",
+    "RSU_SEEN_COLOR",
+    "StaticMap",
+    "TopDownView",
+    "make_view",
+    "render_legend",
+    "render_topdown",
+    "save_video",
+    "static_map",
 ]

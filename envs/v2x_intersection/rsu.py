@@ -24,6 +24,8 @@ RSU_HEIGHT = 5.0  # m
 RSU_PITCH = np.deg2rad(12.0)  # rad, pitched down toward the road
 RSU_ROLL = np.deg2rad(1.0)  # rad, small roll offset (as the paper)
 SIDE_OFFSET = 9.0  # m from the route centre line to the pole
+TRIGGER_AHEAD = 14.0  # m past a scenario's hazard point where its unit stands
+SNAP_M = 8.0  # m: poles move to the nearest sidewalk point within this distance
 KIND_STRAIGHT, KIND_JUNCTION, KIND_TRIGGER = 0, 1, 2
 
 
@@ -56,7 +58,7 @@ def deploy(town: Town, route: Route, triggers: np.ndarray | None = None) -> RSUS
     Args:
         town: the road network.
         route: the ego's route.
-        triggers: optional ``(T, 2)`` scenario trigger points (m).
+        triggers: optional ``(T, 2)`` scenario hazard (conflict) points (m); each gets a unit.
     """
     cands: list[tuple[float, float, float, int, float]] = []
     pts, hd, s = route.points, route.headings, route.s
@@ -64,16 +66,19 @@ def deploy(town: Town, route: Route, triggers: np.ndarray | None = None) -> RSUS
     # junctions the route crosses
     for jid in np.unique(town.index.junction[route.lane_ids][in_junction]):
         j = town.junctions[jid]
-        k = int(np.argmin(np.linalg.norm(pts - j.center, axis=1)))
-        entry = int(np.flatnonzero(in_junction & (np.arange(len(pts)) <= k))[0]) if np.any(in_junction[: k + 1]) else k
+        inside = np.flatnonzero(town.index.junction[route.lane_ids] == jid)
+        k = int(inside[np.argmin(np.linalg.norm(pts[inside] - j.center, axis=1))])
+        entry = int(inside[0])
         h_in = hd[max(entry - 1, 0)]
         # far-right corner as seen when arriving, looking back diagonally over the junction
         corner = j.center + (j.radius + 3.0) * np.array([np.cos(h_in - np.pi / 4), np.sin(h_in - np.pi / 4)])
         yaw = np.arctan2(*(j.center - corner)[::-1]) - np.pi / 8
         cands.append((corner[0], corner[1], float(yaw), KIND_JUNCTION, float(s[k])))
     for tp in [] if triggers is None else np.asarray(triggers, float).reshape(-1, 2):
+        # a unit beside the road TRIGGER_AHEAD m past the hazard, looking back at it
         k = int(np.argmin(np.linalg.norm(pts - tp, axis=1)))
-        p = _beside(pts[k], hd[k], SIDE_OFFSET)
+        ka = min(int(np.searchsorted(s, s[k] + TRIGGER_AHEAD)), len(pts) - 1)
+        p = _beside(pts[ka], hd[ka], SIDE_OFFSET)
         yaw = np.arctan2(*(tp - p)[::-1])
         cands.append((p[0], p[1], float(yaw), KIND_TRIGGER, float(s[k])))
     for sk in np.arange(STRAIGHT_SPACING / 2, route.length, STRAIGHT_SPACING):
@@ -81,11 +86,12 @@ def deploy(town: Town, route: Route, triggers: np.ndarray | None = None) -> RSUS
         k = min(k, len(pts) - 1)
         if in_junction[k]:
             continue
-        # the unit stands ~40 m ahead of the point it serves, looking back at the ego
+        # the unit stands 30 m ahead of the point it serves, looking back at the ego
         ahead = min(int(np.searchsorted(s, sk + 30.0)), len(pts) - 1)
         p = _beside(pts[ahead], hd[ahead], SIDE_OFFSET)
         yaw = wrap_angle(hd[ahead] + np.pi - 0.35)
         cands.append((p[0], p[1], float(yaw), KIND_STRAIGHT, float(s[k])))
+    cands = [_on_sidewalk(town, c) for c in cands]
     order = sorted(range(len(cands)), key=lambda i: (-cands[i][3], cands[i][4]))
     kept: list[int] = []
     for i in order:
@@ -95,6 +101,32 @@ def deploy(town: Town, route: Route, triggers: np.ndarray | None = None) -> RSUS
     c = np.array([cands[i] for i in kept], float).reshape(-1, 5)
     pose = np.stack([c[:, 0], c[:, 1], np.full(len(c), RSU_HEIGHT), c[:, 2]], -1)
     return RSUSet(pose, c[:, 3].astype(np.int64), c[:, 4])
+
+
+def _on_sidewalk(town: Town, cand: tuple) -> tuple:
+    """Move a pole to the nearest sidewalk point within ``SNAP_M`` (poles stand on the kerb, never
+    inside a building); keep the unit looking at the same spot."""
+    if not town.sidewalks:
+        return cand
+    x, y, yaw, kind, s = cand
+    idx = _sidewalk_index(town)
+    _, _, d = idx.project(np.array([[x, y]]))
+    if d[0] > SNAP_M:
+        return cand
+    k = np.argmin(np.linalg.norm(idx.points - (x, y), axis=1))
+    nx, ny = idx.points[k]
+    target = np.array([x, y]) + 20.0 * np.array([np.cos(yaw), np.sin(yaw)])
+    return (float(nx), float(ny), float(np.arctan2(target[1] - ny, target[0] - nx)), kind, s)
+
+
+def _sidewalk_index(town: Town):
+    from .town.model import PolylineIndex
+
+    cached = getattr(town, "_sidewalk_index", None)
+    if cached is None:
+        cached = PolylineIndex([sw.points for sw in town.sidewalks])
+        object.__setattr__(town, "_sidewalk_index", cached)
+    return cached
 
 
 def _beside(p: np.ndarray, heading: float, offset: float) -> np.ndarray:

@@ -59,7 +59,8 @@ class V2XTorchEnv(EnvBase):
         w = self.worlds[i]
         o = ego_observation(w)
         o["route_completion"] = np.array([w.monitor.route_completion], np.float32)
-        o["v2x_bps"] = np.array([w.channel.stats()["bps"]], np.float32)
+        bytes_sent = w.channel.stats()["bytes_sent_total"]
+        o["v2x_bps"] = np.array([bytes_sent / (w.tick * w.config.dt) if w.tick else 0.0], np.float32)
         self._last_obs[i] = o
         return o
 

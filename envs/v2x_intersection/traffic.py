@@ -47,15 +47,15 @@ def leaders(t: ActorTable, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def junction_clear(t: ActorTable, town: Town, jid: int, me: int) -> bool:
-    """No other vehicle inside junction ``jid`` (and, at priority junctions, none arriving on a
-    major approach within 30 m)."""
+    """No other vehicle inside junction ``jid`` (and, for a minor-road vehicle at a priority
+    junction, none arriving on a major approach within 30 m)."""
     j = town.junctions[jid]
     veh = t.active & np.isin(t.behaviour, (EGO, DRIVER, RIDER))
     veh[me] = False
     inside = np.linalg.norm(t.pos - j.center, axis=1) < j.radius + 1.0
     if np.any(veh & inside):
         return False
-    if j.control == PRIORITY:
+    if j.control == PRIORITY and t.lane[me] in j.stop_lanes:  # minor road: wait for major traffic
         major = np.setdiff1d(j.incoming, j.stop_lanes)
         on_major = veh & np.isin(t.lane, major) & (t.speed > 0.5)
         remaining = town.index.length[np.clip(t.lane, 0, None)] - t.s
@@ -65,7 +65,7 @@ def junction_clear(t: ActorTable, town: Town, jid: int, me: int) -> bool:
 
 
 def step_followers(t: ActorTable, town: Town, lane_signal: np.ndarray, rng: np.random.Generator,
-                   dt: float, ego_pos: np.ndarray) -> np.ndarray:
+                   dt: float, ego_pos: np.ndarray, plans: list[list[int]] | None = None) -> np.ndarray:
     """Advance all lane followers (``DRIVER`` and ``RIDER``) by one tick, in place.
 
     Args:
@@ -75,12 +75,13 @@ def step_followers(t: ActorTable, town: Town, lane_signal: np.ndarray, rng: np.r
         rng: the world's generator.
         dt: tick (s).
         ego_pos: ``(2,)`` ego position, to respawn out of its way.
+        plans: fixed lane sequences referenced by ``t.plan`` (scenario actors).
 
     Returns:
         indices of followers that must be respawned (dead end or stuck).
     """
     ix = town.index
-    idx = np.flatnonzero(t.active & ((t.behaviour == DRIVER) | (t.behaviour == RIDER)))
+    idx = np.flatnonzero(t.active & ~t.hold & ((t.behaviour == DRIVER) | (t.behaviour == RIDER)))
     if len(idx) == 0:
         return idx
     lane = t.lane[idx]
@@ -108,6 +109,7 @@ def step_followers(t: ActorTable, town: Town, lane_signal: np.ndarray, rng: np.r
             must_stop[k] = True
         elif (needs_stop or control == PRIORITY) and to_line[k] < 8.0 and not junction_clear(t, town, jahead[k], i):
             must_stop[k] = True
+    must_stop &= ~t.ignore_rules[idx]
     acc_line = idm_accel(v, v0, np.maximum(to_line, 0.0), v, IDM)
     acc = np.where(must_stop, np.minimum(acc, acc_line), acc)
 
@@ -125,13 +127,19 @@ def step_followers(t: ActorTable, town: Town, lane_signal: np.ndarray, rng: np.r
         i = idx[k]
         while s[k] > ix.length[lane[k]]:
             succ = town.lanes[lane[k]].successors
-            if not succ:
+            planned = plans[t.plan[i]] if (plans is not None and t.plan[i] >= 0) else None
+            if planned is not None and t.plan_pos[i] + 1 < len(planned):
+                t.plan_pos[i] += 1
+                nxt = planned[t.plan_pos[i]]
+            elif succ and planned is None:
+                nxt = succ[int(rng.integers(len(succ)))]
+            else:
                 respawn.append(i)
                 break
             s[k] -= ix.length[lane[k]]
-            lane[k] = succ[int(rng.integers(len(succ)))]
+            lane[k] = nxt
             t.stopped_at_sign[i] = False
-    stuck = idx[(t.wait[idx] > STUCK_RESPAWN_S) & waiting & (sig != RED)]
+    stuck = idx[(t.wait[idx] > STUCK_RESPAWN_S) & waiting & (sig != RED) & (t.scenario[idx] < 0)]
     respawn.extend(stuck.tolist())
 
     _lane_changes(t, town, idx, lane, s, gap, dv, bike, rng, dt)

@@ -5,7 +5,7 @@
 1. validate actions (ego control, RSU message);
 2. the active RSU's message enters the V2X channel (serialized and counted there);
 3. ego dynamics (kinematic bicycle);
-4. traffic lights, NPC vehicles and bicycles (IDM), pedestrians;
+4. traffic lights, NPC vehicles and bicycles (IDM), pedestrians, then each scenario's hook;
 5. respawn NPCs that left the map or are stuck;
 6. collisions (pymunk query) and infraction / route-progress events;
 7. ``tick += 1``; perception: which actors the ego and the active RSU(s) see (2.5D occlusion);
@@ -42,11 +42,10 @@ from .signals import SignalPlan
 from .town import get_town
 from .town.model import DRIVING, RAMP
 from .traffic import free_lane_spot, place_on_lane, step_followers
-from .visibility import visible_fraction
+from .visibility import VISIBLE_THRESHOLD, visible_fraction
 
 EGO_SENSOR_Z = 1.8  # m, ego camera height (occlusion is judged from here)
 EGO_LENGTH, EGO_WIDTH, EGO_HEIGHT = 4.7, 1.9, 1.5  # m
-VISIBLE_THRESHOLD = 0.1  # fraction of sample points with a clear line of sight
 RSU_HFOV = np.deg2rad(120.0)  # rad, RSU LiDAR horizontal field of view
 
 
@@ -89,12 +88,22 @@ class World:
                 kinds.append(np.full(len(poles), kind))
         return np.concatenate(rows, 0), np.concatenate(heights), np.concatenate(kinds).astype(np.int64)
 
-    def reset(self, seed: int | None = None, route: Route | None = None) -> None:
-        """Start an episode: draw a route (unless given) and populate the world from ``seed``."""
+    def reset(self, seed: int | None = None, route: Route | None = None, scenarios: list | None = None) -> None:
+        """Start an episode and populate the world from ``seed``.
+
+        Args:
+            seed: seeds the world's one random generator.
+            route: the ego's route (default: a random route of ``config.route_length``).
+            scenarios: :class:`~.scenarios.base.Scenario` instances placed on ``route``; each gets
+                ``max_actors`` reserved rows of the actor table and runs its hooks every tick.
+        """
         cfg = self.config
         self.rng = np.random.default_rng(seed)
         self.route = route if route is not None else random_route(self.town, self.rng, cfg.route_length)
-        n = 1 + cfg.num_vehicles + cfg.num_parked + cfg.num_pedestrians + cfg.num_bicycles
+        self.scenarios = list(scenarios or [])
+        self.plans: list[list[int]] = []
+        n_base = 1 + cfg.num_vehicles + cfg.num_parked + cfg.num_pedestrians + cfg.num_bicycles
+        n = n_base + sum(sc.max_actors for sc in self.scenarios)
         t = ActorTable.empty(n)
         t.kind[0], t.behaviour[0], t.active[0] = CAR, EGO, True
         t.length[0], t.width[0], t.height[0] = EGO_LENGTH, EGO_WIDTH, EGO_HEIGHT
@@ -107,10 +116,17 @@ class World:
         row = self._spawn_walkers(row, cfg.num_pedestrians)
         row = self._spawn_riders(row, cfg.num_bicycles)
         t.color[:] = self.rng.integers(0, 8, size=n)
-        self.collisions = CollisionWorld(t, self.static_boxes)
-        self.rsus: RSUSet = deploy(self.town, self.route)
-        self.channel = Channel(self.channel_config, self.rng)
         self.monitor = EventMonitor(self.town, self.route, cfg.dt)
+        row = n_base
+        for k, sc in enumerate(self.scenarios):
+            rows = np.arange(row, row + sc.max_actors)
+            t.scenario[rows] = k
+            sc.setup(self, rows)
+            row += sc.max_actors
+        self.collisions = CollisionWorld(t, self.static_boxes)
+        triggers = np.array([sc.conflict_point for sc in self.scenarios]).reshape(-1, 2)
+        self.rsus: RSUSet = deploy(self.town, self.route, triggers if len(triggers) else None)
+        self.channel = Channel(self.channel_config, self.rng)
         self.tick = 0
         self.last_control = np.zeros(3)
         self.last_events: list = []
@@ -210,10 +226,15 @@ class World:
         # 4. traffic
         time_s = (self.tick + 1) * cfg.dt
         self.lane_signal = self.signals.lane_states(time_s)
-        respawn = step_followers(t, self.town, self.lane_signal, self.rng, cfg.dt, t.pos[0])
+        respawn = step_followers(t, self.town, self.lane_signal, self.rng, cfg.dt, t.pos[0], self.plans)
         step_walkers(t, self.sidewalks, self.rng, cfg.dt, cfg.jaywalk_prob)
-        # 5. respawn
+        for sc in self.scenarios:
+            sc.tick(self)
+        # 5. respawn (scenario actors that reach the end of their plan leave the world)
         for i in respawn:
+            if t.scenario[i] >= 0:
+                t.active[i] = False
+                continue
             spot = free_lane_spot(t, self.town, self._drive_lanes, self.rng, t.pos[0], 60.0)
             if spot is None:
                 t.active[i] = False
@@ -258,6 +279,10 @@ class World:
             self.ego_vis[near] = visible_fraction(ego_sensor, boxes, near, ignore=np.array([0]),
                                                   max_range=cfg.ego_range)
         self.rsu_vis = np.zeros((cfg.rsu_slots, n))
+        self._rsu_perception(boxes, targets)
+
+    def _rsu_perception(self, boxes: Boxes, targets: np.ndarray) -> None:
+        cfg, t = self.config, self.table
         for k, u in enumerate(self.active_rsu):
             if u < 0:
                 continue

@@ -342,21 +342,29 @@ class PolylineIndex:
         p = self.points[i] * (1.0 - t) + self.points[i + 1] * t
         return p, self.heading[i]
 
-    def project(self, xy: np.ndarray, candidates: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def point_ids(self, candidates: np.ndarray) -> np.ndarray:
+        """Indices into ``points`` of all vertices of the polylines ``candidates``."""
+        return np.concatenate([np.arange(self.offset[c], self.offset[c] + self.n_points[c]) for c in candidates])
+
+    def project(self, xy: np.ndarray, candidates: np.ndarray | None = None,
+                point_ids: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Nearest polyline point to each query ``xy (N, 2)``.
 
         Args:
             xy: query positions (m).
             candidates: optional polyline ids to restrict the search to.
+            point_ids: precomputed ``point_ids(candidates)`` (faster on hot paths).
 
         Returns:
             ``(idx (N,), s (N,), dist (N,))``: polyline id, arc length on it, distance (m).
         """
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-        if candidates is None:
+        if point_ids is not None:
+            pid = point_ids
+        elif candidates is None:
             pid = np.arange(len(self.points))
         else:
-            pid = np.concatenate([np.arange(self.offset[c], self.offset[c] + self.n_points[c]) for c in candidates])
+            pid = self.point_ids(candidates)
         d2 = ((xy[:, None, :] - self.points[pid][None]) ** 2).sum(-1)
         j = pid[np.argmin(d2, axis=1)]
         owner = self.owner[j]

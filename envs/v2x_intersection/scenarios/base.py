@@ -1,0 +1,110 @@
+"""The scenario interface: a parameterized hazard placed on the ego's route.
+
+A scenario is placed at a route arc length ``trigger_s`` (m). At reset it spawns its actors into
+``max_actors`` reserved rows of the actor table (:meth:`Scenario.setup`); every tick the world
+calls :meth:`Scenario.tick`, which fires :meth:`on_trigger` once when the ego comes within
+``trigger_distance`` of the trigger point, then :meth:`update`. The ego *passes* the scenario
+when its route progress reaches ``end_s``; if it has not passed ``timeout_s`` seconds after the
+trigger, a ``SCENARIO_TIMEOUT`` event is emitted (CARLA's scenario timeout, IS factor 0.7).
+
+Subclasses set the class attributes, implement :meth:`find_sites` (where on a town it fits),
+:meth:`spawn` and optionally :meth:`on_trigger` / :meth:`update`, and are registered with
+:func:`~.registry.register_scenario`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from ..infractions import SCENARIO_TIMEOUT
+from ..routes import Route
+from ..town.model import Town
+
+
+@dataclass(frozen=True)
+class Site:
+    """Where a scenario can happen: the lanes the ego drives through it, and the index in that
+    lane sequence where the hazard is (its trigger lies ``lead_m`` before the lane's start)."""
+
+    lanes: tuple[int, ...]
+    key: int = 0  # index into ``lanes`` of the lane where the hazard happens
+    s_on_key: float = 0.0  # arc length on that lane of the conflict point (m)
+    extra: tuple = ()  # scenario-specific data (e.g. the crossing lane)
+
+
+class Scenario:
+    """Base class; see the module docstring."""
+
+    name: ClassVar[str] = ""
+    family: ClassVar[str] = ""
+    v2x: ClassVar[bool] = False
+    max_actors: ClassVar[int] = 4
+    towns: ClassVar[tuple[str, ...]] = ()  # preferred towns (empty: any)
+    trigger_distance: ClassVar[float] = 35.0  # m before the conflict point
+    timeout_s: ClassVar[float] = 60.0
+    defaults: ClassVar[dict[str, Any]] = {}
+
+    def __init__(self, route: Route, site: Site, conflict_s: float, params: dict | None = None) -> None:
+        unknown = set(params or {}) - set(self.defaults)
+        if unknown:
+            raise ValueError(f"scenario {self.name}: unknown parameters {sorted(unknown)}; "
+                             f"known: {sorted(self.defaults)}")
+        self.params = {**self.defaults, **(params or {})}
+        self.route, self.site = route, site
+        self.conflict_s = float(conflict_s)  # route arc length of the conflict point (m)
+        k = int(np.clip(np.searchsorted(route.s, conflict_s), 0, len(route.points) - 1))
+        self.conflict_point = route.points[k].copy()
+        ts = max(conflict_s - self.trigger_distance, 0.0)
+        self.trigger_s = ts
+        self.trigger_point = route.points[int(np.clip(np.searchsorted(route.s, ts), 0, len(route.points) - 1))].copy()
+        self.end_s = min(conflict_s + 15.0, route.length - 1.0)
+        self.rows = np.zeros(0, np.int64)
+        self.hazard_rows: list[int] = []
+        self.triggered = False
+        self.trigger_tick = -1
+        self.passed = False
+        self.timed_out = False
+
+    # ------------------------------------------------------------------ placement
+    @classmethod
+    def find_sites(cls, town: Town) -> list[Site]:
+        """All places in ``town`` where this scenario fits (override)."""
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ runtime
+    def setup(self, world, rows: np.ndarray) -> None:
+        """Spawn the scenario's actors into ``rows`` (called by ``World.reset``)."""
+        self.rows = rows
+        self.spawn(world)
+
+    def spawn(self, world) -> None:
+        """Create actors (override). Use ``self.rows[i]`` as table rows."""
+        raise NotImplementedError
+
+    def on_trigger(self, world) -> None:
+        """Called once when the ego reaches the trigger (override)."""
+
+    def update(self, world) -> None:
+        """Called every tick after the trigger (override)."""
+
+    def ego_s(self, world) -> float:
+        """Ego route progress (m)."""
+        return float(world.route.s[world.monitor.progress])
+
+    def tick(self, world) -> None:
+        """Trigger, behaviour, pass / timeout bookkeeping (called by ``World.step``)."""
+        s = self.ego_s(world)
+        if not self.triggered and s >= self.trigger_s:
+            self.triggered, self.trigger_tick = True, world.tick
+            self.on_trigger(world)
+        if self.triggered:
+            self.update(world)
+            if not self.passed and s >= self.end_s:
+                self.passed = True
+            elapsed = (world.tick - self.trigger_tick) * world.config.dt
+            if not self.passed and not self.timed_out and elapsed > self.timeout_s:
+                self.timed_out = True
+                world.monitor.emit(SCENARIO_TIMEOUT, world.tick, -1, float(elapsed))

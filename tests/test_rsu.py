@@ -1,0 +1,225 @@
+"""Tests of route-adaptive RSU deployment and active-unit selection."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from v2xbench.envs.v2x_intersection import rsu as rsu_module
+from v2xbench.envs.v2x_intersection.geometry import transform_points, world_to_local_2d, wrap_angle
+from v2xbench.envs.v2x_intersection.routes import random_route, route_from_lanes
+from v2xbench.envs.v2x_intersection.rsu import (
+    KIND_JUNCTION,
+    KIND_STRAIGHT,
+    KIND_TRIGGER,
+    MIN_SPACING,
+    RSU_HEIGHT,
+    RSU_PITCH,
+    SIDE_OFFSET,
+    STRAIGHT_SPACING,
+    RSUSet,
+    deploy,
+    select_active,
+)
+from v2xbench.envs.v2x_intersection.town import get_town
+from v2xbench.envs.v2x_intersection import rsu as rsu_mod
+
+CASES = [("Town01", 0), ("Town01", 3), ("Town12", 1), ("Town03", 2), ("Town02", 4)]
+AHEAD = 30.0  # m: a straight unit stands this far along the route from the point it serves
+SNAP = getattr(rsu_module, "SNAP_M", 0.0)  # m: poles may move this far, onto the nearest sidewalk
+TRIGGER_AHEAD = getattr(rsu_module, "TRIGGER_AHEAD", 0.0)  # m past the hazard
+
+
+@pytest.fixture(scope="module")
+def deployments():
+    out = {}
+    for name, seed in CASES:
+        town = get_town(name)
+        route = random_route(town, np.random.default_rng(seed), 500.0)
+        out[(name, seed)] = (town, route, deploy(town, route))
+    return out
+
+
+def _entry_headings(town, route, jid: int) -> list[float]:
+    """Heading of the route just before each of its entries into junction ``jid``."""
+    inside = town.index.junction[route.lane_ids] == jid
+    starts = np.flatnonzero(inside & ~np.concatenate([[False], inside[:-1]]))
+    return [float(route.headings[max(e - 1, 0)]) for e in starts]
+
+
+@pytest.mark.parametrize("case", CASES, ids=[f"{n}-{s}" for n, s in CASES])
+def test_unit_at_every_junction_the_route_crosses(deployments, case):
+    town, route, rsus = deployments[case]
+    jl = town.index.junction[route.lane_ids]
+    crossed = np.unique(jl[jl >= 0])
+    assert len(crossed) >= 2
+    units = np.flatnonzero(rsus.kind == KIND_JUNCTION)
+    assert len(units) == len(crossed)
+    for jid in crossed:
+        j = town.junctions[jid]
+        d = np.linalg.norm(rsus.pose[units, :2] - j.center, axis=1)
+        u = units[np.argmin(d)]
+        # on a corner just outside the conflict area (or on the sidewalk next to it) ...
+        assert j.radius < d.min() <= j.radius + 3.0 + SNAP + 1e-6
+        # ... looking over the junction
+        to_centre = np.arctan2(*(j.center - rsus.pose[u, :2])[::-1])
+        assert abs(float(wrap_angle(rsus.pose[u, 3] - to_centre))) < np.deg2rad(45.0)
+
+
+@pytest.mark.parametrize("case", CASES, ids=[f"{n}-{s}" for n, s in CASES])
+def test_junction_unit_on_the_far_right_corner(deployments, case):
+    town, route, rsus = deployments[case]
+    jl = town.index.junction[route.lane_ids]
+    units = np.flatnonzero(rsus.kind == KIND_JUNCTION)
+    for jid in np.unique(jl[jl >= 0]):
+        j = town.junctions[jid]
+        u = units[np.argmin(np.linalg.norm(rsus.pose[units, :2] - j.center, axis=1))]
+        # far-right corner as seen when arriving (on one of the route's visits of the junction)
+        corners = [world_to_local_2d(rsus.pose[u, :2], j.center, h) for h in _entry_headings(town, route, jid)]
+        assert any(x > 0.0 and y < 0.0 for x, y in corners), f"junction {jid}: unit at {corners}"
+
+
+@pytest.mark.parametrize("case", CASES, ids=[f"{n}-{s}" for n, s in CASES])
+def test_units_cover_the_straights(deployments, case):
+    town, route, rsus = deployments[case]
+    assert np.any(rsus.kind == KIND_STRAIGHT)
+    # every candidate spot (every STRAIGHT_SPACING m) has a unit nearby: its own (AHEAD m further,
+    # SIDE_OFFSET to the side), the junction it lies in, or the unit that pruned it
+    reach = AHEAD + SIDE_OFFSET + MIN_SPACING
+    for sk in np.arange(STRAIGHT_SPACING / 2, route.length, STRAIGHT_SPACING):
+        k = min(int(np.searchsorted(route.s, sk)), len(route.s) - 1)
+        d = np.linalg.norm(rsus.pose[:, :2] - route.points[k], axis=1).min()
+        assert d <= reach + 1.0, f"no unit within {reach} m of route s={sk}"
+    # and whatever the ego's position, the next unit is never much more than one spacing away
+    d_all = np.linalg.norm(route.points[:, None] - rsus.pose[None, :, :2], axis=2).min(1)
+    assert d_all.max() < STRAIGHT_SPACING + 2 * SIDE_OFFSET + 2.0
+
+
+@pytest.mark.parametrize("case", CASES, ids=[f"{n}-{s}" for n, s in CASES])
+def test_straight_units_stand_beside_the_route_looking_back(deployments, case):
+    town, route, rsus = deployments[case]
+    for u in np.flatnonzero(rsus.kind == KIND_STRAIGHT):
+        # route_s is the route point at (just after) a candidate spot STRAIGHT_SPACING / 2 + k * spacing
+        sk = STRAIGHT_SPACING / 2 + STRAIGHT_SPACING * np.floor((rsus.route_s[u] - STRAIGHT_SPACING / 2)
+                                                                / STRAIGHT_SPACING)
+        assert 0.0 <= rsus.route_s[u] - sk < 1.5
+        k = min(int(np.searchsorted(route.s, sk + AHEAD)), len(route.s) - 1)
+        h = route.headings[k]
+        spot = route.points[k] + SIDE_OFFSET * np.array([np.sin(h), -np.cos(h)])  # to the right
+        assert np.linalg.norm(rsus.pose[u, :2] - spot) <= SNAP + 1e-6
+        x, y = world_to_local_2d(rsus.pose[u, :2], route.points[k], h)
+        assert y < -2.0  # on the right-hand side of the route
+        # looking back along the road (toward the approaching ego), slightly across it
+        assert abs(float(wrap_angle(rsus.pose[u, 3] - (h + np.pi)))) < np.deg2rad(45.0)
+
+
+@pytest.mark.parametrize("case", CASES, ids=[f"{n}-{s}" for n, s in CASES])
+def test_min_spacing_height_and_order(deployments, case):
+    town, route, rsus = deployments[case]
+    assert len(rsus) >= 3
+    d = np.linalg.norm(rsus.pose[:, None, :2] - rsus.pose[None, :, :2], axis=2)
+    d[np.diag_indices(len(rsus))] = np.inf
+    assert d.min() >= MIN_SPACING
+    np.testing.assert_array_equal(rsus.pose[:, 2], RSU_HEIGHT)
+    assert np.all(np.diff(rsus.route_s) >= 0.0)
+    assert rsus.pose.shape == (len(rsus), 4) and rsus.kind.shape == rsus.route_s.shape == (len(rsus),)
+
+
+def test_rsu_matrix_is_pitched_down():
+    rsus = RSUSet(np.array([[10.0, 20.0, RSU_HEIGHT, 0.5]]), np.array([KIND_STRAIGHT]), np.array([0.0]))
+    t = rsus.matrix(0)
+    np.testing.assert_allclose(t[:3, 3], [10.0, 20.0, RSU_HEIGHT])
+    axis = transform_points(t, np.array([1.0, 0.0, 0.0])) - t[:3, 3]
+    assert axis[2] == pytest.approx(-np.sin(RSU_PITCH), abs=1e-9)
+    assert np.arctan2(axis[1], axis[0]) == pytest.approx(0.5, abs=0.02)
+
+
+def test_trigger_point_gets_a_unit():
+    town = get_town("Town04")  # no sidewalks: the pole stays where it is placed
+    route = route_from_lanes(town, [0, 20, 6, 28, 12])
+    trigger = route.points[420] + np.array([0.0, -6.0])  # a hazard on the shoulder
+    rsus = deploy(town, route, triggers=trigger[None])
+    units = np.flatnonzero(rsus.kind == KIND_TRIGGER)
+    assert len(units) == 1
+    u = units[0]
+    assert np.linalg.norm(rsus.pose[u, :2] - trigger) <= TRIGGER_AHEAD + SIDE_OFFSET + 6.0 + 1.5
+    to_trigger = np.arctan2(*(trigger - rsus.pose[u, :2])[::-1])
+    assert rsus.pose[u, 3] == pytest.approx(to_trigger, abs=1e-9)  # looking at the hazard
+    assert rsus.route_s[u] == pytest.approx(route.s[420], abs=1e-9)
+    # triggers are kept first: no other unit within MIN_SPACING of it
+    others = np.delete(np.arange(len(rsus)), u)
+    assert np.linalg.norm(rsus.pose[others, :2] - rsus.pose[u, :2], axis=1).min() >= MIN_SPACING
+    # without the trigger there is no trigger unit
+    assert not np.any(deploy(town, route).kind == KIND_TRIGGER)
+
+
+def test_trigger_unit_in_a_city(deployments):
+    town, route, plain = deployments[("Town01", 0)]
+    k = len(route.points) // 2
+    trigger = route.points[k]
+    rsus = deploy(town, route, triggers=trigger[None])
+    units = np.flatnonzero(rsus.kind == KIND_TRIGGER)
+    assert len(units) == 1
+    u = units[0]
+    assert np.linalg.norm(rsus.pose[u, :2] - trigger) <= TRIGGER_AHEAD + SIDE_OFFSET + SNAP + 1.5
+    to_trigger = np.arctan2(*(trigger - rsus.pose[u, :2])[::-1])
+    assert abs(float(wrap_angle(rsus.pose[u, 3] - to_trigger))) < np.deg2rad(30.0)
+    d = np.linalg.norm(rsus.pose[:, None, :2] - rsus.pose[None, :, :2], axis=2)
+    d[np.diag_indices(len(rsus))] = np.inf
+    assert d.min() >= MIN_SPACING
+
+
+# ------------------------------------------------------------------------------ select_active
+
+
+def _units(rows) -> RSUSet:
+    pose = np.array([[x, y, RSU_HEIGHT, yaw] for x, y, yaw in rows], float)
+    return RSUSet(pose, np.zeros(len(rows), np.int64), np.zeros(len(rows)))
+
+
+def test_select_active_hand_cases():
+    rsus = _units([
+        (50.0, -9.0, np.pi),  # 0: ahead, facing the ego
+        (30.0, -9.0, 0.0),  # 1: ahead and closer, but looking away
+        (-40.0, -9.0, 0.0),  # 2: behind, looking at the ego
+        (120.0, -9.0, np.pi),  # 3: ahead, facing, further away
+        (20.0, 9.0, -2.5),  # 4: ahead on the left, facing the ego diagonally
+    ])
+    ego, yaw = np.zeros(2), 0.0
+    assert select_active(rsus, ego, yaw, 75.0).tolist() == [4]
+    np.testing.assert_array_equal(select_active(rsus, ego, yaw, 75.0, slots=3), [4, 0, -1])
+    np.testing.assert_array_equal(select_active(rsus, ego, yaw, 200.0, slots=3), [4, 0, 3])
+    # ego driving the other way: only unit 2 (now ahead, looking +x at the ego) qualifies
+    np.testing.assert_array_equal(select_active(rsus, ego, np.pi, 200.0, slots=2), [2, -1])
+    # a unit up to 10 m behind still counts
+    near_behind = _units([(-8.0, -9.0, np.pi / 2)])
+    assert select_active(near_behind, ego, yaw, 75.0).tolist() == [0]
+
+
+def test_select_active_falls_back_to_the_nearest():
+    rsus = _units([(30.0, 0.0, 0.0), (-60.0, 0.0, 0.0)])  # neither faces the ego
+    np.testing.assert_array_equal(select_active(rsus, np.zeros(2), 0.0, 75.0, slots=2), [0, -1])
+    empty = RSUSet(np.zeros((0, 4)), np.zeros(0, np.int64), np.zeros(0))
+    np.testing.assert_array_equal(select_active(empty, np.zeros(2), 0.0, 75.0, slots=2), [-1, -1])
+
+
+@pytest.mark.parametrize("case", CASES, ids=[f"{n}-{s}" for n, s in CASES])
+def test_select_active_along_a_route(deployments, case):
+    town, route, rsus = deployments[case]
+    n_ok = 0
+    steps = range(0, len(route.points), 25)
+    for k in steps:
+        ego, yaw = route.points[k], route.headings[k]
+        u = int(select_active(rsus, ego, yaw, 75.0)[0])
+        d = rsus.pose[:, :2] - ego
+        dist = np.linalg.norm(d, axis=1)
+        ahead = d @ np.array([np.cos(yaw), np.sin(yaw)]) > -10.0
+        facing = np.abs(wrap_angle(np.arctan2(-d[:, 1], -d[:, 0]) - rsus.pose[:, 3])) < np.deg2rad(100.0)
+        ok = ahead & facing & (dist < 75.0)
+        if ok.any():
+            n_ok += 1
+            assert ok[u], "the active unit must be ahead of the ego and facing it"
+            assert dist[u] == dist[ok].min()  # the nearest such unit
+        else:
+            assert u == int(np.argmin(dist))  # fallback: the nearest unit
+    # route-adaptive deployment: most of the time a forward-facing unit is in range
+    assert n_ok >= 0.7 * len(steps)

@@ -1,0 +1,95 @@
+"""Tests of the traffic-light phase plans."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from v2xbench.envs.v2x_intersection.signals import GREEN, NO_SIGNAL, RED, YELLOW, SignalPlan
+from v2xbench.envs.v2x_intersection.town import get_town
+from v2xbench.envs.v2x_intersection.town.model import SIGNAL
+
+TOWNS = ["Town01", "Town03", "Town12"]
+
+
+@pytest.fixture(scope="module", params=TOWNS)
+def town_plan(request):
+    town = get_town(request.param)
+    return town, SignalPlan(town)
+
+
+def signal_junctions(town):
+    return [j for j in town.junctions if j.control == SIGNAL]
+
+
+def test_plan_covers_exactly_the_signal_lanes(town_plan):
+    town, plan = town_plan
+    expected = sorted(lid for j in signal_junctions(town) for g in j.phase_groups for lid in g)
+    assert len(expected) > 0
+    assert sorted(plan.lanes.tolist()) == expected
+    states = plan.lane_states(3.0)
+    assert states.shape == (len(town.lanes),)
+    controlled = np.zeros(len(town.lanes), bool)
+    controlled[plan.lanes] = True
+    assert np.all(states[~controlled] == NO_SIGNAL)
+    assert np.all(np.isin(states[controlled], [GREEN, YELLOW, RED]))
+
+
+def test_at_most_one_phase_group_green_or_yellow(town_plan):
+    town, plan = town_plan
+    for t in np.arange(0.0, 150.0, 0.25):
+        s = plan.states(t)
+        for j in signal_junctions(town):
+            m = plan.junction == j.id
+            active = np.unique(plan.group[m][s[m] != RED])
+            assert len(active) <= 1, f"junction {j.id} at t={t:.1f}: groups {active}"
+            # every lane of a group shares the group's state
+            for g in range(len(j.phase_groups)):
+                assert len(np.unique(s[m & (plan.group == g)])) == 1
+
+
+def test_every_controlled_lane_gets_green_each_cycle(town_plan):
+    town, plan = town_plan
+    for j in signal_junctions(town):
+        m = plan.junction == j.id
+        t0 = 17.3
+        times = t0 + np.arange(0.0, j.cycle_s, 0.05)
+        st = np.stack([plan.states(t)[m] for t in times])
+        assert np.all((st == GREEN).any(0))
+        assert np.all((st == YELLOW).any(0))
+        # green for green_s and yellow for yellow_s of each cycle (to the sampling step)
+        np.testing.assert_allclose((st == GREEN).sum(0) * 0.05, j.green_s, atol=0.11)
+        np.testing.assert_allclose((st == YELLOW).sum(0) * 0.05, j.yellow_s, atol=0.11)
+        # all-red clearance between phases: some instants where every approach is red
+        assert np.any((st == RED).all(1))
+
+
+def test_states_are_periodic_with_the_cycle(town_plan):
+    town, plan = town_plan
+    rng = np.random.default_rng(0)
+    for j in signal_junctions(town):
+        m = plan.junction == j.id
+        for t in rng.uniform(0.0, 500.0, 40):
+            a = plan.states(t)[m]
+            for k in (1, 3):
+                np.testing.assert_array_equal(plan.states(t + k * j.cycle_s)[m], a)
+
+
+def test_phase_order_green_yellow_red():
+    town = get_town("Town01")
+    plan = SignalPlan(town)
+    j = signal_junctions(town)[0]
+    lane = j.phase_groups[0][0]
+    k = int(np.flatnonzero(plan.lanes == lane)[0])
+    times = np.arange(0.0, 2 * j.cycle_s, 0.05)
+    seq = np.array([plan.states(t)[k] for t in times])
+    changes = seq[np.flatnonzero(np.diff(seq)) + 1]
+    # after a green always yellow, after yellow always red, after red always green
+    prev = seq[np.flatnonzero(np.diff(seq))]
+    for a, b in zip(prev, changes):
+        assert (a, b) in ((GREEN, YELLOW), (YELLOW, RED), (RED, GREEN))
+
+
+def test_junctions_are_not_synchronized():
+    town = get_town("Town12")
+    offsets = [j.offset_s for j in signal_junctions(town)]
+    assert len(set(np.round(offsets, 6))) == len(offsets)

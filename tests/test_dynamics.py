@@ -103,7 +103,12 @@ def test_yaw_is_wrapped():
 def test_vectorized_matches_scalar():
     rng = np.random.default_rng(0)
     n = 50
-    state = [rng.uniform(-10, 10, n), rng.uniform(-10, 10, n), rng.uniform(-3, 3, n), rng.uniform(0, 20, n)]
+    state = [
+        rng.uniform(-10, 10, n),
+        rng.uniform(-10, 10, n),
+        rng.uniform(-3, 3, n),
+        rng.uniform(0, 20, n),
+    ]
     ctrl = [rng.uniform(0, 1, n), rng.uniform(-1, 1, n), rng.uniform(0, 1, n)]
     out = bicycle_step(*state, *ctrl, P, DT)
     for k in (0, 17, 49):
@@ -199,6 +204,11 @@ def test_idm_follows_a_leader_without_collision():
 
 def test_idm_vectorized():
     v = np.array([0.0, 10.0, 10.0])
-    out = idm_accel(v, np.array([10.0, 10.0, 13.9]), np.array([np.inf, np.inf, IDM.min_gap]),
-                    np.array([0.0, 0.0, 10.0]), IDM)
+    out = idm_accel(
+        v,
+        np.array([10.0, 10.0, 13.9]),
+        np.array([np.inf, np.inf, IDM.min_gap]),
+        np.array([0.0, 0.0, 10.0]),
+        IDM,
+    )
     np.testing.assert_allclose(out, [IDM.accel, 0.0, -IDM.max_brake], atol=1e-12)

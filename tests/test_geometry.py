@@ -85,7 +85,9 @@ def test_world_local_round_trip():
         np.testing.assert_allclose(local_to_world_2d(local, origin, yaw), pts, atol=1e-9)
         # a rigid transform keeps distances
         np.testing.assert_allclose(
-            np.linalg.norm(local - local[0], axis=1), np.linalg.norm(pts - pts[0], axis=1), atol=1e-9
+            np.linalg.norm(local - local[0], axis=1),
+            np.linalg.norm(pts - pts[0], axis=1),
+            atol=1e-9,
         )
 
 
@@ -102,7 +104,9 @@ def test_box_corners_axis_aligned():
 def test_box_corners_rotated_90deg():
     c = box_corners_2d(np.array([[0.0, 0.0]]), np.array([4.0]), np.array([2.0]), np.array([PI / 2]))
     # heading +y: front-left is (-1, 2), rear-left (-1, -2), rear-right (1, -2), front-right (1, 2)
-    np.testing.assert_allclose(c[0], [[-1.0, 2.0], [-1.0, -2.0], [1.0, -2.0], [1.0, 2.0]], atol=1e-12)
+    np.testing.assert_allclose(
+        c[0], [[-1.0, 2.0], [-1.0, -2.0], [1.0, -2.0], [1.0, 2.0]], atol=1e-12
+    )
 
 
 def test_box_corners_batch_counter_clockwise_and_sizes():
@@ -125,7 +129,9 @@ def test_box_corners_batch_counter_clockwise_and_sizes():
 
 def test_pose_matrix_yaw_only():
     t = pose_matrix(1.0, 2.0, 3.0, PI / 2)
-    np.testing.assert_allclose(transform_points(t, np.array([1.0, 0.0, 0.0])), [1.0, 3.0, 3.0], atol=1e-12)
+    np.testing.assert_allclose(
+        transform_points(t, np.array([1.0, 0.0, 0.0])), [1.0, 3.0, 3.0], atol=1e-12
+    )
     np.testing.assert_allclose(t[3], [0.0, 0.0, 0.0, 1.0])
 
 
@@ -158,8 +164,9 @@ def test_relative_transform_ego_rsu_round_trip():
     rng = np.random.default_rng(4)
     for _ in range(20):
         t_world_ego = pose_matrix(*rng.uniform(-300, 300, 2), 0.0, rng.uniform(-PI, PI))
-        t_world_rsu = pose_matrix(*rng.uniform(-300, 300, 2), 5.0, rng.uniform(-PI, PI),
-                                  np.deg2rad(12.0), np.deg2rad(1.0))
+        t_world_rsu = pose_matrix(
+            *rng.uniform(-300, 300, 2), 5.0, rng.uniform(-PI, PI), np.deg2rad(12.0), np.deg2rad(1.0)
+        )
         t_ego_rsu = relative_transform(t_world_ego, t_world_rsu)
         t_rsu_ego = relative_transform(t_world_rsu, t_world_ego)
         np.testing.assert_allclose(t_ego_rsu @ t_rsu_ego, np.eye(4), atol=1e-12)
@@ -169,8 +176,9 @@ def test_relative_transform_ego_rsu_round_trip():
         np.testing.assert_allclose(transform_points(t_rsu_ego, p_ego), p_rsu, atol=1e-9)
         # consistent with going through the world frame
         p_world = transform_points(t_world_rsu, p_rsu)
-        np.testing.assert_allclose(transform_points(invert_transform(t_world_ego), p_world), p_ego,
-                                   atol=1e-9)
+        np.testing.assert_allclose(
+            transform_points(invert_transform(t_world_ego), p_world), p_ego, atol=1e-9
+        )
 
 
 def test_relative_transform_known_answer():
@@ -179,11 +187,13 @@ def test_relative_transform_known_answer():
     t_world_rsu = pose_matrix(10.0, 0.0, 5.0, PI)
     t_ego_rsu = relative_transform(t_world_ego, t_world_rsu)
     # a point 4 m in front of the RSU (along its x) is 6 m ahead of the ego at height 5
-    np.testing.assert_allclose(transform_points(t_ego_rsu, np.array([4.0, 0.0, 0.0])), [6.0, 0.0, 5.0],
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        transform_points(t_ego_rsu, np.array([4.0, 0.0, 0.0])), [6.0, 0.0, 5.0], atol=1e-12
+    )
     # the RSU's left (+y) is the ego's right (-y)
-    np.testing.assert_allclose(transform_points(t_ego_rsu, np.array([0.0, 1.0, 0.0])), [10.0, -1.0, 5.0],
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        transform_points(t_ego_rsu, np.array([0.0, 1.0, 0.0])), [10.0, -1.0, 5.0], atol=1e-12
+    )
 
 
 # ------------------------------------------------------------------------------ cameras
@@ -233,10 +243,14 @@ def test_resample_polyline_spacing_and_ends():
     # samples are 1 m apart in arc length: each lies on the polyline at s = k
     s = np.arange(18.0)
     on_first = s <= 10.0
-    np.testing.assert_allclose(out[on_first], np.stack([s[on_first], np.zeros(on_first.sum())], -1),
-                               atol=1e-12)
-    np.testing.assert_allclose(out[~on_first], np.stack([np.full((~on_first).sum(), 10.0),
-                                                         s[~on_first] - 10.0], -1), atol=1e-12)
+    np.testing.assert_allclose(
+        out[on_first], np.stack([s[on_first], np.zeros(on_first.sum())], -1), atol=1e-12
+    )
+    np.testing.assert_allclose(
+        out[~on_first],
+        np.stack([np.full((~on_first).sum(), 10.0), s[~on_first] - 10.0], -1),
+        atol=1e-12,
+    )
 
 
 def test_resample_polyline_uneven_length_spacing_close_to_step():

@@ -46,10 +46,12 @@ def test_collision_world_npc_and_static_contacts():
     t = table(3)
     t.pos[1] = [3.0, 0.5]  # overlaps the ego's front
     t.pos[2] = [4.7 + 5.0, 0.0]  # 5 m gap ahead
-    statics = np.array([
-        [0.0, 30.0, 10.0, 4.0, 0.0],  # k = 0: far away
-        [0.0, -3.0, 10.0, 4.5, 0.0],  # k = 1: its edge y = -0.75 overlaps the ego (y >= -0.95)
-    ])
+    statics = np.array(
+        [
+            [0.0, 30.0, 10.0, 4.0, 0.0],  # k = 0: far away
+            [0.0, -3.0, 10.0, 4.5, 0.0],  # k = 1: its edge y = -0.75 overlaps the ego (y >= -0.95)
+        ]
+    )
     cw = CollisionWorld(t, statics)
     np.testing.assert_array_equal(cw.ego_contacts(t), [-2, 1])
     # move things: the NPC leaves, the far one comes close, the static stays
@@ -121,8 +123,9 @@ def test_collision_world_matches_separating_axis_test():
 
 
 def test_ego_into_parked_vehicle_counts_once_per_contact_window():
-    w = World(make_config(town="Town03", num_vehicles=0, num_parked=1, num_pedestrians=0,
-                          num_bicycles=0))
+    w = World(
+        make_config(town="Town03", num_vehicles=0, num_parked=1, num_pedestrians=0, num_bicycles=0)
+    )
     w.reset(seed=0)
     t = w.table
     assert t.behaviour[1] == PARKED
@@ -151,8 +154,9 @@ def test_ego_into_parked_vehicle_counts_once_per_contact_window():
 
 
 def test_ego_into_pedestrian():
-    w = World(make_config(town="Town03", num_vehicles=0, num_parked=0, num_pedestrians=1,
-                          num_bicycles=0))
+    w = World(
+        make_config(town="Town03", num_vehicles=0, num_parked=0, num_pedestrians=1, num_bicycles=0)
+    )
     w.reset(seed=0)
     t = w.table
     assert t.behaviour[1] == WALKER and t.kind[1] == PEDESTRIAN
@@ -166,8 +170,9 @@ def test_ego_into_pedestrian():
 
 
 def test_ego_into_building_is_static_collision():
-    w = World(make_config(town="Town01", num_vehicles=0, num_parked=0, num_pedestrians=0,
-                          num_bicycles=0))
+    w = World(
+        make_config(town="Town01", num_vehicles=0, num_parked=0, num_pedestrians=0, num_bicycles=0)
+    )
     w.reset(seed=0)
     t = w.table
     b = w.town.buildings[0]
@@ -183,9 +188,13 @@ def test_ego_into_building_is_static_collision():
 def _approach(town, control: int):
     """A route over a lane ending at a junction of ``control`` (lane, route)."""
     for ln in town.lanes:
-        if (ln.kind == DRIVING and ln.stop_at_end and ln.length > 40
-                and town.junctions[ln.junction_ahead].control == control
-                and (control != STOP or ln.id in town.junctions[ln.junction_ahead].stop_lanes)):
+        if (
+            ln.kind == DRIVING
+            and ln.stop_at_end
+            and ln.length > 40
+            and town.junctions[ln.junction_ahead].control == control
+            and (control != STOP or ln.id in town.junctions[ln.junction_ahead].stop_lanes)
+        ):
             conn = ln.successors[0]
             return ln.id, route_from_lanes(town, [ln.id, conn, town.lanes[conn].successors[0]])
     raise AssertionError("no approach")

@@ -30,8 +30,9 @@ from v2xbench.envs.v2x_intersection.town.model import (
     STOP,
 )
 
-#: (template, seed) pairs covering every template, two seeds each
-CASES = [(name, seed) for name in ("grid", "tjunction", "arterial", "highway") for seed in (0, 5)]
+BASE_TEMPLATES = ("grid", "tjunction", "arterial", "highway")
+#: (template, seed) pairs: every registered template at seed 0, the base ones also at seed 5
+CASES = [(name, 0) for name in sorted(TEMPLATES)] + [(name, 5) for name in BASE_TEMPLATES]
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +56,8 @@ def arms(town: Town, j) -> int:
 
 
 def test_templates_registry():
-    assert set(TEMPLATES) == {"grid", "tjunction", "arterial", "highway"}
+    assert set(BASE_TEMPLATES) <= set(TEMPLATES)
+    assert all(callable(fn) for fn in TEMPLATES.values())
 
 
 @pytest.mark.parametrize("case", CASES, ids=[f"{t}-{s}" for t, s in CASES])
@@ -131,23 +133,29 @@ def test_highway_has_ramps_and_merge_junctions(towns, seed):
     assert len(town.lights) == 0 and len(town.crosswalks) == 0
 
 
-@pytest.mark.xfail(
-    reason="builder._connect adds a LEFT connector at the off-ramp MERGE node from the westbound "
-    "carriageway across the median into the eastbound off-ramp (wrong-way path, ~151 deg turn)",
-    strict=True,
+@pytest.mark.parametrize(
+    "case",
+    [c for c in CASES if c[0] in ("highway", "metro")],
+    ids=[f"{t}-{s}" for t, s in CASES if t in ("highway", "metro")],
 )
-def test_highway_merge_connectors_keep_direction_of_travel():
-    town = generate_town("highway", 0)
-    for j in town.junctions:
+def test_merge_connectors_keep_direction_of_travel(towns, case):
+    # regression: the westbound carriageway once had a LEFT connector across the median into the
+    # eastbound off-ramp (a ~151 deg wrong-way turn)
+    town = towns[case]
+    merges = [j for j in town.junctions if j.control == MERGE]
+    assert merges
+    for j in merges:
         for c in j.connectors:
             h = headings(town.lanes[c].points)
             total = abs(float(np.sum(wrap_angle(np.diff(h)))))
-            assert total < np.pi / 2, f"connector {c} at merge {j.id} turns {np.degrees(total):.0f} deg"
+            assert total < np.pi / 2, (
+                f"connector {c} at merge {j.id} turns {np.degrees(total):.0f} deg"
+            )
 
 
 @pytest.mark.xfail(
     reason="highway ramps start inside the main carriageway: the one-way ramp centre line begins "
-    "~1.1 m from an inner lane centre and ~2.5 m from the outer lane centre for ~25 m",
+    "~1.4 m from the outer lane's centre line and runs over it (< 0.2 m) for ~15 m",
     strict=True,
 )
 def test_highway_ramps_do_not_overlap_the_carriageway():
@@ -237,15 +245,16 @@ def test_connectors_are_smooth(towns, case):
         assert seg.max() < 2.5
 
 
-@pytest.mark.parametrize("case", [c for c in CASES if c[0] != "highway"],
-                         ids=[f"{t}-{s}" for t, s in CASES if t != "highway"])
+@pytest.mark.parametrize("case", CASES, ids=[f"{t}-{s}" for t, s in CASES])
 def test_junction_control_rules(towns, case):
     town = towns[case]
     for j in town.junctions:
         if j.control == SIGNAL:
             grouped = sorted(lid for g in j.phase_groups for lid in g)
             assert grouped == sorted(j.incoming)  # every approach lane has a phase
-            assert j.cycle_s == pytest.approx(len(j.phase_groups) * (j.green_s + j.yellow_s + j.all_red_s))
+            assert j.cycle_s == pytest.approx(
+                len(j.phase_groups) * (j.green_s + j.yellow_s + j.all_red_s)
+            )
             assert all(town.lanes[lid].stop_at_end for lid in j.incoming)
             assert not j.stop_lanes
         elif j.control == STOP:
@@ -309,8 +318,15 @@ def test_from_dict_missing_top_level_field_names_it(field):
         Town.from_dict(d)
 
 
-@pytest.mark.parametrize("where, field", [("lanes", "successors"), ("lanes", "width"),
-                                          ("junctions", "phase_groups"), ("crosswalks", "corners")])
+@pytest.mark.parametrize(
+    "where, field",
+    [
+        ("lanes", "successors"),
+        ("lanes", "width"),
+        ("junctions", "phase_groups"),
+        ("crosswalks", "corners"),
+    ],
+)
 def test_from_dict_missing_nested_field_names_it(where, field):
     d = json.loads(json.dumps(get_town("Town02").to_dict()))
     del d[where][0][field]
@@ -332,8 +348,9 @@ def test_named_town_splits():
     assert "Town12" in TEST_TOWNS and "Town12" not in TRAIN_TOWNS
     assert not set(TRAIN_TOWNS) & set(TEST_TOWNS)
     assert set(TRAIN_TOWNS) | set(TEST_TOWNS) == set(NAMED_TOWNS)
-    # the training towns cover every template
-    assert {NAMED_TOWNS[n][0] for n in TRAIN_TOWNS} == set(TEMPLATES)
+    # the training towns cover every base template
+    assert {NAMED_TOWNS[n][0] for n in TRAIN_TOWNS} >= set(BASE_TEMPLATES)
+    assert all(NAMED_TOWNS[n][0] in TEMPLATES for n in NAMED_TOWNS)
 
 
 def test_test_town_is_larger_than_every_training_town():
@@ -349,7 +366,9 @@ def test_test_town_is_larger_than_every_training_town():
 def test_get_town_is_cached_and_matches_its_template():
     assert get_town("Town05") is get_town("Town05")
     template, seed, size = NAMED_TOWNS["Town05"]
-    assert get_town("Town05").to_dict() == generate_town(template, seed, size, name="Town05").to_dict()
+    assert (
+        get_town("Town05").to_dict() == generate_town(template, seed, size, name="Town05").to_dict()
+    )
 
 
 def test_unknown_template_raises_naming_it():
@@ -408,3 +427,12 @@ def test_lane_index_project_offset_point():
     assert int(lid[0]) == lane.id
     assert float(s2[0]) == pytest.approx(s, abs=1e-6)
     assert float(d[0]) == pytest.approx(0.7, abs=1e-6)
+
+
+def test_test_town_has_city_and_highway_sites():
+    town = get_town("Town12")
+    controls = {j.control for j in town.junctions}
+    assert {SIGNAL, STOP, PRIORITY} <= controls or {SIGNAL, STOP} <= controls
+    kinds = {ln.kind for ln in town.lanes}
+    if NAMED_TOWNS["Town12"][0] == "metro":  # a grid joined to a highway by ramps
+        assert MERGE in controls and RAMP in kinds

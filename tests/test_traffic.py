@@ -33,8 +33,12 @@ def overlap_depths(corners: np.ndarray) -> np.ndarray:
 
 
 def test_overlap_helper_hand_cases():
-    c = box_corners_2d(np.array([[0.0, 0.0], [3.0, 0.0], [10.0, 0.0], [0.0, 2.5]]),
-                       np.full(4, 4.0), np.full(4, 2.0), np.array([0.0, 0.0, 0.3, np.pi / 2]))
+    c = box_corners_2d(
+        np.array([[0.0, 0.0], [3.0, 0.0], [10.0, 0.0], [0.0, 2.5]]),
+        np.full(4, 4.0),
+        np.full(4, 2.0),
+        np.array([0.0, 0.0, 0.3, np.pi / 2]),
+    )
     d = overlap_depths(c)
     assert d[0, 1] == pytest.approx(1.0)  # 4 m boxes 3 m apart overlap by 1 m
     assert d[0, 2] < 0.0
@@ -47,14 +51,24 @@ def test_overlap_helper_hand_cases():
 @pytest.fixture(scope="module")
 def npc_run():
     """Town01, 20 NPC vehicles, 300 ticks; per-tick measurements."""
-    w = World(make_config(town="Town01", num_vehicles=20, num_parked=0, num_pedestrians=0,
-                          num_bicycles=0))
+    w = World(
+        make_config(town="Town01", num_vehicles=20, num_parked=0, num_pedestrians=0, num_bicycles=0)
+    )
     w.reset(seed=0)
     t, ix = w.table, w.town.index
     driving = np.array([ln.id for ln in w.town.lanes if ln.kind != PARKING])
-    rec = {"overlaps": 0, "ego_overlaps": 0, "max_off_lane": 0.0, "max_off_centre": 0.0,
-           "max_pose_err": 0.0, "lane_changes": 0, "moved": np.zeros(len(t)), "ticks": 0,
-           "drivers": 0, "min_speed": np.inf}
+    rec = {
+        "overlaps": 0,
+        "ego_overlaps": 0,
+        "max_off_lane": 0.0,
+        "max_off_centre": 0.0,
+        "max_pose_err": 0.0,
+        "lane_changes": 0,
+        "moved": np.zeros(len(t)),
+        "ticks": 0,
+        "drivers": 0,
+        "min_speed": np.inf,
+    }
     start = t.pos.copy()
     for tick in range(300):
         w.step(BRAKE)
@@ -109,8 +123,9 @@ def test_npcs_do_not_overlap(npc_run):
 
 
 def _single_npc_world(seed: int = 0) -> World:
-    w = World(make_config(town="Town01", num_vehicles=1, num_parked=0, num_pedestrians=0,
-                          num_bicycles=0))
+    w = World(
+        make_config(town="Town01", num_vehicles=1, num_parked=0, num_pedestrians=0, num_bicycles=0)
+    )
     w.reset(seed=seed)
     return w
 
@@ -118,9 +133,13 @@ def _single_npc_world(seed: int = 0) -> World:
 def _far_lane(w: World, control: int, min_len: float = 60.0) -> int:
     town, ego = w.town, w.table.pos[0]
     for ln in town.lanes:
-        if (ln.kind == DRIVING and ln.stop_at_end and ln.length > min_len
-                and town.junctions[ln.junction_ahead].control == control
-                and np.linalg.norm(ln.points - ego, axis=1).min() > 60.0):
+        if (
+            ln.kind == DRIVING
+            and ln.stop_at_end
+            and ln.length > min_len
+            and town.junctions[ln.junction_ahead].control == control
+            and np.linalg.norm(ln.points - ego, axis=1).min() > 60.0
+        ):
             return ln.id
     raise AssertionError("no suitable lane")
 
@@ -219,16 +238,35 @@ def _segment_dist(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _walk(jaywalk_prob: float, ticks: int):
-    w = World(make_config(town="Town03", num_vehicles=0, num_parked=0, num_pedestrians=30,
-                          num_bicycles=0, jaywalk_prob=jaywalk_prob))
+    w = World(
+        make_config(
+            town="Town03",
+            num_vehicles=0,
+            num_parked=0,
+            num_pedestrians=30,
+            num_bicycles=0,
+            jaywalk_prob=jaywalk_prob,
+        )
+    )
     w.reset(seed=0)
     t, net = w.table, w.sidewalks
     driving = np.array([ln.id for ln in w.town.lanes if ln.kind != PARKING])
-    out = {"max_sidewalk_dist": 0.0, "max_segment_dist": 0.0, "starts": [], "walking_ticks": 0}
+    out = {
+        "max_sidewalk_dist": 0.0,
+        "max_segment_dist": 0.0,
+        "starts": [],
+        "walking_ticks": 0,
+        "max_step_ratio": 0.0,  # per-tick displacement / (speed * dt)
+    }
     prev = t.path.copy()
+    prev_pos = t.pos.copy()
     for _ in range(ticks):
         w.step(BRAKE)
         idx = np.flatnonzero(t.active & (t.behaviour == WALKER))
+        step = np.linalg.norm(t.pos[idx] - prev_pos[idx], axis=1)
+        ratio = step / np.maximum(t.speed[idx] * w.config.dt, 1e-3)
+        out["max_step_ratio"] = max(out["max_step_ratio"], float(ratio.max(initial=0.0)))
+        prev_pos = t.pos.copy()
         walk = idx[t.path[idx] >= 0]
         cross = idx[t.path[idx] < 0]
         out["walking_ticks"] += len(walk)
@@ -242,7 +280,8 @@ def _walk(jaywalk_prob: float, ticks: int):
         for i in idx[(t.path[idx] < 0) & (prev[idx] >= 0)]:
             a, b = t.cross_from[i].copy(), t.cross_to[i].copy()
             on_crosswalk = any(
-                (np.allclose(a, c[0]) and np.allclose(b, c[1])) or (np.allclose(a, c[1]) and np.allclose(b, c[0]))
+                (np.allclose(a, c[0]) and np.allclose(b, c[1]))
+                or (np.allclose(a, c[1]) and np.allclose(b, c[0]))
                 for c in net.crossings
             )
             mid = 0.5 * (a + b)
@@ -252,8 +291,13 @@ def _walk(jaywalk_prob: float, ticks: int):
     return out
 
 
-def test_pedestrians_stay_on_sidewalks_and_crosswalks():
-    r = _walk(jaywalk_prob=0.0, ticks=300)
+@pytest.fixture(scope="module")
+def walk_run():
+    return _walk(jaywalk_prob=0.0, ticks=300)
+
+
+def test_pedestrians_stay_on_sidewalks_and_crosswalks(walk_run):
+    r = walk_run
     assert r["walking_ticks"] > 1000
     assert r["max_sidewalk_dist"] <= 1.0  # inside the sidewalk (fraction of its half width)
     assert r["max_segment_dist"] < 1e-6  # crossing pedestrians stay on their crossing line
@@ -270,3 +314,14 @@ def test_jaywalking_happens_with_probability_one():
         assert d_lane < 4.0  # the middle of the crossing is on the carriageway
     assert r["max_segment_dist"] < 1e-6
     assert r["max_sidewalk_dist"] <= 1.0
+
+
+@pytest.mark.xfail(
+    reason="pedestrians teleport: pedestrians._start_crossing sets pos to the crossing end "
+    "(~2 m jump at a sidewalk end), a finished crossing snaps onto the sidewalk at offset lat "
+    "(~0.7 m), and world._spawn_walkers places walkers without their lat offset (jump on tick 1)",
+    strict=True,
+)
+def test_pedestrians_move_continuously(walk_run):
+    # a walker covers speed * dt per tick; allow 50 % for the lateral blending of a turn
+    assert walk_run["max_step_ratio"] < 1.5

@@ -1,8 +1,9 @@
 """The ``v2xbench`` command line.
 
 Commands:
-    drive   drive a route with the built-in route follower, write a top-down GIF, print a summary
-    towns   list the named towns (training / test split)
+    drive       drive a route with the built-in route follower, write a top-down GIF, print a summary
+    towns       list the named towns (training / test split)
+    scenarios   list the 38 scenario types, or render a video of each
 """
 
 from __future__ import annotations
@@ -72,6 +73,33 @@ def _towns(args: argparse.Namespace) -> int:
     return 0
 
 
+def _scenarios_list(args: argparse.Namespace) -> int:
+    from v2xbench.envs.v2x_intersection.scenarios import SCENARIOS
+    from v2xbench.envs.v2x_intersection.town import TEST_TOWNS, get_town
+
+    test = get_town(TEST_TOWNS[0])
+    rows = sorted(SCENARIOS.values(), key=lambda c: (not c.v2x, c.family, c.name))
+    print(f"{'scenario':32s} {'family':12s} {'V2X':4s} {'fits ' + test.name:12s} preferred towns")
+    for c in rows:
+        fits = "yes" if c.find_sites(test) else "no"
+        print(f"{c.name:32s} {c.family:12s} {'yes' if c.v2x else 'no':4s} {fits:12s} {', '.join(c.towns) or 'any'}")
+    print(f"{len(rows)} scenario types, {sum(c.v2x for c in rows)} V2X-specific")
+    return 0
+
+
+def _scenarios_render(args: argparse.Namespace) -> int:
+    from v2xbench.envs.v2x_intersection.scenarios import SCENARIOS
+    from v2xbench.envs.v2x_intersection.scenarios.gallery import render_gallery
+
+    names = args.names or sorted(SCENARIOS)
+    unknown = [n for n in names if n not in SCENARIOS]
+    if unknown:
+        raise ValueError(f"unknown scenarios: {', '.join(unknown)}")
+    index = render_gallery(names, Path(args.out), seed=args.seed, size=args.size, quiet=args.quiet)
+    print(f"wrote {len(names)} videos and {index}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``v2xbench`` command."""
     p = argparse.ArgumentParser(prog="v2xbench", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -88,6 +116,17 @@ def build_parser() -> argparse.ArgumentParser:
     d.set_defaults(func=_drive)
     t = sub.add_parser("towns", help="list the named towns")
     t.set_defaults(func=_towns)
+    sc = sub.add_parser("scenarios", help="list scenario types or render a video of each")
+    scs = sc.add_subparsers(dest="scenarios_command", required=True)
+    sl = scs.add_parser("list", help="print all scenario types with family and V2X flag")
+    sl.set_defaults(func=_scenarios_list)
+    sr = scs.add_parser("render", help="write a short video per scenario (top-down ego and RSU views)")
+    sr.add_argument("names", nargs="*", help="scenario types (default: all)")
+    sr.add_argument("--out", default="docs/gallery")
+    sr.add_argument("--seed", type=int, default=0)
+    sr.add_argument("--size", type=int, default=256)
+    sr.add_argument("--quiet", action="store_true")
+    sr.set_defaults(func=_scenarios_render)
     return p
 
 

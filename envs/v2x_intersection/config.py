@@ -16,7 +16,12 @@ class EnvConfig:
     """All knobs of a V2XIntersection world. Build with :func:`make_config` (validates keys).
 
     Attributes:
-        town: named town (``town.NAMED_TOWNS``).
+        town: named town (``town.NAMED_TOWNS``); with ``scenario`` and no explicit town, the
+            scenario's preferred town.
+        scenario: run one scenario type (``v2xbench scenarios list``) on a route through it.
+        suite: draw routes from a suite (``train``, ``val``, ``test50`` or a suite JSON path).
+        route_index: the suite route to use (default: drawn from the reset seed).
+        seed: seed of the first ``reset()`` called without one (so ``gym.make(..., seed=3)`` works).
         route_length: length of the random route drawn at reset (m).
         num_vehicles: NPC vehicles driving with IDM.
         num_parked: parked vehicles in parking lanes.
@@ -40,6 +45,10 @@ class EnvConfig:
     """
 
     town: str = "Town01"
+    scenario: str | None = None
+    suite: str | None = None
+    route_index: int | None = None
+    seed: int | None = None
     route_length: float = 300.0
     num_vehicles: int = 30
     num_parked: int = 10
@@ -73,6 +82,17 @@ class EnvConfig:
 
         if self.town not in NAMED_TOWNS:
             bad("town", f"is not a known town ({', '.join(NAMED_TOWNS)})")
+        if self.scenario is not None:
+            from .scenarios import get_scenario
+
+            try:
+                get_scenario(self.scenario)
+            except ValueError as e:
+                raise ValueError(f"config: scenario: {e}") from None
+        if self.seed is not None and (not isinstance(self.seed, int) or isinstance(self.seed, bool) or self.seed < 0):
+            bad("seed", "must be an int >= 0 or None")
+        if self.route_index is not None and (not isinstance(self.route_index, int) or self.route_index < 0):
+            bad("route_index", "must be an int >= 0 or None")
         for name in ("num_vehicles", "num_parked", "num_pedestrians", "num_bicycles"):
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or not 0 <= v <= 500:
@@ -122,4 +142,13 @@ def make_config(config: EnvConfig | None = None, **kwargs: Any) -> EnvConfig:
             hint = f"; did you mean {close[0]!r}?" if close else ""
             raise ValueError(f"config: unknown key {key!r}{hint}")
     base = config or EnvConfig()
+    if kwargs.get("scenario") is not None and "town" not in kwargs:
+        from .scenarios import get_scenario
+
+        try:
+            towns = get_scenario(kwargs["scenario"]).towns
+        except ValueError as e:
+            raise ValueError(f"config: scenario: {e}") from None
+        if towns:
+            kwargs["town"] = towns[0]
     return dataclasses.replace(base, **kwargs)

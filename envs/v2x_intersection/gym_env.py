@@ -41,10 +41,14 @@ class V2XIntersectionEnv(gym.Env):
         self._tracker: EpisodeTracker | None = None
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if seed is None and self._tracker is None:
+            seed = self.config.seed
         super().reset(seed=seed)
         if seed is None:
             seed = int(self.np_random.integers(2**31))
-        self.world.reset(seed=seed, route=(options or {}).get("route"))
+        options = options or {}
+        self.world.reset(seed=seed, route=options.get("route"), scenarios=options.get("scenarios"),
+                         spec=options.get("spec"))
         self._tracker = EpisodeTracker(self.world)
         return ego_observation(self.world), self._tracker.info()
 

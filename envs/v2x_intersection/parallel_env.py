@@ -73,7 +73,11 @@ class V2XParallelEnv(ParallelEnv):
         return obs
 
     def reset(self, seed: int | None = None, options: dict | None = None):
-        self.world.reset(seed=seed, route=(options or {}).get("route"))
+        if seed is None and self._tracker is None:
+            seed = self.config.seed
+        options = options or {}
+        self.world.reset(seed=seed, route=options.get("route"), scenarios=options.get("scenarios"),
+                         spec=options.get("spec"))
         self._tracker = EpisodeTracker(self.world)
         self.agents = list(self.possible_agents)
         info = self._tracker.info()

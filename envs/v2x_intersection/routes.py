@@ -55,17 +55,20 @@ class Route:
         return float(self.s[-1])
 
 
-def _neighbours(town: Town, lane: int) -> list[tuple[int, float, str]]:
+def _neighbours(town: Town, lane: int, lane_changes: bool = True) -> list[tuple[int, float, str]]:
     ln = town.lanes[lane]
     out = [(s, town.index.length[s], "succ") for s in ln.successors]
+    if not lane_changes:
+        return out
     for nb, tag in ((ln.left, "left"), (ln.right, "right")):
         if nb >= 0 and ln.length > LANE_CHANGE_LENGTH + 10:
             out.append((nb, 0.5 * town.index.length[nb] + LANE_CHANGE_COST, tag))
     return out
 
 
-def shortest_lane_path(town: Town, start: int, goal: int) -> list[int]:
-    """Dijkstra over the lane graph (successors + lane changes); raises if unreachable."""
+def shortest_lane_path(town: Town, start: int, goal: int, lane_changes: bool = True) -> list[int]:
+    """Dijkstra over the lane graph (successors, and lane changes unless disabled); raises
+    ``ValueError`` if ``goal`` is unreachable."""
     if start == goal:
         return [start]
     dist = {start: 0.0}
@@ -77,7 +80,7 @@ def shortest_lane_path(town: Town, start: int, goal: int) -> list[int]:
             break
         if d > dist.get(u, np.inf):
             continue
-        for v, c, _ in _neighbours(town, u):
+        for v, c, _ in _neighbours(town, u, lane_changes):
             nd = d + c
             if nd < dist.get(v, np.inf):
                 dist[v], prev[v] = nd, u

@@ -40,7 +40,7 @@ class V2XTorchEnv(EnvBase):
         self.config = make_config(**config)
         self.worlds = [World(self.config) for _ in range(num_worlds)]
         self.trackers: list[EpisodeTracker | None] = [None] * num_worlds
-        self._seed_rng = np.random.default_rng()
+        self._seed_rng = np.random.default_rng(self.config.seed)
         self._last_obs: list[dict | None] = [None] * num_worlds
         n = num_worlds
         obs = {k: Unbounded(shape=(n, *s.shape), dtype=torch.float32, device=self.device)

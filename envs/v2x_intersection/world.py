@@ -58,23 +58,31 @@ class World:
 
     def __init__(self, config: EnvConfig) -> None:
         self.config = config
-        self.town = get_town(config.town)
-        self.signals = SignalPlan(self.town)
-        self.sidewalks = SidewalkNetwork(self.town)
         self.params = VehicleParams()
         self.channel_config = ChannelConfig(
             latency_ticks=config.latency_ticks, loss_prob=config.loss_prob,
             bandwidth_bytes_per_s=config.bandwidth_bytes_per_s,
             max_payload_floats=config.max_payload_floats, encoding=config.encoding, dt=config.dt,
         )
+        self.town = None
+        self._load_town(config.town)
+        self.ended = True
+        self.tick = 0
+        self.spec = None  # the RouteSpec of the current episode when it comes from a suite
+
+    def _load_town(self, name: str) -> None:
+        """Switch to town ``name`` (towns and their derived tables are cached)."""
+        if self.town is not None and self.town.name == name:
+            return
+        self.town = get_town(name)
+        self.signals = SignalPlan(self.town)
+        self.sidewalks = SidewalkNetwork(self.town)
         self._drive_lanes = np.array([ln.id for ln in self.town.lanes if ln.kind in (DRIVING, RAMP)
                                       and ln.length > 15.0])
         statics, heights, kinds = self._static_boxes()
         self.static_boxes = statics  # (S, 5) x, y, length, width, yaw
         self.static_heights = heights
         self.static_kinds = kinds
-        self.ended = True
-        self.tick = 0
 
     # ------------------------------------------------------------------ setup
     def _static_boxes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -88,18 +96,48 @@ class World:
                 kinds.append(np.full(len(poles), kind))
         return np.concatenate(rows, 0), np.concatenate(heights), np.concatenate(kinds).astype(np.int64)
 
-    def reset(self, seed: int | None = None, route: Route | None = None, scenarios: list | None = None) -> None:
+    def reset(self, seed: int | None = None, route: Route | None = None, scenarios: list | None = None,
+              spec=None) -> None:
         """Start an episode and populate the world from ``seed``.
+
+        The episode comes from, in this order: ``spec`` (a route file's
+        :class:`~.route_files.RouteSpec`, in its own town), ``route``/``scenarios`` given directly,
+        ``config.suite`` (route ``config.route_index``, or one drawn from ``seed``),
+        ``config.scenario`` (a route through a random site of that type), else a random route of
+        ``config.route_length``.
 
         Args:
             seed: seeds the world's one random generator.
-            route: the ego's route (default: a random route of ``config.route_length``).
+            route: the ego's route.
             scenarios: :class:`~.scenarios.base.Scenario` instances placed on ``route``; each gets
                 ``max_actors`` reserved rows of the actor table and runs its hooks every tick.
+            spec: a route file to replay.
         """
         cfg = self.config
         self.rng = np.random.default_rng(seed)
-        self.route = route if route is not None else random_route(self.town, self.rng, cfg.route_length)
+        if spec is None and route is None and cfg.suite is not None:
+            from .route_files import load_suite_cached
+
+            routes = load_suite_cached(cfg.suite)
+            k = cfg.route_index if cfg.route_index is not None else int(self.rng.integers(len(routes)))
+            if not 0 <= k < len(routes):
+                raise ValueError(f"config: route_index={k} out of range for suite {cfg.suite!r} ({len(routes)} routes)")
+            spec = routes[k]
+        if spec is not None:
+            from .route_files import build_episode_from_spec
+
+            self._load_town(spec.town)
+            route, scenarios = build_episode_from_spec(spec)
+        elif route is None:
+            self._load_town(cfg.town)
+            if cfg.scenario is not None:
+                from .scenarios import build_episode
+
+                route, scenarios = build_episode(cfg.scenario, self.town, self.rng)
+            else:
+                route = random_route(self.town, self.rng, cfg.route_length)
+        self.spec = spec
+        self.route = route
         self.scenarios = list(scenarios or [])
         self.plans: list[list[int]] = []
         n_base = 1 + cfg.num_vehicles + cfg.num_parked + cfg.num_pedestrians + cfg.num_bicycles

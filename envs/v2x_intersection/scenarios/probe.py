@@ -43,7 +43,7 @@ class ProbeRecord:
 
 
 def probe(name: str, seed: int = 0, town: str | None = None, max_ticks: int = 600, driver=None,
-          params: dict | None = None, stop_after_pass: float = 3.0, **config) -> ProbeRecord:
+          params: dict | None = None, stop_after_pass: float = 3.0, on_tick=None, **config) -> ProbeRecord:
     """Run scenario ``name`` once (see module docstring).
 
     Args:
@@ -54,6 +54,7 @@ def probe(name: str, seed: int = 0, town: str | None = None, max_ticks: int = 60
         driver: object with ``act(obs) -> control``; default ``RouteFollower()``.
         params: scenario parameters.
         stop_after_pass: seconds to keep running after the ego passed the scenario.
+        on_tick: optional ``callback(world)`` called after every tick (e.g. to render frames).
         **config: extra :class:`EnvConfig` keys (e.g. a smaller background population).
     """
     from v2xbench.agents.route_follower import RouteFollower
@@ -72,6 +73,8 @@ def probe(name: str, seed: int = 0, town: str | None = None, max_ticks: int = 60
     passed_at = None
     for _ in range(max_ticks):
         world.step(driver.act(ego_observation(world)), world.default_rsu_message())
+        if on_tick is not None:
+            on_tick(world)
         t = world.table
         rows = np.array(sc.hazard_rows, np.int64)
         log["ego_xy"].append(t.pos[0].copy())

@@ -21,7 +21,7 @@ NAMED_TOWNS: dict[str, tuple[str, int, int | None]] = {
     "Town04": ("highway", 4, 3),
     "Town05": ("grid", 5, 2),
     "Town06": ("tjunction", 6, 3),
-    "Town12": ("grid", 12, 4),
+    "Town12": ("metro", 12, 4),
 }
 TRAIN_TOWNS = ("Town01", "Town02", "Town03", "Town04", "Town05", "Town06")
 TEST_TOWNS = ("Town12",)

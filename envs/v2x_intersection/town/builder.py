@@ -261,6 +261,8 @@ class _Builder:
             return
         travel = angle[a_in] + np.pi  # heading when entering the junction
         delta = float(wrap_angle(angle[a_out] - travel))
+        if n.control == MERGE and abs(delta) > np.pi / 3:
+            return  # merges and diverges only connect carriageways heading the same way
         if n_arms == 2 or abs(delta) < np.pi / 5:
             turn = STRAIGHT
         elif abs(delta) > np.pi * 0.9:

@@ -1,6 +1,7 @@
 """Procedural town templates: each turns ``(seed, size)`` into a road graph for the builder.
 
 Templates: ``grid`` (city blocks with signalized, all-way-stop and priority four-way junctions),
+``metro`` (a grid with a highway joined by ramps; the held-out test town),
 ``tjunction`` (a main road with T-junctions), ``arterial`` (a wide road with parking lanes,
 mid-block crosswalks and side streets), ``highway`` (a multi-lane road section with an off-ramp and
 an on-ramp).
@@ -141,8 +142,8 @@ def highway(rng: np.random.Generator, size: int = 3) -> tuple[list[Node], list[R
         Node(1, (x1, 0.0), MERGE),  # off-ramp diverge
         Node(2, (x2, 0.0), MERGE),  # on-ramp merge
         Node(3, (x3, 0.0), END),
-        Node(4, (x1 + 160.0, -70.0), END),  # off-ramp end
-        Node(5, (x2 - 160.0, -70.0), END),  # on-ramp start
+        Node(4, (x1 + 120.0, -80.0), END),  # off-ramp end
+        Node(5, (x2 - 120.0, -80.0), END),  # on-ramp start
     ]
     off = lanes * 3.5 + 1.0
     roads = [
@@ -150,14 +151,50 @@ def highway(rng: np.random.Generator, size: int = 3) -> tuple[list[Node], list[R
         Road(1, 1, 2, lanes, lanes, speed_limit=v, sidewalks=False),
         Road(2, 2, 3, lanes, lanes, speed_limit=v, sidewalks=False),
         Road(3, 1, 4, 1, 0, speed_limit=16.7, sidewalks=False, kind=RAMP,
-             via=((x1 + 60.0, -off - 4.0), (x1 + 120.0, -40.0))),
+             via=((x1 + 50.0, -off - 4.0), (x1 + 100.0, -40.0))),
         Road(4, 5, 2, 1, 0, speed_limit=16.7, sidewalks=False, kind=RAMP,
-             via=((x2 - 120.0, -40.0), (x2 - 60.0, -off - 4.0))),
+             via=((x2 - 100.0, -40.0), (x2 - 50.0, -off - 4.0))),
     ]
     return nodes, roads
 
 
+def metro(rng: np.random.Generator, size: int = 4) -> tuple[list[Node], list[Road]]:
+    """A ``size x size`` grid city with a highway south of it, joined by an off- and an on-ramp.
+
+    The held-out test town uses it so that every scenario type (highway ones included) has a site
+    in a town never used for training.
+    """
+    nodes, roads = grid(rng, size)
+    # the southern stub ends of the grid (END nodes below the lowest junction row)
+    south = sorted((n for n in nodes if n.control == END and n.pos[1] < -20.0), key=lambda n: n.pos[0])
+    y = min(n.pos[1] for n in south) - 90.0
+    x0 = min(n.pos[0] for n in nodes) - 150.0
+    x3 = max(n.pos[0] for n in nodes) + 150.0
+    # westbound traffic (north carriageway) leaves east of the grid and joins west of it
+    exit_to, entry_from = south[-2], south[1]
+    x1, x2 = exit_to.pos[0] + 170.0, entry_from.pos[0] - 170.0  # diverge, merge (x2 < x1)
+    base = len(nodes)
+    hw = [Node(base, (x0, y), END), Node(base + 1, (x2, y), MERGE), Node(base + 2, (x1, y), MERGE),
+          Node(base + 3, (x3, y), END)]
+    nodes += hw
+    v, lanes = 27.8, 3
+    off = lanes * 3.5 + 1.0
+    for a, b in ((0, 1), (1, 2), (2, 3)):
+        roads.append(Road(len(roads), hw[a].id, hw[b].id, lanes, lanes, speed_limit=v, sidewalks=False))
+    # off-ramp: westbound carriageway at x1 -> the stub end, which becomes a bend into the grid
+    ex, ey = exit_to.pos
+    roads.append(Road(len(roads), hw[2].id, exit_to.id, 1, 0, speed_limit=16.7, sidewalks=False, kind=RAMP,
+                      via=((x1 - 60.0, y + off + 4.0), (ex + 40.0, y + 45.0), (ex, ey - 25.0))))
+    # on-ramp: from another stub end down into the westbound carriageway at x2
+    nx, ny = entry_from.pos
+    roads.append(Road(len(roads), entry_from.id, hw[1].id, 1, 0, speed_limit=16.7, sidewalks=False, kind=RAMP,
+                      via=((nx, ny - 25.0), (nx - 40.0, y + 45.0), (x2 + 60.0, y + off + 4.0))))
+    exit_to.control = entry_from.control = MERGE
+    return nodes, roads
+
+
 TEMPLATES: dict[str, TemplateFn] = {
+    "metro": metro,
     "grid": grid,
     "tjunction": tjunction,
     "arterial": arterial,

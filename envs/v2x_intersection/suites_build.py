@@ -1,0 +1,156 @@
+"""Build the route suites shipped in ``suites/``: ``python -m v2xbench.envs.v2x_intersection.suites_build``.
+
+Each route chains several scenario sites: it starts with a run-up before the first site, drives
+to the next site along the shortest lane path (no lane changes), and so on, then runs out 60 m.
+``test50`` uses only the held-out test town; ``train`` and ``val`` only training towns, so no
+town is shared between training and testing (as the paper's Town12 test split).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from .route_files import (
+    ROUTE_FORMAT,
+    SUITE_DIR,
+    SUITE_FORMAT,
+    TIMES_OF_DAY,
+    WEATHERS,
+    parse_route,
+    save_json_atomic,
+)
+from .routes import route_from_lanes, shortest_lane_path
+from .scenarios import SCENARIOS, get_scenario
+from .scenarios.placement import extend_lanes, run_up
+from .town import TEST_TOWNS, TRAIN_TOWNS, get_town
+
+MIN_GAP = 60.0  # m between consecutive scenario conflict points
+MAX_LINK = 320.0  # m of driving between two sites
+
+
+def _sites(town, name):
+    cls = get_scenario(name)
+    return [s for s in cls.find_sites(town) if run_up(town, s) >= 50.0]
+
+
+def compose_route(town, rng: np.random.Generator, types: list[str], route_id: str, seed: int) -> dict | None:
+    """A route dict through one site of each type in ``types`` (in order), or ``None``."""
+    placed: list[tuple[str, object, int]] = []  # (type, site, index of the site's first lane)
+    lanes: list[int] = []
+    for name in types:
+        sites = _sites(town, name)
+        if not sites:
+            return None
+        order = rng.permutation(len(sites))[:40]
+        for k in order:
+            site = sites[int(k)]
+            if not lanes:
+                pre, shift = extend_lanes(town, rng, list(site.lanes), 80.0, 0.0)
+                lanes = pre
+                placed.append((name, site, shift))
+                break
+            if any(ln in lanes for ln in site.lanes):
+                continue
+            try:
+                link = shortest_lane_path(town, lanes[-1], site.lanes[0], lane_changes=False)
+            except ValueError:
+                continue
+            mid = link[1:-1]
+            if any(ln in lanes for ln in mid):
+                continue
+            dist = float(sum(town.index.length[mid]))
+            if dist > MAX_LINK:
+                continue
+            placed.append((name, site, len(lanes) + len(mid)))
+            lanes = lanes + mid + list(site.lanes)
+            break
+        else:
+            return None
+    lanes, _ = extend_lanes(town, rng, lanes, 0.0, 60.0)
+    route = route_from_lanes(town, lanes)
+    conflicts = []
+    scen = []
+    for name, site, start in placed:
+        key_lane = lanes[start + site.key]
+        hits = np.flatnonzero(route.lane_ids == key_lane)
+        cs = float(route.s[hits[0]] + site.s_on_key)
+        conflicts.append(cs)
+        cls = get_scenario(name)
+        k = int(np.searchsorted(route.s, cs))
+        kt = int(np.searchsorted(route.s, max(cs - cls.trigger_distance, 0.0)))
+        scen.append({"type": name, "params": {},
+                     "site": {"lanes": [int(x) for x in site.lanes], "key": site.key, "s_on_key": site.s_on_key},
+                     "trigger": route.points[min(kt, len(route.points) - 1)].round(3).tolist(),
+                     "conflict": route.points[min(k, len(route.points) - 1)].round(3).tolist()})
+    if np.any(np.diff(conflicts) < MIN_GAP) or conflicts[0] < 40.0:
+        return None
+    wps = route.points[:: 20]
+    wps = np.concatenate([wps, route.points[-1:]], 0)
+    return {"format": ROUTE_FORMAT, "id": route_id, "town": town.name, "lanes": [int(x) for x in lanes],
+            "waypoints": wps.round(3).tolist(), "scenarios": scen,
+            "weather": str(rng.choice(WEATHERS)), "time_of_day": str(rng.choice(TIMES_OF_DAY)), "seed": seed}
+
+
+def build_suite(name: str, towns: tuple[str, ...], n_routes: int, seed: int, per_route: tuple[int, int] = (2, 3),
+                v2x_share: float = 0.55) -> dict:
+    """Routes that cover every scenario type that fits ``towns``, over-sampling V2X types."""
+    rng = np.random.default_rng(seed)
+    v2x = [n for n, c in SCENARIOS.items() if c.v2x]
+    other = [n for n, c in SCENARIOS.items() if not c.v2x]
+    fits = {t: {n for n in SCENARIOS if _sites(get_town(t), n)} for t in towns}
+    todo = [n for n in sorted(SCENARIOS) if any(n in f for f in fits.values())]  # cover each once first
+    rng.shuffle(todo)
+    routes = []
+    attempts = 0
+    while len(routes) < n_routes and attempts < 200 * n_routes:
+        attempts += 1
+        town_name = str(rng.choice(towns))
+        town = get_town(town_name)
+        k = int(rng.integers(per_route[0], per_route[1] + 1))
+        types = []
+        if todo:
+            first = todo[0]
+            if first not in fits[town_name]:
+                continue
+            types.append(first)
+        while len(types) < k:
+            pool = v2x if rng.random() < v2x_share else other
+            cand = [n for n in pool if n in fits[town_name] and n not in types]
+            if not cand:
+                break
+            types.append(str(rng.choice(cand)))
+        rid = f"{name}_{len(routes):03d}"
+        d = compose_route(town, rng, types, rid, seed=int(rng.integers(2**31)))
+        if d is None:
+            continue
+        parse_route(d)  # validate what we write
+        routes.append(d)
+        if todo and d["scenarios"][0]["type"] == todo[0]:
+            todo.pop(0)
+    if len(routes) < n_routes:
+        raise RuntimeError(f"suite {name}: built only {len(routes)} of {n_routes} routes")
+    return {"format": SUITE_FORMAT, "name": name, "split": name, "routes": routes}
+
+
+SUITES = {
+    "test50": dict(towns=TEST_TOWNS, n_routes=50, seed=50, per_route=(2, 4)),
+    "val": dict(towns=TRAIN_TOWNS, n_routes=20, seed=20),
+    "train": dict(towns=TRAIN_TOWNS, n_routes=200, seed=200),
+}
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__)
+    p.add_argument("suites", nargs="*", default=list(SUITES))
+    args = p.parse_args()
+    for name in args.suites:
+        suite = build_suite(name, **SUITES[name])
+        path = save_json_atomic(suite, SUITE_DIR / f"{name}.json")
+        n = sum(len(r["scenarios"]) for r in suite["routes"])
+        print(f"{name}: {len(suite['routes'])} routes, {n} scenario instances -> {path}")
+
+
+if __name__ == "__main__":
+    main()

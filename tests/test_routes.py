@@ -172,7 +172,7 @@ def test_plan_route_within_one_lane():
     town = get_town("Town04")
     r = plan_route(town, np.array([pose(town, 0, 10.0), pose(town, 0, 60.0)]))
     assert r.lanes == [0]
-    assert r.length == pytest.approx(49.0, abs=1e-6)  # points at s = 10, 11, ..., 59
+    assert r.length == pytest.approx(50.0, abs=1e-6)  # points at s = 10, 11, ..., 60
     np.testing.assert_allclose(r.points[0], pose(town, 0, 10.0), atol=1e-9)
 
 
@@ -183,12 +183,6 @@ def test_plan_route_across_a_junction_uses_the_connector():
     assert np.all(r.commands[r.lane_ids == 20] == STRAIGHT)
 
 
-@pytest.mark.xfail(
-    reason="routes.route_from_lanes samples np.arange(a, b, ROUTE_STEP), which excludes the end: "
-    "a route stops up to ROUTE_STEP short of its last waypoint (and random_route can come out "
-    "shorter than min_length)",
-    strict=True,
-)
 def test_plan_route_ends_at_the_last_waypoint():
     town = get_town("Town04")
     goal = pose(town, 0, 60.5)

@@ -153,11 +153,6 @@ def test_merge_connectors_keep_direction_of_travel(towns, case):
             )
 
 
-@pytest.mark.xfail(
-    reason="highway ramps start inside the main carriageway: the one-way ramp centre line begins "
-    "~1.4 m from the outer lane's centre line and runs over it (< 0.2 m) for ~15 m",
-    strict=True,
-)
 def test_highway_ramps_do_not_overlap_the_carriageway():
     town = generate_town("highway", 0)
     driving = np.array([ln.id for ln in town.lanes if ln.kind == DRIVING])

@@ -71,6 +71,8 @@ def step_walkers(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, 
         if len(done):
             sw, s, _ = net.index.project(t.pos[done])
             t.path[done], t.path_s[done] = sw, s
+            p, h = net.index.pose_at(sw, s)  # keep the walker where it is: lateral offset from the path
+            t.lat[done] = np.clip(((t.pos[done] - p) * np.stack([-np.sin(h), np.cos(h)], -1)).sum(-1), -1.2, 1.2)
             t.path_dir[done] = rng.choice([-1.0, 1.0], size=len(done))
 
     if len(walking) == 0:
@@ -92,7 +94,7 @@ def step_walkers(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, 
             a, b = net.crossings[c]
             if np.linalg.norm(a - t.pos[i]) > np.linalg.norm(b - t.pos[i]):
                 a, b = b, a
-            _start_crossing(t, i, a, b)
+            _start_crossing(t, i, t.pos[i].copy(), b)
         else:
             t.path_dir[i] = -t.path_dir[i]
     # jaywalking: cross straight over the road to the opposite sidewalk
@@ -107,6 +109,6 @@ def step_walkers(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, 
 
 
 def _start_crossing(t: ActorTable, i: int, a: np.ndarray, b: np.ndarray) -> None:
+    """Switch walker ``i`` to crossing from its position ``a`` to ``b`` (no jump)."""
     t.path[i] = -1
     t.cross_from[i], t.cross_to[i] = a, b
-    t.pos[i] = a

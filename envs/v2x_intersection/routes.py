@@ -188,11 +188,18 @@ def route_from_lanes(town: Town, lanes: list[int], s_start: float = 0.0, s_end: 
         lane_tags.append(np.full(len(t), ln.id))
         cmd_tags.append(np.full(len(t), ln.turn if ln.kind == CONNECTOR else FOLLOW_LANE))
         i += 1
+    # close the route exactly at its end (np.arange above excludes the end point)
+    last = town.lanes[lanes[-1]]
+    s_last = polyline_lengths(last.points)
+    end_s = s_end if s_end is not None else s_last[-1]
+    chunks.append(np.array([[np.interp(end_s, s_last, last.points[:, 0]), np.interp(end_s, s_last, last.points[:, 1])]]))
+    lane_tags.append(np.array([last.id]))
+    cmd_tags.append(np.array([last.turn if last.kind == CONNECTOR else FOLLOW_LANE]))
     raw = np.concatenate(chunks, 0)
     lane_ids = np.concatenate(lane_tags)
     commands = np.concatenate(cmd_tags)
     # drop duplicate points (lane joins) and resample-free: keep spacing ~ROUTE_STEP
-    keep = np.concatenate([[True], np.linalg.norm(np.diff(raw, axis=0), axis=1) > 1e-3])
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(raw, axis=0), axis=1) > 0.05])
     raw, lane_ids, commands = raw[keep], lane_ids[keep], commands[keep]
     d = np.diff(raw, axis=0)
     headings = np.arctan2(d[:, 1], d[:, 0])

@@ -99,7 +99,7 @@ def step_followers(t: ActorTable, town: Town, lane_signal: np.ndarray, rng: np.r
     must_stop = near & ((sig == RED) | ((sig == YELLOW) & (to_line > v * v / (2 * IDM.decel))))
     jahead = ix.junction_ahead[lane]
     sign_lane = near & (sig == -1)
-    arrived = sign_lane & (to_line < 1.0) & (v < 0.3)
+    arrived = sign_lane & (to_line < IDM.min_gap + 1.0) & (v < 0.3)  # IDM halts min_gap short
     t.stopped_at_sign[idx[arrived]] = True
     for k in np.flatnonzero(sign_lane):
         i = idx[k]

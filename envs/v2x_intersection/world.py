@@ -214,7 +214,8 @@ class World:
             t.lat[row] = rng.uniform(-0.8, 0.8)
             t.speed[row] = rng.uniform(1.0, 1.6)
             p, h = net.index.pose_at(np.array([sw]), np.array([t.path_s[row]]))
-            t.pos[row], t.yaw[row] = p[0], h[0]
+            t.pos[row] = p[0] + t.lat[row] * np.array([-np.sin(h[0]), np.cos(h[0])])
+            t.yaw[row] = h[0] if t.path_dir[row] > 0 else h[0] + np.pi
             row += 1
         return row
 

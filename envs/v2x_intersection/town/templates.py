@@ -151,9 +151,9 @@ def highway(rng: np.random.Generator, size: int = 3) -> tuple[list[Node], list[R
         Road(1, 1, 2, lanes, lanes, speed_limit=v, sidewalks=False),
         Road(2, 2, 3, lanes, lanes, speed_limit=v, sidewalks=False),
         Road(3, 1, 4, 1, 0, speed_limit=16.7, sidewalks=False, kind=RAMP,
-             via=((x1 + 50.0, -off - 4.0), (x1 + 100.0, -40.0))),
+             via=((x1 + 5.0, -(lanes * 3.5 + 1.75)), (x1 + 50.0, -off - 4.0), (x1 + 100.0, -40.0))),
         Road(4, 5, 2, 1, 0, speed_limit=16.7, sidewalks=False, kind=RAMP,
-             via=((x2 - 100.0, -40.0), (x2 - 50.0, -off - 4.0))),
+             via=((x2 - 100.0, -40.0), (x2 - 50.0, -off - 4.0), (x2 - 5.0, -(lanes * 3.5 + 1.75)))),
     ]
     return nodes, roads
 
@@ -184,11 +184,13 @@ def metro(rng: np.random.Generator, size: int = 4) -> tuple[list[Node], list[Roa
     # off-ramp: westbound carriageway at x1 -> the stub end, which becomes a bend into the grid
     ex, ey = exit_to.pos
     roads.append(Road(len(roads), hw[2].id, exit_to.id, 1, 0, speed_limit=16.7, sidewalks=False, kind=RAMP,
-                      via=((x1 - 60.0, y + off + 4.0), (ex + 40.0, y + 45.0), (ex, ey - 25.0))))
+                      via=((x1 - 5.0, y + lanes * 3.5 + 1.75), (x1 - 60.0, y + off + 4.0), (ex + 40.0, y + 45.0),
+                           (ex, ey - 25.0))))
     # on-ramp: from another stub end down into the westbound carriageway at x2
     nx, ny = entry_from.pos
     roads.append(Road(len(roads), entry_from.id, hw[1].id, 1, 0, speed_limit=16.7, sidewalks=False, kind=RAMP,
-                      via=((nx, ny - 25.0), (nx - 40.0, y + 45.0), (x2 + 60.0, y + off + 4.0))))
+                      via=((nx, ny - 25.0), (nx - 40.0, y + 45.0), (x2 + 60.0, y + off + 4.0),
+                           (x2 + 5.0, y + lanes * 3.5 + 1.75))))
     exit_to.control = entry_from.control = MERGE
     return nodes, roads
 

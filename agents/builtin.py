@@ -1,0 +1,40 @@
+"""Registration of the built-in agents (imported by :func:`~.interface.load_agent`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .interface import register_agent
+from .route_follower import RouteFollower
+
+register_agent("route_follower")(RouteFollower)
+
+
+@register_agent("random")
+class RandomAgent:
+    """Uniform random controls (a lower bound for every metric)."""
+
+    obs_mode, privileged, rsu_policy = "objects", False, "none"
+
+    def __init__(self, seed: int = 0) -> None:
+        self.rng = np.random.default_rng(seed)
+
+    def reset(self, route_info: dict) -> None:
+        self.rng = np.random.default_rng(route_info.get("seed", 0))
+
+    def act(self, obs: dict) -> np.ndarray:
+        return self.rng.uniform([0.0, -1.0, 0.0], [1.0, 1.0, 1.0]).astype(np.float32)
+
+
+@register_agent("constant_speed")
+class ConstantSpeedAgent:
+    """Follows the route at a constant 6 m/s and ignores everything else (a blind baseline)."""
+
+    obs_mode, privileged, rsu_policy = "objects", False, "none"
+    speed = 6.0  # m/s
+
+    def reset(self, route_info: dict) -> None:
+        pass
+
+    def act(self, obs: dict) -> dict:
+        return {"waypoints": obs["route"][:, :2], "speed": self.speed}

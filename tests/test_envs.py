@@ -203,3 +203,24 @@ def test_determinism_fresh_process():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                          cwd=str(__import__("pathlib").Path(__file__).parents[1]))
     assert out.stdout.strip() == _digest(_rollout(7, 200))
+
+
+@pytest.mark.parametrize("mode", ["bev", "sensors"])
+def test_sensor_and_bev_modes_in_all_three_apis(mode):
+    small = dict(SMALL, obs_mode=mode)
+    env = V2XIntersectionEnv(**small)
+    obs, _ = env.reset(seed=0)
+    assert env.observation_space.contains(obs)
+    assert "objects" not in obs
+    if mode == "bev":
+        assert obs["bev"].shape[0] > 3 and obs["bev"].dtype == np.uint8 and obs["bev"].any()
+    else:
+        assert len(obs["cameras"]) == 6 and obs["lidar"]["count"] > 0
+        assert obs["cameras"]["cam_front"]["rgb"].std() > 0
+    pz = parallel_env(**small)
+    pobs, _ = pz.reset(seed=0)
+    assert pz.observation_space("rsu").contains(pobs["rsu"])
+    if mode == "sensors":
+        assert "camera" in pobs["rsu"] and pobs["rsu"]["lidar"]["count"] > 0
+    tenv = V2XTorchEnv(num_worlds=1, **small)
+    check_env_specs(tenv)

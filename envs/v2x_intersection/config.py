@@ -7,7 +7,7 @@ import difflib
 from dataclasses import dataclass
 from typing import Any
 
-OBS_MODES = ("objects",)
+OBS_MODES = ("objects", "sensors", "bev")
 RSU_POLICIES = ("none", "share_objects")
 
 
@@ -29,7 +29,9 @@ class EnvConfig:
         num_bicycles: bicycles riding at the right edge of lanes.
         large_vehicle_fraction: share of NPC and parked vehicles that are trucks/vans/buses.
         jaywalk_prob: per-second probability that a walking pedestrian crosses mid-block.
-        obs_mode: observation mode (``objects``; ``sensors`` and ``bev`` come with the sensors).
+        obs_mode: ``objects`` (object lists; fast, for RL), ``sensors`` (the ego's 6 cameras and
+            LiDAR instead of its object list; the RSU adds its camera and LiDAR) or ``bev`` (an
+            ego-centred semantic BEV raster instead of the object list).
         max_objects: object slots in the ego's and RSU's object lists.
         route_points: route points ahead in the observation (every ``route_step`` m).
         route_step: spacing of observed route points (m, a whole number: route points are 1 m apart).

@@ -130,3 +130,55 @@ def resample_polyline(points: np.ndarray, step: float) -> np.ndarray:
     n = max(2, int(np.ceil(s[-1] / step)) + 1)
     t = np.linspace(0.0, s[-1], n)
     return np.stack([np.interp(t, s, points[:, 0]), np.interp(t, s, points[:, 1])], -1)
+
+
+def offset_polyline(points: np.ndarray, d: float) -> np.ndarray:
+    """Offset a polyline ``(P, 2)`` by ``d`` metres to its left (negative: right)."""
+    seg = np.diff(points, axis=0)
+    seg /= np.maximum(np.linalg.norm(seg, axis=1, keepdims=True), 1e-9)
+    tang = np.concatenate([seg[:1], seg[:-1] + seg[1:], seg[-1:]], 0)
+    tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
+    return points + d * np.stack([-tang[:, 1], tang[:, 0]], -1)
+
+
+def cut_polyline(points: np.ndarray, s0: float, s1: float) -> np.ndarray:
+    """The part of a polyline between arc lengths ``s0 < s1`` (empty if shorter than 2 points)."""
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    s0, s1 = max(s0, 0.0), min(s1, s[-1])
+    if s1 - s0 < 1e-6:
+        return np.zeros((0, 2))
+    inner = points[(s > s0) & (s < s1)]
+    a = [np.interp(s0, s, points[:, 0]), np.interp(s0, s, points[:, 1])]
+    b = [np.interp(s1, s, points[:, 0]), np.interp(s1, s, points[:, 1])]
+    return np.concatenate([[a], inner, [b]], 0)
+
+
+def dash_polyline(points: np.ndarray, on: float, off: float) -> list[np.ndarray]:
+    """Dashes of ``on`` metres every ``on + off`` metres along a polyline."""
+    total = float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+    return [cut_polyline(points, a, a + on) for a in np.arange(0.0, total, on + off)]
+
+
+def convex_hull(p: np.ndarray) -> np.ndarray:
+    """Convex hull (Andrew's monotone chain) of points ``(N, 2)``, counter-clockwise."""
+    pts = sorted({(round(float(x), 6), round(float(y), 6)) for x, y in p})
+    if len(pts) < 3:
+        return np.array(pts, float).reshape(-1, 2)
+
+    def half(seq: list) -> list:
+        out: list = []
+        for q in seq:
+            while (
+                len(out) >= 2
+                and (
+                    (out[-1][0] - out[-2][0]) * (q[1] - out[-2][1])
+                    - (out[-1][1] - out[-2][1]) * (q[0] - out[-2][0])
+                )
+                <= 0
+            ):
+                out.pop()
+            out.append(q)
+        return out
+
+    lower, upper = half(pts), half(pts[::-1])
+    return np.array(lower[:-1] + upper[:-1], float)

@@ -1,5 +1,11 @@
 """Typed observation spaces and the functions that fill them from a :class:`~.world.World`.
 
+Three modes (``config.obs_mode``): ``objects`` (below), ``sensors`` (the ego's ``objects`` key is
+replaced by ``cameras`` - 6 ego cameras, each ``rgb``/``depth``/``semantic``/``instance`` - and
+``lidar`` - ``points (L, 6)`` padded + ``count``; the RSU observation adds its ``camera`` and
+``lidar``) and ``bev`` (the ego's ``objects`` key is replaced by ``bev (C, H, W)`` uint8). Sensor
+layouts and defaults: :mod:`.sensors`.
+
 ``objects`` mode (fast, for RL). Ego observation (all float32):
 
 ========================  ==================  ===============================================
@@ -19,6 +25,8 @@ Rows of object arrays are sorted by distance; unused rows are all zero (``presen
 """
 
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 from gymnasium import spaces
@@ -41,6 +49,7 @@ OBJECT_FEATURES = ("present", "class_id", "x", "y", "yaw", "length", "width", "h
 V2X_INFO_FEATURES = ("received", "age_ticks", "num_objects", "rsu_x", "rsu_y", "rsu_yaw")
 UNIT_FEATURES = ("unit_id", "x", "y", "z", "yaw", "pitch")
 BIG = 1e4  # bound of the observation boxes
+_RSU_BASE = ("unit", "calibration", "objects")
 #: received objects stay in the observation this many ticks after their delivery (then zeroed)
 V2X_HOLD_TICKS = 5
 #: ``light_state`` value for a stop sign (other values: -1 none, 0 green, 1 yellow, 2 red)
@@ -51,25 +60,73 @@ def _box(*shape: int, low: float = -BIG, high: float = BIG) -> spaces.Box:
     return spaces.Box(low, high, shape=shape, dtype=np.float32)
 
 
+def sensor_rig(obs_mode: str):
+    """The :class:`~.sensors.SensorRig` an observation mode needs (``None`` for ``objects``)."""
+    if obs_mode == "objects":
+        return None
+    return _rig(obs_mode)
+
+
+@functools.lru_cache(maxsize=4)
+def _rig(obs_mode: str):
+    from .sensors import SensorConfig, SensorRig
+
+    if obs_mode == "bev":
+        return SensorRig(SensorConfig(ego_cameras=(), rsu_camera_size=None, ego_lidar=None, rsu_lidar=None,
+                                      groundtruth=False))
+    return SensorRig(SensorConfig(bev=None, groundtruth=False))
+
+
+def _sensor_spaces(obs_mode: str) -> spaces.Dict:
+    return _rig(obs_mode).observation_space()
+
+
 def ego_space(cfg) -> spaces.Dict:
-    """Observation space of the ego agent."""
+    """Observation space of the ego agent (see module docstring)."""
     m = cfg.max_objects
-    return spaces.Dict({
+    d = {
         "ego": _box(len(EGO_FEATURES)),
         "route": _box(cfg.route_points, 3),
-        "objects": _box(m, len(OBJECT_FEATURES)),
         "v2x_objects": _box(m, len(OBJECT_FEATURES)),
         "v2x_info": _box(len(V2X_INFO_FEATURES)),
-    })
+    }
+    if cfg.obs_mode == "objects":
+        d["objects"] = _box(m, len(OBJECT_FEATURES))
+    elif cfg.obs_mode == "sensors":
+        s = _sensor_spaces("sensors")
+        d["cameras"] = spaces.Dict({k: v for k, v in s["cameras"].spaces.items() if k != "rsu_cam"})
+        d["lidar"] = s["lidars"]["lidar"]
+    else:
+        d["bev"] = _sensor_spaces("bev")["bev"]
+    return spaces.Dict(d)
 
 
 def rsu_space(cfg) -> spaces.Dict:
-    """Observation space of an RSU agent."""
-    return spaces.Dict({
+    """Observation space of an RSU agent (``sensors`` mode adds its camera and LiDAR)."""
+    d = {
         "unit": _box(len(UNIT_FEATURES)),
         "calibration": _box(2, 4, 4),
         "objects": _box(cfg.max_objects, len(OBJECT_FEATURES)),
-    })
+    }
+    if cfg.obs_mode == "sensors":
+        s = _sensor_spaces("sensors")
+        d["camera"] = s["cameras"]["rsu_cam"]
+        d["lidar"] = s["lidars"]["rsu_lidar"]
+    return spaces.Dict(d)
+
+
+def sensor_observation(world) -> dict:
+    """The rig observation of the world's current tick (captured once per tick, then cached)."""
+    key = (id(world.table), world.tick)
+    cached = getattr(world, "_sensor_obs", None)
+    if cached is None or cached[0] != key:
+        rig = _rig(world.config.obs_mode)
+        if world.config.obs_mode == "bev":
+            obs = {"bev": rig.capture_bev(world)}
+        else:
+            obs = rig.observation(rig.capture(world))
+        world._sensor_obs = cached = (key, obs)
+    return cached[1]
 
 
 def ego_action_space() -> spaces.Box:
@@ -141,8 +198,16 @@ def ego_observation(world) -> dict[str, np.ndarray]:
     ego = np.array([t.speed[0], t.accel[0], yaw_rate, *world.last_control, light, dist_line,
                     world.monitor.route_completion], np.float32)
     v2x, info = _v2x(world, ego_xy, ego_yaw)
-    return {"ego": ego, "route": route, "objects": _rows(objs, vis, cfg.max_objects),
-            "v2x_objects": v2x, "v2x_info": info}
+    out = {"ego": ego, "route": route, "v2x_objects": v2x, "v2x_info": info}
+    if cfg.obs_mode == "objects":
+        out["objects"] = _rows(objs, vis, cfg.max_objects)
+    elif cfg.obs_mode == "sensors":
+        s = sensor_observation(world)
+        out["cameras"] = {k: v for k, v in s["cameras"].items() if k != "rsu_cam"}
+        out["lidar"] = s["lidars"]["lidar"]
+    else:
+        out["bev"] = sensor_observation(world)["bev"]
+    return out
 
 
 def _v2x(world, ego_xy: np.ndarray, ego_yaw: float) -> tuple[np.ndarray, np.ndarray]:
@@ -170,7 +235,13 @@ def rsu_observation(world, slot: int = 0) -> dict[str, np.ndarray]:
     """Fill the observation of the RSU agent in ``slot`` (zeros when no unit is active)."""
     cfg, t = world.config, world.table
     u = int(world.active_rsu[slot])
-    obs = {k: np.zeros(s.shape, np.float32) for k, s in rsu_space(cfg).spaces.items()}
+    obs = {k: np.zeros(s.shape, np.float32) for k, s in rsu_space(cfg).spaces.items() if k in _RSU_BASE}
+    if cfg.obs_mode == "sensors":  # the rig captures slot 0's unit; further slots get blank sensors
+        s = sensor_observation(world)
+        obs["camera"], obs["lidar"] = s["cameras"]["rsu_cam"], s["lidars"]["rsu_lidar"]
+        if slot > 0:
+            obs["camera"] = {k: np.zeros_like(v) for k, v in obs["camera"].items()}
+            obs["lidar"] = {k: np.zeros_like(v) for k, v in obs["lidar"].items()}
     if u < 0:
         return obs
     x, y, z, yaw = world.rsus.pose[u]

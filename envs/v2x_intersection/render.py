@@ -31,6 +31,7 @@ from PIL import Image, ImageDraw, ImageFont
 
 from .actors import PARKED, ActorTable
 from .classes import BICYCLE, CAR, LARGE_VEHICLE, PEDESTRIAN
+from .geometry import convex_hull, cut_polyline, dash_polyline, offset_polyline
 from .signals import GREEN, NO_SIGNAL, RED, YELLOW
 from .town.model import CONNECTOR, DRIVING, MERGE, PARKING, RAMP, Town
 from .traffic import STOP_LINE_SETBACK
@@ -84,58 +85,6 @@ _CACHE_BYTES = 320 * 2**20  # ... and at most this many bytes of them
 
 
 # ----------------------------------------------------------------------------- geometry helpers
-def _offset(points: np.ndarray, d: float) -> np.ndarray:
-    """Offset a polyline ``(P, 2)`` by ``d`` metres to its left (negative: right)."""
-    seg = np.diff(points, axis=0)
-    seg /= np.maximum(np.linalg.norm(seg, axis=1, keepdims=True), 1e-9)
-    tang = np.concatenate([seg[:1], seg[:-1] + seg[1:], seg[-1:]], 0)
-    tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
-    return points + d * np.stack([-tang[:, 1], tang[:, 0]], -1)
-
-
-def _cut(points: np.ndarray, s0: float, s1: float) -> np.ndarray:
-    """The part of a polyline between arc lengths ``s0 < s1`` (empty if shorter than 2 points)."""
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
-    s0, s1 = max(s0, 0.0), min(s1, s[-1])
-    if s1 - s0 < 1e-6:
-        return np.zeros((0, 2))
-    inner = points[(s > s0) & (s < s1)]
-    a = [np.interp(s0, s, points[:, 0]), np.interp(s0, s, points[:, 1])]
-    b = [np.interp(s1, s, points[:, 0]), np.interp(s1, s, points[:, 1])]
-    return np.concatenate([[a], inner, [b]], 0)
-
-
-def _dashes(points: np.ndarray, on: float, off: float) -> list[np.ndarray]:
-    """Dashes of ``on`` metres every ``on + off`` metres along a polyline."""
-    total = float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
-    return [_cut(points, a, a + on) for a in np.arange(0.0, total, on + off)]
-
-
-def _convex_hull(p: np.ndarray) -> np.ndarray:
-    """Convex hull (Andrew's monotone chain) of points ``(N, 2)``, counter-clockwise."""
-    pts = sorted({(round(float(x), 6), round(float(y), 6)) for x, y in p})
-    if len(pts) < 3:
-        return np.array(pts, float).reshape(-1, 2)
-
-    def half(seq: list) -> list:
-        out: list = []
-        for q in seq:
-            while (
-                len(out) >= 2
-                and (
-                    (out[-1][0] - out[-2][0]) * (q[1] - out[-2][1])
-                    - (out[-1][1] - out[-2][1]) * (q[0] - out[-2][0])
-                )
-                <= 0
-            ):
-                out.pop()
-            out.append(q)
-        return out
-
-    lower, upper = half(pts), half(pts[::-1])
-    return np.array(lower[:-1] + upper[:-1], float)
-
-
 def _quads(center: np.ndarray, yaw: np.ndarray, x0, x1, y0, y1) -> np.ndarray:
     """World corners ``(N, 4, 2)`` of local rectangles ``[x0, x1] x [y0, y1]`` (arrays ``(N,)``)."""
     lx = np.stack([x1, x0, x0, x1], -1)
@@ -223,7 +172,7 @@ def _build_static(town: Town, mpp: float) -> StaticMap:
         )
 
     def band(points: np.ndarray, width: float, fill: tuple) -> None:
-        poly = np.concatenate([_offset(points, width / 2), _offset(points, -width / 2)[::-1]], 0)
+        poly = np.concatenate([offset_polyline(points, width / 2), offset_polyline(points, -width / 2)[::-1]], 0)
         d.polygon(px(poly), fill=fill)
 
     def line(points: np.ndarray, fill: tuple, width_m: float, min_px: float = 1.0) -> None:
@@ -249,7 +198,7 @@ def _build_static(town: Town, mpp: float) -> StaticMap:
             if np.linalg.norm(p - j.center) < j.radius + 8.0
         ]
         if len(ends) >= 3:
-            d.polygon(px(_convex_hull(np.array(ends))), fill=SIDEWALK)
+            d.polygon(px(convex_hull(np.array(ends))), fill=SIDEWALK)
     # drivable area: parking lanes, lanes, junction areas
     for ln in lanes:
         if ln.kind == PARKING:
@@ -264,10 +213,10 @@ def _build_static(town: Town, mpp: float) -> StaticMap:
         for lid, ends in [(i, (-1,)) for i in j.incoming] + [(c, (0, -1)) for c in j.connectors]:
             ln = lanes[lid]
             for side in (0.5, -0.5):
-                off = _offset(ln.points, side * ln.width)
+                off = offset_polyline(ln.points, side * ln.width)
                 edge.extend(off[e] for e in ends)
         if len(edge) >= 3:
-            d.polygon(px(_convex_hull(np.array(edge))), fill=ROAD)
+            d.polygon(px(convex_hull(np.array(edge))), fill=ROAD)
     # parking-slot separators
     if len(town.parking):
         hl, hw = 3.25, 1.25
@@ -287,12 +236,12 @@ def _build_static(town: Town, mpp: float) -> StaticMap:
             continue
         s0 = STOP_LINE_SETBACK if any(lanes[p].kind == CONNECTOR for p in ln.predecessors) else 0.0
         s1 = ln.length - (STOP_LINE_SETBACK if ln.junction_ahead >= 0 else 0.0)
-        pts = _cut(ln.points, s0, s1)
+        pts = cut_polyline(ln.points, s0, s1)
         if len(pts) < 2:
             continue
-        left, right = _offset(pts, ln.width / 2), _offset(pts, -ln.width / 2)
+        left, right = offset_polyline(pts, ln.width / 2), offset_polyline(pts, -ln.width / 2)
         if ln.left >= 0:
-            for dash in _dashes(left, 3.0, 6.0):
+            for dash in dash_polyline(left, 3.0, 6.0):
                 line(dash, MARK_WHITE, 0.15)
         elif ln.opposite >= 0:
             line(left, MARK_YELLOW, 0.2)
@@ -316,7 +265,7 @@ def _build_static(town: Town, mpp: float) -> StaticMap:
         c = cw.corners
         e1, e2 = c[1] - c[0], c[2] - c[1]
         along, across = (e1, e2) if np.linalg.norm(e1) < np.linalg.norm(e2) else (e2, e1)
-        origin = c[1] if np.linalg.norm(e1) < np.linalg.norm(e2) else c[0]
+        origin = c[0]  # both edge choices start at corner 0 and stay inside the crossing
         L = float(np.linalg.norm(across))
         u = across / max(L, 1e-9)
         for a in np.arange(0.3, L - 0.3, 1.0):
@@ -459,7 +408,7 @@ def _crop(sm: StaticMap, view: TopDownView) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=8)
-def _font(px: int) -> ImageFont.ImageFont | ImageFont.FreeTypeFont:
+def font(px: int) -> ImageFont.ImageFont | ImageFont.FreeTypeFont:
     try:
         return ImageFont.load_default(size=px)
     except TypeError:  # Pillow < 10.1 has no scalable default font
@@ -470,7 +419,7 @@ class _Glyphs:
     """Text as alpha masks composed from per-character bitmaps rendered once (fast per frame)."""
 
     def __init__(self, px: int) -> None:
-        self.font = _font(px)
+        self.font = font(px)
         asc, desc = self.font.getmetrics() if hasattr(self.font, "getmetrics") else (px, 2)
         self.height = int(asc + desc)
         self._cache: dict[str, tuple[np.ndarray, float]] = {}
@@ -777,7 +726,7 @@ def _draw_overlay(
 def render_legend(width: int = 512) -> np.ndarray:
     """A colour key strip ``(H, width, 3)`` uint8 matching :func:`render_topdown`."""
     fs = max(9, int(round(width * 0.022)))
-    font = _font(fs)
+    fnt = font(fs)
     items: list[tuple[str, str, tuple]] = [
         ("box", "ego", EGO_COLOR),
         ("box", "car", CLASS_COLORS[CAR]),
@@ -796,7 +745,7 @@ def render_legend(width: int = 512) -> np.ndarray:
     ]
     probe = ImageDraw.Draw(Image.new("RGB", (1, 1)))
     sw, gap, pad = fs, max(4, fs // 2), 6
-    cells = [sw + 4 + probe.textlength(label, font=font) for _, label, _ in items]
+    cells = [sw + 4 + probe.textlength(label, font=fnt) for _, label, _ in items]
     rows: list[list[int]] = [[]]
     x = pad
     for i, w in enumerate(cells):
@@ -831,7 +780,7 @@ def render_legend(width: int = 512) -> np.ndarray:
                     fill=col,
                     width=3,
                 )
-            d.text((x + sw + 2, y), label, fill=(30, 30, 30), font=font)
+            d.text((x + sw + 2, y), label, fill=(30, 30, 30), font=fnt)
             x += cells[i] + 2 * gap
         y += row_h
     return np.asarray(img, dtype=np.uint8)

@@ -28,6 +28,25 @@ from .world import World
 _EXTRA = ("route_completion", "v2x_bps")
 
 
+def _spec(space, n: int, device) -> Composite | Unbounded:
+    """A TorchRL spec with leading batch dim ``n`` mirroring a Gymnasium ``Dict``/``Box`` space."""
+    if hasattr(space, "spaces"):
+        return Composite({k: _spec(v, n, device) for k, v in space.spaces.items()}, shape=(n,), device=device)
+    dtype = torch.from_numpy(np.zeros(0, space.dtype)).dtype
+    return Unbounded(shape=(n, *space.shape), dtype=dtype, device=device)
+
+
+def _stack_nested(per_world: list[dict], device) -> dict:
+    """Stack a list of (nested) observation dicts into (nested) tensors."""
+    out = {}
+    for k, v in per_world[0].items():
+        if isinstance(v, dict):
+            out[k] = _stack_nested([o[k] for o in per_world], device)
+        else:
+            out[k] = torch.as_tensor(np.stack([o[k] for o in per_world]), device=device)
+    return out
+
+
 class V2XTorchEnv(EnvBase):
     """Batched V2XIntersection worlds as one TorchRL ``EnvBase`` (see module docstring)."""
 
@@ -43,11 +62,10 @@ class V2XTorchEnv(EnvBase):
         self._seed_rng = np.random.default_rng(self.config.seed)
         self._last_obs: list[dict | None] = [None] * num_worlds
         n = num_worlds
-        obs = {k: Unbounded(shape=(n, *s.shape), dtype=torch.float32, device=self.device)
-               for k, s in ego_space(self.config).spaces.items()}
+        obs = _spec(ego_space(self.config), n, self.device)
         for k in _EXTRA:
             obs[k] = Unbounded(shape=(n, 1), dtype=torch.float32, device=self.device)
-        self.observation_spec = Composite(obs, shape=(n,))
+        self.observation_spec = obs
         self.action_spec = Bounded(low=torch.tensor([0.0, -1.0, 0.0]).expand(n, 3),
                                    high=torch.tensor([1.0, 1.0, 1.0]).expand(n, 3),
                                    shape=(n, 3), dtype=torch.float32, device=self.device)
@@ -65,7 +83,7 @@ class V2XTorchEnv(EnvBase):
         return o
 
     def _stack(self, per_world: list[dict]) -> dict:
-        return {k: torch.as_tensor(np.stack([o[k] for o in per_world]), device=self.device) for k in per_world[0]}
+        return _stack_nested(per_world, self.device)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         n = self.batch_size[0]

@@ -4,18 +4,21 @@ A :class:`Scene` is built from a :class:`~..world.World` once per capture (:func
 Its boxes (a :class:`..raycast.Boxes`) are, in order:
 
 1. every actor row of ``world.table`` (row ``r`` is box ``r``; inactive rows have height 0 and
-   are never hit, the ray caster drops flat boxes),
-2. every static box of ``world.static_boxes`` (buildings, traffic-light poles, stop-sign poles),
-3. decorations that give a thin pole a readable top: a traffic-light head (0.6 x 0.7 x 1.5 m,
-   3.3-4.8 m above the ground, on the pole's side facing the traffic it controls) and a stop-sign
-   plate (0.12 x 0.8 x 0.8 m at 1.5-2.3 m). A decoration carries the instance id, class and
-   semantic id of its pole, so images and point clouds see one object. Decorations are not in
-   ``world.occluders()`` (world visibility ignores them); they stick out of their pole by at most
-   0.25 m.
+   are never hit: the ray caster drops flat boxes);
+2. every static box of ``world.static_boxes`` (buildings, traffic-light poles, stop-sign poles);
+3. decorations that give a thin pole a readable top: a traffic-light head (0.6 x 0.7 x 1.4 m,
+   2.5-3.9 m above the ground, on the pole's side facing the traffic it controls, low enough to
+   stay in view of a car waiting at the stop line) and a stop-sign plate (0.12 x 0.8 x 0.8 m at
+   1.5-2.3 m). They stick out of their pole by at most 0.25 m and are not in
+   ``world.occluders()`` (world visibility ignores them);
+4. one rider per active bicycle: the bicycle's own box is cut to :data:`BIKE_HEIGHT` (frame and
+   wheels) and a rider box (0.6 x 0.5 m, from 0.5 m up to the actor's height) sits on it, so
+   the space in front of and behind the rider is empty, as on a real bicycle.
 
-Per box the scene holds its instance id (:mod:`.semantics` encoding), semantic (class) id, a
-style code (how :mod:`.shading` paints it), a base colour (per-instance: ``world.table.color`` for
-actors, a hash of the index for buildings) and an ``aux`` integer (a light head's signal state).
+A decoration or rider carries the instance id, class and semantic id of its owner, so images and
+point clouds see one object. Per box the scene also holds a style (:mod:`.textures`), three
+instance colours (:data:`CAR_COLORS` etc. by ``world.table.color``; buildings by a hash of their
+index) and the float32 terms that shading needs (orientation, extents, face normals, sunlight).
 """
 
 from __future__ import annotations
@@ -25,29 +28,92 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..classes import STATIC_OBSTACLE, TRAFFIC_CONE, TRAFFIC_LIGHT, TRAFFIC_SIGN
+from ..classes import BICYCLE, TRAFFIC_CONE, TRAFFIC_LIGHT, TRAFFIC_SIGN
 from ..raycast import Boxes
+from ..signals import GREEN, RED, YELLOW
 from .semantics import actor_instance, static_instance
 
-# style codes
-S_CAR, S_TRUCK, S_PED, S_BIKE, S_POLE, S_HEAD, S_SIGN_POLE, S_PLATE = 0, 1, 2, 3, 4, 5, 6, 7
-S_CONE, S_OBSTACLE, S_BUILDING, S_SIGN = 8, 9, 10, 11
+# style codes (texture atlas rows); S_HEAD + k: light head, k = 0 dark, 1 red, 2 yellow, 3 green
+S_CAR, S_TRUCK, S_PED, S_BIKE, S_POLE, S_SIGN_POLE, S_PLATE, S_CONE = range(8)
+S_OBSTACLE, S_BUILDING, S_SIGN, S_RIDER, S_HEAD = 8, 9, 10, 11, 12
+N_STYLES = S_HEAD + 4
 _KIND_STYLE = np.array([S_CAR, S_TRUCK, S_PED, S_BIKE, S_POLE, S_SIGN, S_CONE, S_OBSTACLE])
+_HEAD_K = np.zeros(4, np.int64)  # signal state + 1 -> head style offset
+_HEAD_K[[RED + 1, YELLOW + 1, GREEN + 1]] = (1, 2, 3)
+
+SUN = np.array([-0.42, -0.30, 0.86]) / np.linalg.norm([-0.42, -0.30, 0.86])  # toward the sun
+AMBIENT, DIFFUSE = 0.58, 0.5
 
 #: Instance colour palettes (RGB 0-255), indexed by ``world.table.color % 8``.
 CAR_COLORS = np.array(
-    [(225, 225, 222), (168, 172, 178), (40, 40, 46), (176, 32, 30), (38, 76, 168), (36, 92, 62),
-     (214, 170, 36), (120, 66, 40)], np.float32)  # fmt: skip
+    [
+        (225, 225, 222),
+        (168, 172, 178),
+        (40, 40, 46),
+        (176, 32, 30),
+        (38, 76, 168),
+        (36, 92, 62),
+        (214, 170, 36),
+        (120, 66, 40),
+    ],
+    np.float32,
+)
 TRUCK_COLORS = np.array(
-    [(226, 226, 220), (226, 178, 30), (164, 40, 36), (52, 90, 158), (58, 118, 72), (120, 120, 126),
-     (214, 116, 30), (214, 204, 176)], np.float32)  # fmt: skip
+    [
+        (226, 226, 220),
+        (226, 178, 30),
+        (164, 40, 36),
+        (52, 90, 158),
+        (58, 118, 72),
+        (120, 120, 126),
+        (214, 116, 30),
+        (214, 204, 176),
+    ],
+    np.float32,
+)
 SHIRT_COLORS = np.array(
-    [(200, 40, 44), (40, 90, 190), (40, 150, 70), (230, 190, 40), (120, 50, 150), (230, 110, 30),
-     (235, 235, 235), (30, 30, 34)], np.float32)  # fmt: skip
+    [
+        (200, 40, 44),
+        (40, 90, 190),
+        (40, 150, 70),
+        (230, 190, 40),
+        (120, 50, 150),
+        (230, 110, 30),
+        (235, 235, 235),
+        (30, 30, 34),
+    ],
+    np.float32,
+)
+TROUSER_COLORS = np.array(
+    [
+        (36, 44, 80),
+        (30, 30, 32),
+        (160, 140, 100),
+        (100, 100, 104),
+        (60, 84, 130),
+        (96, 66, 44),
+        (40, 70, 48),
+        (64, 64, 68),
+    ],
+    np.float32,
+)
+SKIN_COLORS = np.array(
+    [(232, 186, 150), (196, 136, 100), (140, 90, 60), (220, 170, 124)], np.float32
+)
 BUILDING_COLORS = np.array(
-    [(150, 84, 64), (204, 190, 160), (160, 160, 156), (218, 212, 200), (104, 104, 112),
-     (190, 160, 120), (122, 136, 150), (176, 112, 82)], np.float32)  # fmt: skip
-_STATIC_RGB = {
+    [
+        (150, 84, 64),
+        (204, 190, 160),
+        (160, 160, 156),
+        (218, 212, 200),
+        (104, 104, 112),
+        (190, 160, 120),
+        (122, 136, 150),
+        (176, 112, 82),
+    ],
+    np.float32,
+)
+_STYLE_RGB = {
     S_POLE: (72, 74, 78),
     S_HEAD: (28, 28, 30),
     S_SIGN_POLE: (150, 150, 156),
@@ -57,42 +123,29 @@ _STATIC_RGB = {
     S_SIGN: (30, 80, 180),
 }
 
-HEAD_SIZE = (0.6, 0.7, 3.3, 1.5)  # length (along the facing), width, base z, height (m)
+HEAD_SIZE = (0.6, 0.7, 2.5, 1.4)  # length (along the facing), width, base z, height (m)
 HEAD_OFFSET = 0.25  # m, head centre in front of the pole centre
 PLATE_SIZE = (0.12, 0.8, 1.5, 0.8)
 PLATE_OFFSET = 0.26
-
-
-@dataclass(frozen=True)
-class _StaticPart:
-    """The per-town, per-world constant part of the scene (statics and decorations)."""
-
-    source: np.ndarray  # the world.static_boxes array this part was built from
-    center: np.ndarray
-    length: np.ndarray
-    width: np.ndarray
-    yaw: np.ndarray
-    z0: np.ndarray
-    height: np.ndarray
-    inst: np.ndarray
-    sem: np.ndarray
-    style: np.ndarray
-    color: np.ndarray
-    head_lanes: np.ndarray  # (num light heads,) lane id each head shows
-    head_slice: slice  # positions of the light heads within this part
+BIKE_HEIGHT = 1.05  # m, the bicycle part of a bicycle actor
+RIDER_SIZE = (0.6, 0.5, 0.5)  # length, width, base z (m)
+RIDER_OFFSET = -0.1  # rider centre behind the bicycle centre, fraction of the length
 
 
 @dataclass(frozen=True)
 class Scene:
-    """Boxes plus per-box metadata (all arrays ``(N,)`` unless noted).
+    """Boxes plus per-box metadata (arrays ``(N,)`` unless noted).
 
     Attributes:
-        boxes: all ``N`` boxes (actors, statics, decorations; see module docstring).
-        inst: int64 instance ids. sem: int64 semantic/class ids. style: int64 style codes.
-        color: ``(N, 3)`` float32 base colour (0-255). aux: int64 (light heads: signal state,
-            ``signals.GREEN/YELLOW/RED`` or -1; others: ``world.table.color`` or a hash).
+        boxes: all ``N`` boxes (module docstring).
+        inst: int64 instance ids. sem: int64 semantic (class) ids. style: int64 style codes.
+        colors: ``(N, 3, 3)`` float32 primary, secondary, tertiary colour (RGB 0-255).
         active: bool, the box can be hit (positive height).
         radius: float64 half diagonal of the footprint (m), for culling.
+        geo: ``(N, 8)`` float32 shading terms: cos yaw, sin yaw, centre x, centre y,
+            1 / half length, 1 / half width, base z, 1 / height.
+        normals: ``(N, 6, 3)`` float32 world normals of the faces (front, back, left, right,
+            top, bottom). light: ``(N, 6)`` float32 Lambert light of each face.
         n_actors: rows of ``world.table`` (boxes ``[0, n_actors)``).
     """
 
@@ -100,10 +153,12 @@ class Scene:
     inst: np.ndarray
     sem: np.ndarray
     style: np.ndarray
-    color: np.ndarray
-    aux: np.ndarray
+    colors: np.ndarray
     active: np.ndarray
     radius: np.ndarray
+    geo: np.ndarray
+    normals: np.ndarray
+    light: np.ndarray
     n_actors: int
 
     def cull(
@@ -113,24 +168,32 @@ class Scene:
         half_fov: float,
         max_range: float,
         exclude: np.ndarray | None = None,
+        max_depth: float | None = None,
     ) -> np.ndarray:
         """Indices of the boxes that may be hit from ``origin`` within a horizontal wedge.
 
+        Conservative tests on each box's bounding circle: within ``max_range`` (horizontal
+        distance), within the wedge ``|bearing - yaw| <= half_fov``, and (if given) nearer than
+        ``max_depth`` along the wedge's axis.
+
         Args:
-            origin: ``(>=2,)`` sensor position (m, world frame; only x, y are used).
+            origin: ``(>=2,)`` sensor position (m, world frame; x and y used).
             yaw: wedge axis (rad, world frame).
             half_fov: half the wedge's opening (rad); ``>= pi`` keeps every direction.
             max_range: horizontal range (m).
             exclude: box indices never to keep (e.g. the ego's own box for ego sensors).
+            max_depth: farthest distance along the axis (m), e.g. a camera's far clip.
 
         Returns:
-            ``(K,)`` int64 box indices (conservative: bounding circles against the wedge).
+            ``(K,)`` int64 box indices.
         """
         b = self.boxes
         rel = b.center - np.asarray(origin, dtype=np.float64)[:2]
         dist = np.hypot(rel[:, 0], rel[:, 1])
         r = self.radius
         keep = self.active & (dist - r < max_range)
+        if max_depth is not None:
+            keep &= rel @ np.array([np.cos(yaw), np.sin(yaw)]) - r < max_depth
         if half_fov < np.pi:
             ang = np.abs((np.arctan2(rel[:, 1], rel[:, 0]) - yaw + np.pi) % (2 * np.pi) - np.pi)
             slack = np.arcsin(np.clip(r / np.maximum(dist, 1e-9), 0.0, 1.0))
@@ -138,6 +201,20 @@ class Scene:
         if exclude is not None:
             keep[np.asarray(exclude, dtype=np.int64)] = False
         return np.flatnonzero(keep)
+
+
+@dataclass(frozen=True)
+class _StaticPart:
+    """The constant part of a world's scene (statics and decorations), cached per world."""
+
+    source: np.ndarray  # the world.static_boxes array it was built from
+    box: np.ndarray  # (S, 7) x, y, length, width, yaw, z0, height
+    inst: np.ndarray
+    sem: np.ndarray
+    style: np.ndarray
+    colors: np.ndarray
+    head_at: np.ndarray  # positions of the light heads within this part
+    head_lanes: np.ndarray  # the lane each head shows
 
 
 _STATIC_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -148,56 +225,47 @@ def _static_part(world) -> _StaticPart:
     hit = _STATIC_CACHE.get(world)
     if hit is not None and hit.source is s:
         return hit
-    n_build = len(world.town.buildings)
-    n = len(s)
-    idx = np.arange(n)
-    style = np.where(kinds == TRAFFIC_LIGHT, S_POLE, np.where(kinds == TRAFFIC_SIGN, S_SIGN_POLE, 0))
-    style = np.where(kinds == STATIC_OBSTACLE, S_OBSTACLE, style)
-    style = np.where(kinds == TRAFFIC_CONE, S_CONE, style)
+    n_build, n = len(world.town.buildings), len(s)
+    style = np.full(n, S_OBSTACLE)
+    for kind, st in ((TRAFFIC_LIGHT, S_POLE), (TRAFFIC_SIGN, S_SIGN_POLE), (TRAFFIC_CONE, S_CONE)):
+        style[kinds == kind] = st
     style[:n_build] = S_BUILDING
-    color = np.zeros((n, 3), np.float32)
-    for st, rgb in _STATIC_RGB.items():
-        color[style == st] = rgb
-    hashed = (idx * 2654435761) % 7919
-    color[:n_build] = BUILDING_COLORS[hashed[:n_build] % len(BUILDING_COLORS)]
-    # decorations on light poles and stop-sign poles
-    lights = world.town.lights
+    rows = [np.c_[s, np.zeros(n), heights]]
+    inst, sem, styles = [static_instance(np.arange(n))], [kinds], [style]
     lights_at = np.flatnonzero(kinds == TRAFFIC_LIGHT)
     signs_at = np.flatnonzero(kinds == TRAFFIC_SIGN)
-    deco = [(lights_at, HEAD_SIZE, HEAD_OFFSET, S_HEAD), (signs_at, PLATE_SIZE, PLATE_OFFSET, S_PLATE)]
-    parts = {f: [] for f in ("center", "length", "width", "yaw", "z0", "height", "inst", "sem",
-                             "style", "color")}  # fmt: skip
-    for at, (ln, wd, z0, ht), off, st in deco:
+    for at, (ln, wd, z0, ht), off, st in (
+        (lights_at, HEAD_SIZE, HEAD_OFFSET, S_HEAD),
+        (signs_at, PLATE_SIZE, PLATE_OFFSET, S_PLATE),
+    ):
         yaw = s[at, 4]
-        fwd = np.stack([np.cos(yaw), np.sin(yaw)], -1)
-        parts["center"].append(s[at, :2] + off * fwd)
-        for f, v in (("length", ln), ("width", wd), ("z0", z0), ("height", ht)):
-            parts[f].append(np.full(len(at), v))
-        parts["yaw"].append(yaw)
-        parts["inst"].append(static_instance(at))
-        parts["sem"].append(kinds[at])
-        parts["style"].append(np.full(len(at), st))
-        parts["color"].append(np.tile(np.asarray(_STATIC_RGB[st], np.float32), (len(at), 1)))
-    # which lane each light head shows: the town light row at the same position
+        c = s[at, :2] + off * np.stack([np.cos(yaw), np.sin(yaw)], -1)
+        k = len(at)
+        rows.append(np.c_[c, np.full(k, ln), np.full(k, wd), yaw, np.full(k, z0), np.full(k, ht)])
+        inst.append(static_instance(at))
+        sem.append(kinds[at])
+        styles.append(np.full(k, st))
+    style = np.concatenate(styles)
+    colors = np.zeros((len(style), 3, 3), np.float32)
+    for st, rgb in _STYLE_RGB.items():
+        colors[style == st] = rgb
+    facade = BUILDING_COLORS[(np.arange(n_build) * 2654435761 % 7919) % len(BUILDING_COLORS)]
+    colors[:n_build, 0] = facade
+    colors[:n_build, 1] = facade * 0.7
+    lights = world.town.lights
     head_lanes = np.full(len(lights_at), -1, np.int64)
     if len(lights_at) and len(lights):
         d2 = ((s[lights_at, None, :2] - lights[None, :, :2]) ** 2).sum(-1)
         head_lanes = lights[np.argmin(d2, axis=1), 3].astype(np.int64)
-    cat = {f: np.concatenate(v) for f, v in parts.items()}
     part = _StaticPart(
         source=s,
-        center=np.concatenate([s[:, :2], cat["center"].reshape(-1, 2)]),
-        length=np.concatenate([s[:, 2], cat["length"]]),
-        width=np.concatenate([s[:, 3], cat["width"]]),
-        yaw=np.concatenate([s[:, 4], cat["yaw"]]),
-        z0=np.concatenate([np.zeros(n), cat["z0"]]),
-        height=np.concatenate([heights, cat["height"]]),
-        inst=np.concatenate([static_instance(idx), cat["inst"]]),
-        sem=np.concatenate([kinds, cat["sem"]]).astype(np.int64),
-        style=np.concatenate([style, cat["style"]]).astype(np.int64),
-        color=np.concatenate([color, cat["color"].reshape(-1, 3)]).astype(np.float32),
+        box=np.concatenate(rows),
+        inst=np.concatenate(inst),
+        sem=np.concatenate(sem).astype(np.int64),
+        style=style.astype(np.int64),
+        colors=colors,
+        head_at=n + np.arange(len(lights_at)),
         head_lanes=head_lanes,
-        head_slice=slice(n, n + len(lights_at)),
     )
     _STATIC_CACHE[world] = part
     return part
@@ -213,42 +281,83 @@ def build_scene(world) -> Scene:
     sp = _static_part(world)
     na = len(t)
     kind = t.kind.astype(np.int64)
-    style = _KIND_STYLE[kind]
     cidx = t.color.astype(np.int64) % 8
-    color = np.zeros((na, 3), np.float32)
-    for st, pal in ((S_CAR, CAR_COLORS), (S_TRUCK, TRUCK_COLORS), (S_PED, SHIRT_COLORS),
-                    (S_BIKE, SHIRT_COLORS)):  # fmt: skip
+    style = _KIND_STYLE[kind]
+    colors = np.zeros((na, 3, 3), np.float32)
+    for st, pal in ((S_CAR, CAR_COLORS), (S_TRUCK, TRUCK_COLORS), (S_BIKE, TRUCK_COLORS)):
         m = style == st
-        color[m] = pal[cidx[m]]
-    for st, rgb in _STATIC_RGB.items():
-        color[style == st] = rgb
+        colors[m, 0] = pal[cidx[m]]
+    m = style == S_PED
+    colors[m, 0] = SHIRT_COLORS[cidx[m]]
+    for st, rgb in _STYLE_RGB.items():
+        colors[style == st, 0] = rgb
     height = np.where(t.active, t.height, 0.0)
-    boxes = Boxes(
-        np.concatenate([t.pos, sp.center]),
-        np.concatenate([t.length, sp.length]),
-        np.concatenate([t.width, sp.width]),
-        np.concatenate([t.yaw, sp.yaw]),
-        np.concatenate([np.zeros(na), sp.z0]),
-        np.concatenate([height, sp.height]),
-    )
-    aux = np.concatenate([cidx, np.arange(len(sp.inst)) * 7 % 13])
-    if len(sp.head_lanes):
+    bikes = np.flatnonzero(t.active & (kind == BICYCLE))
+    full = t.height[bikes]
+    height[bikes] = np.minimum(full, BIKE_HEIGHT)
+    fwd = np.stack([np.cos(t.yaw[bikes]), np.sin(t.yaw[bikes])], -1)
+    rl, rw, rz = RIDER_SIZE
+    nb = len(bikes)
+    rider = np.c_[
+        t.pos[bikes] + (RIDER_OFFSET * t.length[bikes])[:, None] * fwd,
+        np.full(nb, rl),
+        np.full(nb, rw),
+        t.yaw[bikes],
+        np.full(nb, rz),
+        np.maximum(full - rz, 0.0),
+    ]
+    actors = np.c_[t.pos, t.length, t.width, t.yaw, np.zeros(na), height]
+    box = np.concatenate([actors, sp.box, rider])
+    boxes = Boxes(box[:, :2], box[:, 2], box[:, 3], box[:, 4], box[:, 5], box[:, 6])
+    people = np.concatenate([np.flatnonzero(style == S_PED), bikes])  # shirt, trousers, skin
+    rider_colors = np.zeros((nb, 3, 3), np.float32)
+    rider_colors[:, 0] = SHIRT_COLORS[(cidx[bikes] + 5) % 8]
+    colors[people, 1] = TROUSER_COLORS[(cidx[people] + 3) % 8]
+    colors[people, 2] = SKIN_COLORS[cidx[people] % 4]
+    rider_colors[:, 1:] = colors[bikes, 1:]
+    styles = np.concatenate([style, sp.style, np.full(nb, S_RIDER)])
+    if len(sp.head_at):
         sig = np.asarray(world.lane_signal)
-        lanes = sp.head_lanes
-        aux[na + sp.head_slice.start : na + sp.head_slice.stop] = np.where(
-            lanes >= 0, sig[np.clip(lanes, 0, len(sig) - 1)], -1
-        )
+        state = np.where(sp.head_lanes >= 0, sig[np.clip(sp.head_lanes, 0, len(sig) - 1)], -1)
+        styles[na + sp.head_at] = S_HEAD + _HEAD_K[np.clip(state, -1, 2) + 1]
+    c, s = np.cos(box[:, 4]), np.sin(box[:, 4])
+    z = np.zeros_like(c)
+    normals = np.stack(
+        [
+            np.c_[c, s, z],
+            np.c_[-c, -s, z],
+            np.c_[-s, c, z],
+            np.c_[s, -c, z],
+            np.c_[z, z, z + 1],
+            np.c_[z, z, z - 1],
+        ],
+        1,
+    )
+    light = AMBIENT + DIFFUSE * np.maximum(normals @ SUN, 0.0)
+    light[:, 5] = AMBIENT * 0.7
+    geo = np.c_[
+        c,
+        s,
+        box[:, 0],
+        box[:, 1],
+        2 / np.maximum(box[:, 2], 1e-6),
+        2 / np.maximum(box[:, 3], 1e-6),
+        box[:, 5],
+        1 / np.maximum(box[:, 6], 1e-6),
+    ]
     return Scene(
         boxes=boxes,
-        inst=np.concatenate([actor_instance(np.arange(na)), sp.inst]),
-        sem=np.concatenate([kind, sp.sem]),
-        style=np.concatenate([style, sp.style]),
-        color=np.concatenate([color, sp.color]),
-        aux=aux,
-        active=boxes.height > 0,
-        radius=0.5 * np.hypot(boxes.length, boxes.width),
+        inst=np.concatenate([actor_instance(np.arange(na)), sp.inst, actor_instance(bikes)]),
+        sem=np.concatenate([kind, sp.sem, kind[bikes]]),
+        style=styles,
+        colors=np.concatenate([colors, sp.colors, rider_colors]),
+        active=box[:, 6] > 0,
+        radius=0.5 * np.hypot(box[:, 2], box[:, 3]),
+        geo=geo.astype(np.float32),
+        normals=normals.astype(np.float32),
+        light=light.astype(np.float32),
         n_actors=na,
     )
 
 
-__all__ = ["Scene", "build_scene"]
+__all__ = ["N_STYLES", "Scene", "build_scene"]

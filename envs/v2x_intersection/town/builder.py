@@ -11,7 +11,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..geometry import polyline_lengths, resample_polyline, world_to_local_2d, wrap_angle
+from ..geometry import (
+    offset_polyline,
+    polyline_lengths,
+    resample_polyline,
+    world_to_local_2d,
+    wrap_angle,
+)
 from .model import (
     CONNECTOR,
     DRIVING,
@@ -68,12 +74,7 @@ class Road:
 
 def _offset(points: np.ndarray, d: float) -> np.ndarray:
     """Offset a polyline ``(P, 2)`` by ``d`` metres to its right (negative: left)."""
-    seg = np.diff(points, axis=0)
-    seg /= np.maximum(np.linalg.norm(seg, axis=1, keepdims=True), 1e-9)
-    tang = np.concatenate([seg[:1], seg[:-1] + seg[1:], seg[-1:]], 0)
-    tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
-    right = np.stack([tang[:, 1], -tang[:, 0]], -1)
-    return points + d * right
+    return offset_polyline(points, -d)
 
 
 def _trim(points: np.ndarray, s0: float, s1: float, step: float = 2.0) -> np.ndarray:

@@ -1,0 +1,252 @@
+"""Ego-centred bird's-eye-view semantic raster for map and object supervision.
+
+The BEV is a ``(C, H, W)`` uint8 stack of 0/1 masks (multi-label: a crosswalk pixel is also
+drivable), in the ego frame: the ego's centre is the image centre, row 0 is ahead (+x, forward
+up), column 0 is to the left (+y). Pixel ``[r, c]`` covers the square centred at
+``x = (H/2 - r - 0.5) * mpp``, ``y = (W/2 - c - 0.5) * mpp``. Default 128 x 128 at 0.5 m per pixel
+(64 m x 64 m).
+
+Channels (:data:`BEV_CHANNELS`): drivable area (lanes, junctions, markings and crosswalks on
+them; not parking), lane centre lines (lanes, ramps and junction connectors), lane markings
+(boundaries, stop lines), crosswalks, sidewalks (with curbs), parking lanes (with their slot
+lines), vehicles (cars and large vehicles, the ego excluded), VRUs (pedestrians, bicycles), the
+ego, static obstacles (buildings, poles, cones, barriers), and traffic control drawn on the stop
+lines of the lanes it governs: light_green / light_yellow / light_red (signal-controlled lanes,
+the current state of ``world.lane_signal``) and stop_sign (stop-sign lanes). Map channels are
+sampled from the town's ground raster over ``s x s`` of its pixels per BEV pixel (``s = mpp /
+0.25 m``, OR of
+the samples, precomputed per town as a dilated channel-bit raster, so thin lines stay
+connected); objects are filled by pixel centres (extents below a pixel widened to one pixel) and
+stop lines drawn as 1 m wide lines.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+from PIL import Image, ImageDraw
+
+from ..classes import BICYCLE, CAR, LARGE_VEHICLE, PEDESTRIAN
+from ..signals import GREEN, NO_SIGNAL, RED, YELLOW
+from ..traffic import STOP_LINE_SETBACK
+from .ground import GroundRaster
+from .semantics import (
+    CENTRE_BIT,
+    M_CROSS_GAP,
+    M_CROSS_STRIPE,
+    M_CURB,
+    M_MARK_WHITE,
+    M_MARK_YELLOW,
+    M_PARK_LINE,
+    M_PARKING,
+    M_ROAD,
+    M_SIDEWALK,
+    M_STOP_LINE,
+)
+
+BEV_CHANNELS = (
+    "drivable",
+    "lane_centerline",
+    "lane_marking",
+    "crosswalk",
+    "sidewalk",
+    "parking",
+    "vehicle",
+    "vru",
+    "ego",
+    "obstacle",
+    "light_green",
+    "light_yellow",
+    "light_red",
+    "stop_sign",
+)
+(
+    DRIVABLE,
+    CENTRELINE,
+    MARKING,
+    CROSSWALK_CH,
+    SIDEWALK_CH,
+    PARKING_CH,
+    VEHICLE,
+    VRU,
+    EGO_CH,
+    OBSTACLE,
+    LIGHT_GREEN,
+    LIGHT_YELLOW,
+    LIGHT_RED,
+    STOP_SIGN_CH,
+) = range(len(BEV_CHANNELS))
+_LIGHT_CH = {GREEN: LIGHT_GREEN, YELLOW: LIGHT_YELLOW, RED: LIGHT_RED}
+
+
+def _material_bits() -> np.ndarray:
+    lut = np.zeros(256, np.uint16)
+    rules = {
+        DRIVABLE: (M_ROAD, M_MARK_WHITE, M_MARK_YELLOW, M_STOP_LINE, M_CROSS_STRIPE, M_CROSS_GAP),
+        MARKING: (M_MARK_WHITE, M_MARK_YELLOW, M_STOP_LINE),
+        CROSSWALK_CH: (M_CROSS_STRIPE, M_CROSS_GAP),
+        SIDEWALK_CH: (M_SIDEWALK, M_CURB),
+        PARKING_CH: (M_PARKING, M_PARK_LINE),
+    }
+    for ch, mats in rules.items():
+        for m in mats:
+            lut[m] |= 1 << ch
+            lut[m | CENTRE_BIT] |= 1 << ch
+    lut[CENTRE_BIT:] |= 1 << CENTRELINE
+    return lut
+
+
+_BITS = _material_bits()
+_SHIFTS = np.arange(len(BEV_CHANNELS), dtype=np.uint16)[:, None, None]
+
+
+@dataclass(frozen=True)
+class BevSpec:
+    """BEV raster size: ``size x size`` pixels at ``mpp`` metres per pixel."""
+
+    size: int = 128
+    mpp: float = 0.5
+
+
+@functools.lru_cache(maxsize=8)
+def _grid(size: int, mpp: float) -> tuple[np.ndarray, np.ndarray]:
+    """Ego-frame x and y (m) of the BEV pixel centres, each ``(size, size)``."""
+    off = (np.arange(size) + 0.5 - size / 2) * mpp
+    return np.ascontiguousarray(np.broadcast_to(-off[:, None], (size, size))), np.ascontiguousarray(
+        np.broadcast_to(-off[None, :], (size, size))
+    )
+
+
+_BARS: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def stop_bars(town) -> tuple[np.ndarray, np.ndarray]:
+    """``(bars (K, 2, 2), lanes (K,))``: stop-line end points (m) of every lane with a stop line."""
+    key = (town.name, town.template, town.seed, len(town.lanes))
+    if key not in _BARS:
+        bars, lanes = [], []
+        for ln in town.lanes:
+            if ln.stop_at_end:
+                p, h = town.index.pose_at(
+                    np.array([ln.id]), np.array([ln.length - STOP_LINE_SETBACK])
+                )
+                n = np.array([-np.sin(h[0]), np.cos(h[0])]) * ln.width / 2
+                bars.append(np.stack([p[0] + n, p[0] - n]))
+                lanes.append(ln.id)
+        _BARS[key] = (np.array(bars, float).reshape(-1, 2, 2), np.array(lanes, np.int64))
+    return _BARS[key]
+
+
+_DILATED: dict[tuple[int, int], tuple[GroundRaster, np.ndarray]] = {}
+
+
+def _dilated_bits(ground: GroundRaster, s: int) -> np.ndarray:
+    """BEV channel bits of every ground pixel, OR-ed over the ``s x s`` block it starts."""
+    key = (id(ground), s)
+    hit = _DILATED.get(key)
+    if hit is not None and hit[0] is ground:
+        return hit[1]
+    bits = _BITS[ground.code]
+    out = bits.copy()
+    for dr in range(s):
+        for dc in range(s):
+            if dr or dc:
+                out[: out.shape[0] - dr, : out.shape[1] - dc] |= bits[dr:, dc:]
+    if len(_DILATED) > 8:
+        _DILATED.clear()
+    _DILATED[key] = (ground, out)
+    return out
+
+
+def _fill_boxes(out, chans, boxes, ex, ey, yaw, mpp) -> None:
+    """Set ``out[ch]`` where a BEV pixel centre lies in a box ``(x, y, length, width, yaw)``.
+
+    Extents below one pixel are widened to one pixel, so that small VRUs never vanish.
+    """
+    n = out.shape[1]
+    c, s = np.cos(yaw), np.sin(yaw)
+    d = boxes[:, :2] - (ex, ey)
+    bx, by = c * d[:, 0] + s * d[:, 1], c * d[:, 1] - s * d[:, 0]  # ego frame
+    rel = boxes[:, 4] - yaw
+    hl, hw = np.maximum(boxes[:, 2], mpp) / 2, np.maximum(boxes[:, 3], mpp) / 2
+    ext = (
+        np.abs(np.cos(rel)) * hl + np.abs(np.sin(rel)) * hw,
+        np.abs(np.sin(rel)) * hl + np.abs(np.cos(rel)) * hw,
+    )
+    # pixel (r, k) centre: x = (n/2 - r - 0.5) mpp, y = (n/2 - k - 0.5) mpp
+    r0 = np.clip(np.floor(n / 2 - 0.5 - (bx + ext[0]) / mpp), 0, n).astype(int)
+    r1 = np.clip(np.ceil(n / 2 - 0.5 - (bx - ext[0]) / mpp) + 1, 0, n).astype(int)
+    k0 = np.clip(np.floor(n / 2 - 0.5 - (by + ext[1]) / mpp), 0, n).astype(int)
+    k1 = np.clip(np.ceil(n / 2 - 0.5 - (by - ext[1]) / mpp) + 1, 0, n).astype(int)
+    for i in np.flatnonzero((r1 > r0) & (k1 > k0)):
+        x = (n / 2 - np.arange(r0[i], r1[i]) - 0.5)[:, None] * mpp - bx[i]
+        y = (n / 2 - np.arange(k0[i], k1[i]) - 0.5)[None, :] * mpp - by[i]
+        cr, sr = np.cos(rel[i]), np.sin(rel[i])
+        inside = (np.abs(cr * x + sr * y) <= hl[i]) & (np.abs(cr * y - sr * x) <= hw[i])
+        out[chans[i], r0[i] : r1[i], k0[i] : k1[i]] |= inside.astype(np.uint8)
+
+
+def capture_bev(world, ground: GroundRaster, spec: BevSpec = BevSpec()) -> np.ndarray:
+    """The ego-centred BEV of ``world``.
+
+    Args:
+        world: a :class:`~..world.World` after ``reset``.
+        ground: the town's ground raster (:func:`.ground.ground_raster`).
+        spec: raster size and resolution.
+
+    Returns:
+        ``(len(BEV_CHANNELS), size, size)`` uint8 in ``{0, 1}``.
+    """
+    n, mpp = spec.size, float(spec.mpp)
+    s = int(np.clip(round(mpp / ground.mpp), 1, 4))
+    t = world.table
+    ex, ey, yaw = float(t.pos[0, 0]), float(t.pos[0, 1]), float(t.yaw[0])
+    c, si = np.cos(yaw), np.sin(yaw)
+    lx, ly = _grid(n, mpp)
+    # sample the block of s x s ground pixels under each BEV pixel (its lower-left corner)
+    half = 0.5 * mpp - 0.5 * ground.mpp
+    row, col, inside = ground.pixel(ex + c * lx - si * ly - half, ey + si * lx + c * ly - half)
+    bits = np.where(inside, _dilated_bits(ground, s)[row, col], np.uint16(0))
+    out = ((bits[None] >> _SHIFTS) & 1).astype(np.uint8)
+    reach = n * mpp * 0.75 + 15.0
+
+    def to_px(pts: np.ndarray) -> np.ndarray:
+        d = pts - (ex, ey)
+        x, y = c * d[..., 0] + si * d[..., 1], c * d[..., 1] - si * d[..., 0]
+        return np.stack([n / 2 - y / mpp - 0.5, n / 2 - x / mpp - 0.5], -1)
+
+    # objects, filled by pixel centres (statics first, then actors)
+    idx = np.flatnonzero(t.active & (np.hypot(t.pos[:, 0] - ex, t.pos[:, 1] - ey) < reach))
+    chan = np.select(
+        [np.isin(t.kind[idx], (CAR, LARGE_VEHICLE)), np.isin(t.kind[idx], (PEDESTRIAN, BICYCLE))],
+        [VEHICLE, VRU],
+        OBSTACLE,
+    )
+    chan[idx == 0] = EGO_CH
+    sb = world.static_boxes
+    near = np.flatnonzero(
+        np.hypot(sb[:, 0] - ex, sb[:, 1] - ey) < reach + 0.5 * np.hypot(sb[:, 2], sb[:, 3])
+    )
+    boxes = np.concatenate([sb[near], np.c_[t.pos[idx], t.length[idx], t.width[idx], t.yaw[idx]]])
+    _fill_boxes(out, np.concatenate([np.full(len(near), OBSTACLE), chan]), boxes, ex, ey, yaw, mpp)
+    # traffic control on the stop lines (green 1, yellow 2, red 3, stop sign 4)
+    bars, lanes = stop_bars(world.town)
+    if len(bars):
+        state = np.asarray(world.lane_signal)[lanes]
+        close = np.flatnonzero(np.hypot(bars[:, 0, 0] - ex, bars[:, 0, 1] - ey) < reach)
+        if len(close):
+            img = Image.new("L", (n, n), 0)
+            d = ImageDraw.Draw(img)
+            code = {GREEN: 1, YELLOW: 2, RED: 3, NO_SIGNAL: 4}
+            width = max(1, int(round(1.0 / mpp)))
+            for q, st in zip(to_px(bars[close]).tolist(), state[close].tolist()):
+                d.line([tuple(p) for p in q], fill=code.get(int(st), 4), width=width)
+            sig = np.asarray(img, np.uint8)
+            for ch, v in ((LIGHT_GREEN, 1), (LIGHT_YELLOW, 2), (LIGHT_RED, 3), (STOP_SIGN_CH, 4)):
+                out[ch] = sig == v
+    return out
+
+
+__all__ = ["BEV_CHANNELS", "BevSpec", "capture_bev", "stop_bars"]

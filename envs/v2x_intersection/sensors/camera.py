@@ -1,0 +1,253 @@
+"""Pinhole cameras on the 2.5D ray caster: RGB, depth, semantic and instance images.
+
+Frames and pixels: a camera's *body* frame has x forward (optical axis), y left, z up; its
+*optical* frame (``geometry.T_BODY_OPTICAL``) has x right, y down, z forward, and the intrinsics
+``K = geometry.camera_intrinsics(W, H, fov)`` map optical-frame points to continuous pixel
+coordinates ``(u, v)``; pixel ``[row, col]`` covers ``col <= u < col + 1``, ``row <= v < row + 1``
+and its ray goes through its centre ``(col + 0.5, row + 0.5)``.
+
+Outputs (:func:`render_camera`), ``H x W``:
+
+- ``rgb`` uint8 ``(H, W, 3)``;
+- ``depth`` float32 ``(H, W)``: metres **along the optical axis** (planar z-depth, as a CARLA depth
+  camera), ``far`` where nothing is hit within ``far``. The range along the pixel's ray is
+  ``depth * |K^-1 (u, v, 1)|``;
+- ``semantic`` uint8 ``(H, W)``: :mod:`.semantics` ids; ``instance`` int32 ``(H, W)``.
+
+How rays are cast: every camera goes through :func:`..raycast.first_hit_fan`, a fan of vertical
+planes (azimuths) times slopes from the camera centre.
+
+- A *level* camera (no pitch or roll in the world, e.g. the ego cameras) is exactly such a fan:
+  column ``u`` is the azimuth ``atan(-(u + 0.5 - cx) / fx)`` and row ``v`` the slope
+  ``-(v + 0.5 - cy) / fx / sqrt(1 + x_n^2)``. Every pixel is its own exact ray.
+- A *pitched* camera (the RSU camera) is rendered through a level virtual fan from the same
+  centre that covers the pitched frustum on a uniform azimuth x elevation grid with spacing
+  ``1 / (fx * oversample)`` rad (the angular size of the central pixel divided by
+  ``oversample``); each pixel takes the nearest virtual ray (nearest neighbour in azimuth and
+  elevation: at most half a grid step, i.e. about half a pixel, from its own ray). Its depth is
+  the optical-axis depth of the surface point that virtual ray hit, so depth, semantic and
+  instance stay mutually consistent; boundaries may be off by up to one pixel. This costs about
+  as much as a level camera; casting the ``H * W`` pixel rays with ``raycast.first_hit`` costs
+  about 10x more (measured: 20-30 ms against 2-4 ms at 128 x 64).
+
+Objects are culled per camera to the horizontal wedge of its frustum and to ``far`` before the
+cast (:meth:`.scene.Scene.cull`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..geometry import T_BODY_OPTICAL, camera_intrinsics, pose_matrix
+from ..raycast import NO_HIT, first_hit_fan
+from .fan import fan_for
+from .ground import GroundRaster
+from .scene import Scene
+from .shading import shade
+
+#: Ego camera names, in the order of ``yaw`` below (nuScenes-like).
+EGO_CAMERA_NAMES = (
+    "cam_front",
+    "cam_front_left",
+    "cam_front_right",
+    "cam_back_left",
+    "cam_back_right",
+    "cam_back",
+)
+EGO_CAMERA_YAWS_DEG = (0.0, 60.0, -60.0, 120.0, -120.0, 180.0)
+EGO_CAMERA_FOV, EGO_CAMERA_Z = 110.0, 1.8  # deg, m
+RSU_CAMERA_FOV = 90.0  # deg
+DEFAULT_SIZE = (128, 64)  # (width, height) pixels
+DEFAULT_FAR = 150.0  # m, farthest depth rendered
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """A pinhole camera and its mount in its parent frame (ego frame, or the RSU unit frame).
+
+    Attributes:
+        name: sensor name (key in frames and calibration).
+        width, height: image size (pixels). fov_deg: horizontal field of view (deg).
+        x, y, z: mount position in the parent frame (m). yaw, pitch, roll: mount rotation (rad,
+            ``geometry.pose_matrix`` convention: positive pitch looks down).
+        far: farthest depth rendered (m).
+    """
+
+    name: str
+    width: int = DEFAULT_SIZE[0]
+    height: int = DEFAULT_SIZE[1]
+    fov_deg: float = EGO_CAMERA_FOV
+    x: float = 0.0
+    y: float = 0.0
+    z: float = 0.0
+    yaw: float = 0.0
+    pitch: float = 0.0
+    roll: float = 0.0
+    far: float = DEFAULT_FAR
+
+    @property
+    def intrinsics(self) -> np.ndarray:
+        """``(3, 3)`` pinhole matrix ``K`` (pixels)."""
+        return camera_intrinsics(self.width, self.height, self.fov_deg)
+
+    def T_parent_body(self) -> np.ndarray:
+        """``(4, 4)`` camera body frame (x forward, z up) -> parent frame."""
+        return pose_matrix(self.x, self.y, self.z, self.yaw, self.pitch, self.roll)
+
+    def T_parent_optical(self) -> np.ndarray:
+        """``(4, 4)`` camera optical frame (x right, y down, z forward) -> parent frame."""
+        return self.T_parent_body() @ T_BODY_OPTICAL
+
+
+def ego_camera_specs(
+    width: int = DEFAULT_SIZE[0],
+    height: int = DEFAULT_SIZE[1],
+    ego_length: float = 4.7,
+    ego_width: float = 1.9,
+    far: float = DEFAULT_FAR,
+) -> tuple[CameraSpec, ...]:
+    """The six ego cameras (yaw 0, +-60, +-120, 180 deg; FOV 110 deg; z 1.8 m).
+
+    Each camera sits on the ego box's outline where its optical axis leaves the box (front
+    bumper centre, rear centre, the sides near the doors), so no ray of it crosses the ego's own
+    box (which the ego sensors ignore anyway).
+    """
+    specs = []
+    hl, hw = ego_length / 2.0, ego_width / 2.0
+    for name, yd in zip(EGO_CAMERA_NAMES, EGO_CAMERA_YAWS_DEG):
+        a = np.deg2rad(yd)
+        c, s = np.cos(a), np.sin(a)
+        r = min(hl / abs(c) if abs(c) > 1e-9 else np.inf, hw / abs(s) if abs(s) > 1e-9 else np.inf)
+        specs.append(
+            CameraSpec(
+                name,
+                width,
+                height,
+                EGO_CAMERA_FOV,
+                round(r * c, 6),
+                round(r * s, 6),
+                EGO_CAMERA_Z,
+                float(a),
+                far=far,
+            )
+        )
+    return tuple(specs)
+
+
+def rsu_camera_spec(
+    width: int = DEFAULT_SIZE[0], height: int = DEFAULT_SIZE[1], far: float = DEFAULT_FAR
+) -> CameraSpec:
+    """The RSU camera: FOV 90 deg, at the unit's origin and along its axes (``rsus.matrix(u)``
+    already holds the 5 m height, the downward pitch and the roll)."""
+    return CameraSpec("rsu_cam", width, height, RSU_CAMERA_FOV, far=far)
+
+
+def _cast(scene: Scene, spec: CameraSpec, t_world_body: np.ndarray, exclude, oversample: float):
+    """Cast one camera's rays: per pixel hit point, ray z, distance, box index, depth, sky."""
+    fan, yaw = fan_for(spec, t_world_body, oversample)
+    o = t_world_body[:3, 3].astype(np.float64)
+    sel = scene.cull(o, yaw, fan.half_az + 0.02, float(fan.max_t.max()), exclude, spec.far)
+    a = yaw + fan.az
+    t, idx = first_hit_fan(
+        o,
+        np.stack([np.cos(a), np.sin(a)], -1),
+        fan.slopes,
+        scene.boxes.subset(sel),
+        max_t=fan.max_t,
+    )
+    t, idx = t.ravel()[fan.pix], idx.ravel()[fan.pix]
+    if len(sel):
+        idx = np.where(idx >= 0, sel[np.maximum(idx, 0)], idx)
+    hit = idx != NO_HIT
+    t = np.where(hit, t, np.float32(0.0))
+    c, s = np.float32(np.cos(yaw)), np.float32(np.sin(yaw))
+    dl = fan.dirs
+    dist = t * fan.norm
+    p = np.empty_like(dl)
+    p[:, 0] = (c * dl[:, 0] - s * dl[:, 1]) * dist + np.float32(o[0])
+    p[:, 1] = (s * dl[:, 0] + c * dl[:, 1]) * dist + np.float32(o[1])
+    p[:, 2] = dl[:, 2] * dist + np.float32(o[2])
+    depth = np.where(hit, t * fan.dpt, np.float32(spec.far))
+    return p, dl[:, 2], dist, idx, depth, fan.sky
+
+
+def render_cameras(
+    scene: Scene,
+    ground: GroundRaster,
+    specs: list[CameraSpec],
+    poses: list[np.ndarray],
+    exclude: np.ndarray | None = None,
+    oversample: float = 1.0,
+) -> list[dict[str, np.ndarray]]:
+    """Render several cameras of one scene (rays cast per camera, shaded in one batch).
+
+    Args:
+        scene: boxes and their looks (:func:`.scene.build_scene`).
+        ground: the town's ground raster.
+        specs: the cameras.
+        poses: ``(4, 4)`` camera body frame -> world of each camera (its mount composed with the
+            parent's pose).
+        exclude: box indices the cameras do not see (e.g. ``[0]``, the ego's own box).
+        oversample: virtual-fan density for pitched cameras (see module docstring).
+
+    Returns:
+        One dict per camera: ``{"rgb": (H, W, 3) uint8, "depth": (H, W) float32 m,
+        "semantic": (H, W) uint8, "instance": (H, W) int32}``.
+    """
+    casts = [_cast(scene, sp, po, exclude, oversample) for sp, po in zip(specs, poses)]
+    if not casts:
+        return []
+    p, dz, dist, idx, depth, sky = (np.concatenate(x) for x in zip(*casts))
+    rgb, sem, inst = shade(scene, ground, p, dz, dist, idx, sky)
+    out, a = [], 0
+    for sp in specs:
+        h, w = sp.height, sp.width
+        b = a + h * w
+        out.append(
+            {
+                "rgb": rgb[a:b].reshape(h, w, 3),
+                "depth": depth[a:b].reshape(h, w),
+                "semantic": sem[a:b].reshape(h, w),
+                "instance": inst[a:b].reshape(h, w),
+            }
+        )
+        a = b
+    return out
+
+
+def render_camera(
+    scene: Scene,
+    ground: GroundRaster,
+    spec: CameraSpec,
+    t_world_body: np.ndarray,
+    exclude: np.ndarray | None = None,
+    oversample: float = 1.0,
+) -> dict[str, np.ndarray]:
+    """Render one camera (:func:`render_cameras` with one camera)."""
+    return render_cameras(scene, ground, [spec], [t_world_body], exclude, oversample)[0]
+
+
+def blank_camera(spec: CameraSpec) -> dict[str, np.ndarray]:
+    """Outputs of a camera that sees nothing (no active RSU): black, ``far``, sky, none."""
+    h, w = spec.height, spec.width
+    return {
+        "rgb": np.zeros((h, w, 3), np.uint8),
+        "depth": np.full((h, w), spec.far, np.float32),
+        "semantic": np.full((h, w), 14, np.uint8),
+        "instance": np.zeros((h, w), np.int32),
+    }
+
+
+__all__ = [
+    "DEFAULT_FAR",
+    "DEFAULT_SIZE",
+    "EGO_CAMERA_NAMES",
+    "CameraSpec",
+    "blank_camera",
+    "ego_camera_specs",
+    "render_camera",
+    "render_cameras",
+    "rsu_camera_spec",
+]

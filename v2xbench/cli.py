@@ -1,9 +1,12 @@
 """The ``v2xbench`` command line.
 
 Commands:
-    drive       drive a route with the built-in route follower, write a top-down GIF, print a summary
+    drive       drive a route with the built-in route follower, write a top-down GIF and a sensor
+                mosaic GIF (6 ego cameras, RSU camera, BEV, LiDAR), print a summary
     towns       list the named towns (training / test split)
     scenarios   list the 38 scenario types, or render a video of each
+    eval        closed-loop evaluation of an agent on a route suite (per-route JSON, summary)
+    leaderboard leaderboard table, plots and per-scenario breakdown from evaluation results
 """
 
 from __future__ import annotations
@@ -22,7 +25,10 @@ def _drive(args: argparse.Namespace) -> int:
     from v2xbench.agents.route_follower import RouteFollower
     from v2xbench.envs.v2x_intersection import V2XIntersectionEnv
     from v2xbench.envs.v2x_intersection.infractions import EVENT_NAMES
+    from PIL import Image
+
     from v2xbench.envs.v2x_intersection.render import save_video
+    from v2xbench.envs.v2x_intersection.sensors import SensorRig, mosaic
 
     env = V2XIntersectionEnv(render_mode="rgb_array", town=args.town, route_length=args.route_length,
                              render_size=args.size)
@@ -30,6 +36,8 @@ def _drive(args: argparse.Namespace) -> int:
     agent = RouteFollower(use_v2x=not args.no_v2x)
     agent.reset()
     frames = [env.render()]
+    rig = SensorRig() if args.sensors_every > 0 else None
+    mosaics = []
     total = 0.0
     t0 = time.perf_counter()
     ticks = 0
@@ -40,6 +48,8 @@ def _drive(args: argparse.Namespace) -> int:
             ticks += 1
             if ticks % args.frame_every == 0:
                 frames.append(env.render())
+            if rig is not None and ticks % args.sensors_every == 0:
+                mosaics.append(mosaic(rig.capture(env.world)))
             bar.update(round(info["route_completion"] - bar.n, 1))
             if terminated or truncated:
                 break
@@ -47,6 +57,10 @@ def _drive(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     video = save_video(frames, out / "drive.gif", fps=max(1, 10 // args.frame_every))
+    sensors_video = None
+    if mosaics:
+        sensors_video = save_video(mosaics, out / "sensors.gif", fps=max(1, 10 // args.sensors_every))
+        Image.fromarray(mosaics[len(mosaics) // 2]).save(out / "sensors.png")
     summary = {
         "town": args.town, "seed": args.seed, "ticks": ticks, "sim_seconds": round(ticks * 0.1, 1),
         "route_length_m": round(info["route_length"], 1),
@@ -56,6 +70,7 @@ def _drive(args: argparse.Namespace) -> int:
         "events": {k: int(v) for k, v in zip(EVENT_NAMES, np.asarray(info["events"]))},
         "v2x_bytes_per_s": round(info["v2x_bps"], 1),
         "wall_seconds": round(wall, 2), "video": str(video),
+        "sensors_video": None if sensors_video is None else str(sensors_video),
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     print(json.dumps(summary, indent=2))
@@ -100,6 +115,42 @@ def _scenarios_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def _parse_set(items: list[str]) -> dict:
+    """``key=value`` pairs of ``--set`` (values parsed as JSON when possible: 10, 0.5, null)."""
+    out = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"--set {item!r}: expected key=value (an EnvConfig field)")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
+
+
+def _eval(args: argparse.Namespace) -> int:
+    from v2xbench.collectors.evaluate import evaluate, summary_markdown
+
+    summary = evaluate(args.agent, suite=args.suite, seeds=args.seeds, workers=args.workers, out=args.out,
+                       video=args.video, max_routes=args.max_routes, config=_parse_set(args.set),
+                       agent_name=args.agent_name, progress=not args.quiet)
+    print(summary_markdown(summary))
+    print(f"results: {Path(args.out) / 'routes'}, summary: {Path(args.out) / 'summary.md'}")
+    return 0
+
+
+def _leaderboard(args: argparse.Namespace) -> int:
+    from v2xbench.collectors.leaderboard import build_leaderboard
+
+    res = build_leaderboard(args.results, args.out, plots=not args.no_plots)
+    print(Path(res["markdown"]).read_text())
+    if res["note"]:
+        print(res["note"], file=sys.stderr)
+    print(f"wrote {res['markdown']}" + (f" and {len(res['plots'])} plots" if res["plots"] else ""))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``v2xbench`` command."""
     p = argparse.ArgumentParser(prog="v2xbench", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -111,6 +162,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--out", default="out/drive")
     d.add_argument("--size", type=int, default=384, help="GIF frame size in pixels")
     d.add_argument("--frame-every", type=int, default=2, help="keep one frame every N ticks")
+    d.add_argument("--sensors-every", type=int, default=5,
+                   help="also write the camera/LiDAR/BEV mosaic every N ticks to sensors.gif (0: off)")
     d.add_argument("--no-v2x", action="store_true", help="ignore what the RSU sends")
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     d.set_defaults(func=_drive)
@@ -127,6 +180,28 @@ def build_parser() -> argparse.ArgumentParser:
     sr.add_argument("--size", type=int, default=256)
     sr.add_argument("--quiet", action="store_true")
     sr.set_defaults(func=_scenarios_render)
+    ev = sub.add_parser("eval", help="evaluate an agent on a route suite (resumable)",
+                        description="Closed-loop evaluation through TorchRL collectors. Writes "
+                        "OUT/routes/<route>_s<k>.json per run and OUT/summary.{json,md}; running "
+                        "again on the same OUT resumes.")
+    ev.add_argument("--agent", default="route_follower",
+                    help="registered agent name (route_follower, expert, ...) or path/to/file.py:ClassName")
+    ev.add_argument("--suite", default="test50", help="suite name (test50, val, train) or suite JSON path")
+    ev.add_argument("--seeds", type=int, default=1, help="seed indices per route")
+    ev.add_argument("--workers", type=int, default=1, help="collector worker processes")
+    ev.add_argument("--out", default="results/eval")
+    ev.add_argument("--video", action="store_true", help="save a top-down GIF per route in OUT/videos")
+    ev.add_argument("--max-routes", type=int, default=None, help="only the first N routes of the suite")
+    ev.add_argument("--set", action="append", metavar="KEY=VALUE",
+                    help="environment config override, e.g. --set num_vehicles=10 (repeatable)")
+    ev.add_argument("--agent-name", default=None, help="display name in the summary and leaderboard")
+    ev.add_argument("--quiet", action="store_true", help="no progress bar")
+    ev.set_defaults(func=_eval)
+    lb = sub.add_parser("leaderboard", help="leaderboard table and plots from evaluation result dirs")
+    lb.add_argument("results", nargs="+", help="result directories (each with a summary.json)")
+    lb.add_argument("--out", default="leaderboard")
+    lb.add_argument("--no-plots", action="store_true", help="only the markdown and JSON tables")
+    lb.set_defaults(func=_leaderboard)
     return p
 
 

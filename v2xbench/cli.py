@@ -20,13 +20,12 @@ from pathlib import Path
 
 def _drive(args: argparse.Namespace) -> int:
     import numpy as np
+    from PIL import Image
     from tqdm import tqdm
 
     from v2xbench.agents.route_follower import RouteFollower
     from v2xbench.envs.v2x_intersection import V2XIntersectionEnv
     from v2xbench.envs.v2x_intersection.infractions import EVENT_NAMES
-    from PIL import Image
-
     from v2xbench.envs.v2x_intersection.render import save_video
     from v2xbench.envs.v2x_intersection.sensors import SensorRig, mosaic
 

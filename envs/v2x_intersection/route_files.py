@@ -48,6 +48,7 @@ class ScenarioInstance:
     site_lanes: tuple[int, ...]
     key: int
     s_on_key: float
+    extra: tuple = ()
     params: dict = field(default_factory=dict)
     trigger: tuple[float, float] = (0.0, 0.0)
     conflict: tuple[float, float] = (0.0, 0.0)
@@ -73,13 +74,30 @@ class RouteSpec:
             "waypoints": np.round(np.asarray(self.waypoints, float), 3).tolist(),
             "scenarios": [
                 {"type": s.type, "params": dict(s.params),
-                 "site": {"lanes": [int(x) for x in s.site_lanes], "key": int(s.key), "s_on_key": float(s.s_on_key)},
+                 "site": {"lanes": [int(x) for x in s.site_lanes], "key": int(s.key), "s_on_key": float(s.s_on_key),
+                          "extra": _to_json(s.extra)},
                  "trigger": [round(float(v), 3) for v in s.trigger],
                  "conflict": [round(float(v), 3) for v in s.conflict]}
                 for s in self.scenarios
             ],
             "weather": self.weather, "time_of_day": self.time_of_day, "seed": int(self.seed),
         }
+
+
+def _to_json(x):
+    """Site ``extra`` data (nested tuples of numbers) as JSON lists."""
+    if isinstance(x, (tuple, list)):
+        return [_to_json(v) for v in x]
+    if isinstance(x, (np.integer, int)) and not isinstance(x, bool):
+        return int(x)
+    if isinstance(x, (np.floating, float)):
+        return float(x)
+    return x
+
+
+def _to_tuple(x):
+    """Inverse of :func:`_to_json`: lists back to (nested) tuples."""
+    return tuple(_to_tuple(v) for v in x) if isinstance(x, list) else x
 
 
 def _need(d: dict, key: str, types, where: str):
@@ -143,7 +161,8 @@ def parse_route(d: dict, where: str = "route") -> RouteSpec:
         if not 0 <= key < len(sl):
             raise ValueError(f"{w}: field 'site.key' = {key} out of range for {len(sl)} site lanes")
         s_on = float(_need(site, "s_on_key", (int, float), f"{w}.site"))
-        scen.append(ScenarioInstance(typ, tuple(sl), key, s_on, dict(params),
+        extra = _to_tuple(site.get("extra", []))
+        scen.append(ScenarioInstance(typ, tuple(sl), key, s_on, extra, dict(params),
                                      tuple(s.get("trigger", (0.0, 0.0))), tuple(s.get("conflict", (0.0, 0.0)))))
     weather = d.get("weather", "clear")
     if weather not in WEATHERS:
@@ -164,7 +183,7 @@ def build_episode_from_spec(spec: RouteSpec) -> tuple[Route, list]:
     out = []
     for inst in spec.scenarios:
         cls = get_scenario(inst.type)
-        site = Site(tuple(inst.site_lanes), inst.key, inst.s_on_key)
+        site = Site(tuple(inst.site_lanes), inst.key, inst.s_on_key, inst.extra)
         key_lane = inst.site_lanes[inst.key]
         hits = np.flatnonzero(route.lane_ids == key_lane)
         conflict_s = float(route.s[hits[0]] + inst.s_on_key)

@@ -9,6 +9,7 @@ town is shared between training and testing (as the paper's Town12 test split).
 from __future__ import annotations
 
 import argparse
+import functools
 
 import numpy as np
 
@@ -18,6 +19,7 @@ from .route_files import (
     SUITE_FORMAT,
     TIMES_OF_DAY,
     WEATHERS,
+    _to_json,
     parse_route,
     save_json_atomic,
 )
@@ -30,9 +32,14 @@ MIN_GAP = 60.0  # m between consecutive scenario conflict points
 MAX_LINK = 320.0  # m of driving between two sites
 
 
+@functools.cache
+def _sites_cached(town_name: str, name: str) -> tuple:
+    town = get_town(town_name)
+    return tuple(s for s in get_scenario(name).find_sites(town) if run_up(town, s) >= 50.0)
+
+
 def _sites(town, name):
-    cls = get_scenario(name)
-    return [s for s in cls.find_sites(town) if run_up(town, s) >= 50.0]
+    return list(_sites_cached(town.name, name))
 
 
 def compose_route(town, rng: np.random.Generator, types: list[str], route_id: str, seed: int) -> dict | None:
@@ -81,7 +88,8 @@ def compose_route(town, rng: np.random.Generator, types: list[str], route_id: st
         k = int(np.searchsorted(route.s, cs))
         kt = int(np.searchsorted(route.s, max(cs - cls.trigger_distance, 0.0)))
         scen.append({"type": name, "params": {},
-                     "site": {"lanes": [int(x) for x in site.lanes], "key": site.key, "s_on_key": site.s_on_key},
+                     "site": {"lanes": [int(x) for x in site.lanes], "key": site.key, "s_on_key": site.s_on_key,
+                              "extra": _to_json(site.extra)},
                      "trigger": route.points[min(kt, len(route.points) - 1)].round(3).tolist(),
                      "conflict": route.points[min(k, len(route.points) - 1)].round(3).tolist()})
     if np.any(np.diff(conflicts) < MIN_GAP) or conflicts[0] < 40.0:
@@ -94,50 +102,70 @@ def compose_route(town, rng: np.random.Generator, types: list[str], route_id: st
 
 
 def build_suite(name: str, towns: tuple[str, ...], n_routes: int, seed: int, per_route: tuple[int, int] = (2, 3),
-                v2x_share: float = 0.55) -> dict:
-    """Routes that cover every scenario type that fits ``towns``, over-sampling V2X types."""
+                v2x_share: float = 0.8) -> dict:
+    """Routes that cover every scenario type that fits ``towns``, over-sampling V2X types.
+
+    Phase 1 places each type once (with companions when possible, alone otherwise); phase 2 fills
+    the suite with routes led by a V2X type. Companions are V2X types with probability
+    ``v2x_share``, so V2X types make up at least half of the scenario instances.
+    """
     rng = np.random.default_rng(seed)
-    v2x = [n for n, c in SCENARIOS.items() if c.v2x]
-    other = [n for n, c in SCENARIOS.items() if not c.v2x]
-    fits = {t: {n for n in SCENARIOS if _sites(get_town(t), n)} for t in towns}
-    todo = [n for n in sorted(SCENARIOS) if any(n in f for f in fits.values())]  # cover each once first
-    rng.shuffle(todo)
-    routes = []
-    attempts = 0
-    while len(routes) < n_routes and attempts < 200 * n_routes:
-        attempts += 1
-        town_name = str(rng.choice(towns))
-        town = get_town(town_name)
-        k = int(rng.integers(per_route[0], per_route[1] + 1))
-        types = []
-        if todo:
-            first = todo[0]
-            if first not in fits[town_name]:
-                continue
-            types.append(first)
+    fits = {t: [n for n in sorted(SCENARIOS) if _sites(get_town(t), n)] for t in towns}
+    v2x = {n for n, c in SCENARIOS.items() if c.v2x}
+    routes: list[dict] = []
+
+    def companions(town_name: str, first: str | None, k: int) -> list[str]:
+        share = v2x_share
+        if first is None:  # phase 2 routes are all V2X types (phase 1 placed the others)
+            first, share = str(rng.choice([n for n in fits[town_name] if n in v2x])), 1.0
+        types = [first]
         while len(types) < k:
-            pool = v2x if rng.random() < v2x_share else other
-            cand = [n for n in pool if n in fits[town_name] and n not in types]
-            if not cand:
+            pool = [n for n in fits[town_name] if (n in v2x) == (rng.random() < share) and n not in types]
+            pool = pool or [n for n in fits[town_name] if n not in types]
+            if not pool:
                 break
-            types.append(str(rng.choice(cand)))
-        rid = f"{name}_{len(routes):03d}"
-        d = compose_route(town, rng, types, rid, seed=int(rng.integers(2**31)))
+            types.append(str(rng.choice(pool)))
+        return types
+
+    def attempt(first: str | None) -> dict | None:
+        for _ in range(40):
+            ok = [t for t in towns if ((first in fits[t]) if first else any(n in v2x for n in fits[t]))]
+            town_name = str(rng.choice(ok))
+            k = int(rng.integers(per_route[0], per_route[1] + 1))
+            for size in range(k, 0, -1):
+                types = companions(town_name, first, size)
+                if not types:
+                    return None
+                d = compose_route(get_town(town_name), rng, types, f"{name}_{len(routes):03d}",
+                                  seed=int(rng.integers(2**31)))
+                if d is not None:
+                    return d
+        return None
+
+    todo = sorted({n for f in fits.values() for n in f})
+    rng.shuffle(todo)
+    for first in todo:  # phase 1: coverage
+        if len(routes) >= n_routes:
+            break
+        d = attempt(first)
         if d is None:
+            print(f"suite {name}: could not place {first}")
             continue
-        parse_route(d)  # validate what we write
+        parse_route(d)
         routes.append(d)
-        if todo and d["scenarios"][0]["type"] == todo[0]:
-            todo.pop(0)
-    if len(routes) < n_routes:
-        raise RuntimeError(f"suite {name}: built only {len(routes)} of {n_routes} routes")
+    while len(routes) < n_routes:  # phase 2: fill
+        d = attempt(None)
+        if d is None:
+            raise RuntimeError(f"suite {name}: built only {len(routes)} of {n_routes} routes")
+        parse_route(d)
+        routes.append(d)
     return {"format": SUITE_FORMAT, "name": name, "split": name, "routes": routes}
 
 
 SUITES = {
     "test50": dict(towns=TEST_TOWNS, n_routes=50, seed=50, per_route=(2, 4)),
     "val": dict(towns=TRAIN_TOWNS, n_routes=20, seed=20),
-    "train": dict(towns=TRAIN_TOWNS, n_routes=200, seed=200),
+    "train": dict(towns=TRAIN_TOWNS, n_routes=60, seed=200),
 }
 
 

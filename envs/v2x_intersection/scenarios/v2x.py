@@ -1,18 +1,266 @@
 """V2X-specific scenarios: hazards hidden from the ego by heavy occluders, visible from an RSU.
 
+This module holds the crossing family (a pedestrian steps out in front of the ego from behind a
+truck or a row of parked vehicles) and the helpers shared with :mod:`.v2x_junction` (junction and
+turning families). Every hazard is *timed*: it waits hidden until the ego's estimated time of
+arrival at the conflict point equals its own, so the conflict really happens unless the ego
+reacts in time (typically only possible with the roadside unit's view).
+
 Every module in this package registers its scenarios with ``@register_scenario``.
 """
 
 from __future__ import annotations
 
-from ..classes import LARGE_VEHICLE, PEDESTRIAN
-from .base import Scenario
-from .placement import clear_near, lane_point, spawn_static, spawn_walker, straight_sites, truck_size
+import numpy as np
+
+from ..actors import DRIVER
+from ..classes import CAR, LARGE_VEHICLE, PEDESTRIAN
+from ..geometry import world_to_local_2d
+from ..raycast import Boxes, segments_blocked
+from ..rsu import KIND_TRIGGER, deploy
+from ..signals import RED, YELLOW
+from ..town.model import DRIVING, MERGE, PARKING, Town
+from ..traffic import STOP_LINE_SETBACK
+from .base import Scenario, Site
+from .placement import (
+    clear_lanes,
+    clear_near,
+    lane_point,
+    spawn_driver,
+    spawn_static,
+    spawn_walker,
+    straight_sites,
+    truck_size,
+)
 from .registry import register_scenario
 
+#: m, half width of a junction crosswalk (its centre is this far before the lane end)
+CROSSWALK_HALF = 2.0
+PARKING_LANE_WIDTH = 2.5  # m
+EGO_EYE_Z = 1.8  # m, ego sensor height (as ``world.EGO_SENSOR_Z``)
 
+
+# ---------------------------------------------------------------------------------------------
+# geometry helpers (shared with v2x_junction)
+def carriageway_edge(town: Town, lane: int, side: float) -> float:
+    """Lateral distance (m) from ``lane``'s centre line to the outer edge of the driving lanes on
+    ``side`` (-1 right, +1 left; on the left of a two-way road this includes the opposite lanes).
+    Parking lanes are not included."""
+    ln = town.lanes[lane]
+    edge = ln.width / 2.0
+    if side < 0:
+        k = ln.right
+        while k >= 0:
+            edge += town.lanes[k].width
+            k = town.lanes[k].right
+        return edge
+    k = ln.left
+    while k >= 0:
+        edge += town.lanes[k].width
+        k = town.lanes[k].left
+    k = ln.opposite
+    while k >= 0:
+        edge += town.lanes[k].width
+        k = town.lanes[k].right
+    return edge
+
+
+def has_parking(town: Town, lane: int, side: float) -> bool:
+    """Whether the road of ``lane`` has a parking lane on ``side`` (-1 right, +1 left)."""
+    ln = town.lanes[lane]
+    if ln.road < 0:
+        return False
+    h = np.arctan2(*(ln.points[-1] - ln.points[0])[::-1])
+    for p in town.lanes:
+        if p.kind != PARKING or p.road != ln.road:
+            continue
+        loc = world_to_local_2d(p.points.mean(0), ln.points.mean(0), h)
+        if loc[1] * side > 0:
+            return True
+    return False
+
+
+def kerb_offset(town: Town, lane: int, side: float) -> float:
+    """Lateral distance (m) from ``lane``'s centre line to the kerb on ``side`` (driving lanes plus
+    a parking lane if the road has one there)."""
+    return carriageway_edge(town, lane, side) + (
+        PARKING_LANE_WIDTH if has_parking(town, lane, side) else 0.0
+    )
+
+
+def away_from_crosswalks(
+    town: Town, sites: list[Site], behind: float = 20.0, ahead: float = 6.0
+) -> list[Site]:
+    """Move each straight site's conflict point (default 60 % of the lane) to the first of 60, 70,
+    45, 80 % of the lane with no mid-block crosswalk from ``behind`` m before it to ``ahead`` m
+    after it (parked rows and trucks do not stand on zebra crossings); sites with no such point
+    are dropped."""
+    out = []
+    for site in sites:
+        lane = site.lanes[site.key]
+        road, length = town.lanes[lane].road, town.index.length[lane]
+        marks = [c.corners.mean(0) for c in town.crosswalks if c.road == road and c.junction < 0]
+        s_marks = []
+        if marks:
+            _, s_m, d_m = town.index.project(np.array(marks), np.array([lane]))
+            s_marks = s_m[d_m < 15.0]
+        for f in (0.6, 0.7, 0.45, 0.8):
+            if all(not -behind - 3.0 < sm - f * length < ahead + 3.0 for sm in s_marks):
+                out.append(Site(site.lanes, site.key, f * length, site.extra))
+                break
+    return out
+
+
+def eta(distance: float, speed: float, accel: float = 1.5, v_max: float = 8.0) -> float:
+    """Time (s) to cover ``distance`` m from ``speed`` accelerating at ``accel`` up to ``v_max``
+    (a rough model of a vehicle driving off or cruising)."""
+    d, v = max(distance, 0.0), max(speed, 0.0)
+    v_max = max(v_max, v, 0.5)
+    t_acc = (v_max - v) / accel
+    d_acc = v * t_acc + 0.5 * accel * t_acc**2
+    if d <= d_acc:
+        return float((-v + np.sqrt(v * v + 2.0 * accel * d)) / accel)
+    return float(t_acc + (d - d_acc) / v_max)
+
+
+def has_sidewalk(town: Town, lane: int) -> bool:
+    """Whether the road of ``lane`` has sidewalks (no pedestrians cross highways)."""
+    road = town.lanes[lane].road
+    return road >= 0 and any(sw.road == road for sw in town.sidewalks)
+
+
+def has_crosswalk(town: Town, lane: int, junction: int) -> bool:
+    """Whether the road of ``lane`` has a crosswalk at junction ``junction``."""
+    road = town.lanes[lane].road
+    return junction >= 0 and any(c.junction == junction and c.road == road for c in town.crosswalks)
+
+
+def park_vehicle(
+    world,
+    row: int,
+    lane: int,
+    s_front: float,
+    lateral: float,
+    size: tuple[float, float, float] | None = None,
+    kind: int = LARGE_VEHICLE,
+) -> tuple[float, float, float]:
+    """A parked vehicle (default: a truck / van) whose front is at arc length ``s_front`` of
+    ``lane``, its centre ``lateral`` m left of the lane centre (negative: right). Returns its
+    size."""
+    size = size or truck_size(world.rng)
+    p, h = lane_point(world.town, lane, s_front - size[0] / 2.0, lateral)
+    spawn_static(world, row, kind, p, h, size, parked=True)
+    return size
+
+
+def sight_blocked(world, eyes: np.ndarray, targets: np.ndarray, extra: list[tuple] = ()) -> float:
+    """Fraction of the sight lines from ``eyes (E, 3)`` to ``targets (T, 3)`` blocked by the town's
+    buildings and the ``extra`` boxes ``(x, y, length, width, yaw, height)`` (e.g. a truck just
+    placed); used to pick hazard positions hidden from the ego."""
+    sb, sh = world.static_boxes, world.static_heights
+    keep = np.linalg.norm(sb[:, :2] - targets[:, :2].mean(0), axis=1) < 90.0
+    rows = np.concatenate([sb[keep], np.array([e[:5] for e in extra], float).reshape(-1, 5)])
+    heights = np.concatenate([sh[keep], np.array([e[5] for e in extra], float)])
+    boxes = Boxes.from_arrays(rows[:, :2], rows[:, 2], rows[:, 3], rows[:, 4], heights)
+    starts = np.repeat(eyes, len(targets), axis=0)
+    ends = np.tile(targets, (len(eyes), 1))
+    return float(segments_blocked(starts, ends, boxes).mean())
+
+
+def route_eyes(world, route, s_values) -> np.ndarray:
+    """Ego sensor positions ``(E, 3)`` at route arc lengths ``s_values``."""
+    k = np.clip(np.searchsorted(route.s, np.asarray(s_values, float)), 0, len(route.points) - 1)
+    return np.concatenate([route.points[k], np.full((len(k), 1), EGO_EYE_Z)], 1)
+
+
+def trigger_rsu_eye(world, route, conflict_point: np.ndarray) -> np.ndarray:
+    """Position ``(3,)`` of the roadside unit the world deploys for a conflict point (as
+    :func:`~..rsu.deploy` places it: beside the route past the conflict, snapped to a sidewalk)."""
+    units = deploy(world.town, route, np.asarray(conflict_point, float)[None])
+    k = np.flatnonzero(units.kind == KIND_TRIGGER)
+    return units.pose[k[0], :3] if len(k) else units.pose[0, :3]
+
+
+def box_points(center: np.ndarray, yaw: float, length: float, heights=(0.4, 1.0)) -> np.ndarray:
+    """Sample points ``(6, 3)`` along a box's axis (rear, centre, front) at ``heights``."""
+    u = np.array([np.cos(yaw), np.sin(yaw)])
+    xy = [center + f * 0.35 * length * u for f in (-1.0, 0.0, 1.0)]
+    return np.array([[p[0], p[1], z] for p in xy for z in heights])
+
+
+class TimedScenario(Scenario):
+    """Base for hazards released when the ego's estimated arrival time at the conflict point
+    drops to the hazard's own time to it (see :meth:`due`).
+
+    Held walkers stand still (speed 0, so nobody predicts them moving) and get their walking
+    speed when released (:meth:`hold_walker`, :meth:`release_walker`).
+    """
+
+    ego_v_max = 8.0  # m/s, ego cruise speed assumed by the arrival estimate
+    #: m: release anyway once the ego is this close (CARLA's minimum trigger distance) ...
+    min_trigger_m = 6.0
+    #: s: ... or once the ego has waited this long within 40 m of the conflict
+    max_wait_s = 4.0
+    #: m: never start once the ego's centre is this close (its body covers the conflict point)
+    occupied_m = 3.5
+
+    def setup(self, world, rows: np.ndarray) -> None:
+        self._ego_wait = 0.0  # s the ego has been standing near the conflict
+        self._walk_speed: dict[int, float] = {}  # walking speeds of held walkers
+        super().setup(world, rows)
+
+    def ego_eta(self, world, s_target: float | None = None) -> float:
+        """Estimated time (s) for the ego to reach route arc length ``s_target`` (default: the
+        conflict point)."""
+        s = self.conflict_s if s_target is None else s_target
+        return eta(s - self.ego_s(world), float(world.table.speed[0]), v_max=self.ego_v_max)
+
+    def due(self, world, hazard_time: float, margin: float = 0.3) -> bool:
+        """Whether a hazard needing ``hazard_time`` s to reach the conflict must start now (call
+        once per tick while it waits): the ego's arrival estimate is down to ``hazard_time``, or
+        the ego is within ``min_trigger_m`` of the conflict, or it has stood still near it for
+        ``max_wait_s`` (so that a cautious ego never waits forever for a hazard waiting for it);
+        never while the ego waits at a red light before the conflict or covers the conflict
+        point itself."""
+        if self.ego_at_red(world):  # the ego waits for its light: so does the hazard
+            self._ego_wait = 0.0
+            return False
+        d = self.conflict_s - self.ego_s(world)
+        if d < self.occupied_m:  # the ego stands on the conflict point: too late to start
+            return False
+        slow = float(world.table.speed[0]) < 0.3 and d < 40.0
+        self._ego_wait = self._ego_wait + world.config.dt if slow else 0.0
+        if self._ego_wait > self.max_wait_s or d < self.min_trigger_m:
+            return True
+        return self.ego_eta(world) <= hazard_time + margin
+
+    def ego_at_red(self, world) -> bool:
+        """Whether the ego faces a red or yellow light whose stop line lies before the conflict
+        point (it will wait there, so the hazard must wait too)."""
+        r, ix = world.route, world.town.index
+        k = min(world.monitor.progress, len(r.lane_ids) - 1)
+        lane = int(r.lane_ids[k])
+        if not (ix.stop_at_end[lane] and world.lane_signal[lane] in (RED, YELLOW)):
+            return False
+        on_lane = np.flatnonzero(r.lane_ids[k:] == lane)
+        line_s = float(r.s[k + on_lane[-1]]) - STOP_LINE_SETBACK
+        return line_s < self.conflict_s
+
+    def hold_walker(self, world, row: int) -> None:
+        """Make a freshly spawned walker wait, standing still."""
+        self._walk_speed[int(row)] = float(world.table.speed[row])
+        world.table.speed[row] = 0.0
+        world.table.hold[row] = True
+
+    def release_walker(self, world, row: int) -> None:
+        """Let a walker held by :meth:`hold_walker` go at its walking speed."""
+        world.table.hold[row] = False
+        world.table.speed[row] = self._walk_speed.get(int(row), 1.4)
+
+
+# ---------------------------------------------------------------------------------------------
 @register_scenario
-class DynamicObjectCrossing(Scenario):
+class DynamicObjectCrossing(TimedScenario):
     """A pedestrian runs across the ego's lane from behind a parked truck ("ghost probe").
 
     The pedestrian waits on the kerb side of the truck, hidden from the ego, and is released when
@@ -31,7 +279,8 @@ class DynamicObjectCrossing(Scenario):
 
     @classmethod
     def find_sites(cls, town):
-        return straight_sites(town, min_length=60.0)
+        sites = [s for s in straight_sites(town, min_length=60.0) if has_sidewalk(town, s.lanes[0])]
+        return away_from_crosswalks(town, sites, behind=10.0, ahead=3.0)
 
     def spawn(self, world) -> None:
         town, rng = world.town, world.rng
@@ -41,23 +290,201 @@ class DynamicObjectCrossing(Scenario):
         clear_near(world, self.conflict_point, 25.0)
         truck = truck_size(rng)
         # the truck stands at the kerb, its front just before the crossing point
-        s_truck = self.site.s_on_key - truck[0] / 2 - 0.3
-        p, h = lane_point(town, lane, s_truck, side * (w / 2 + truck[1] / 2 + 0.3))
-        spawn_static(world, self.rows[0], LARGE_VEHICLE, p, h, truck, parked=True)
+        park_vehicle(
+            world,
+            self.rows[0],
+            lane,
+            self.site.s_on_key - 0.3,
+            side * (w / 2 + truck[1] / 2 + 0.3),
+            truck,
+        )
         # the pedestrian waits behind the truck's front corner, on the kerb side
         self._start_lat = w / 2 + truck[1] + 1.0
         start, _ = lane_point(town, lane, self.site.s_on_key - 1.2, side * self._start_lat)
         end, _ = lane_point(town, lane, self.site.s_on_key + 0.5, -side * (w / 2 + 4.0))
-        spawn_walker(world, self.rows[1], start, end, speed=float(self.params["speed"]), hold=True,
-                     kind=PEDESTRIAN)
+        spawn_walker(
+            world, self.rows[1], start, end, speed=float(self.params["speed"]), kind=PEDESTRIAN
+        )
+        self.hold_walker(world, self.rows[1])
         self.hazard_rows = [int(self.rows[1])]
 
     def update(self, world) -> None:
-        t = world.table
         row = self.rows[1]
-        if not t.hold[row]:
-            return
-        time_ped = self._start_lat / float(self.params["speed"])
-        time_ego = (self.conflict_s - self.ego_s(world)) / max(float(t.speed[0]), 1.0)
-        if time_ego <= time_ped + 0.3:
-            t.hold[row] = False
+        if world.table.hold[row] and self.due(world, self._start_lat / float(self.params["speed"])):
+            self.release_walker(world, row)
+
+
+@register_scenario
+class ParkingCrossingPedestrian(TimedScenario):
+    """A pedestrian steps out from between parked vehicles and crosses the ego's lane.
+
+    On a road with a parking lane beside the ego's lane, a row of parked vehicles stands at the
+    conflict point: a tall van (3.2-3.6 m) whose front ends just before it, one or two cars behind
+    the van and one car after a narrow gap. The pedestrian waits on the sidewalk behind the van's
+    front, hidden from the ego, and walks through the gap and across the ego's lane when the
+    ego's arrival time equals its own.
+
+    Parameters: ``speed`` (m/s) of the pedestrian; ``gap`` (m) between the van and the next car;
+    ``cars`` parked cars behind the van.
+    """
+
+    name = "ParkingCrossingPedestrian"
+    family = "crossing"
+    v2x = True
+    max_actors = 5
+    towns = ("Town03", "Town01", "Town06")
+    trigger_distance = 45.0
+    defaults = {"speed": 1.6, "gap": 1.4, "cars": 2}
+
+    @classmethod
+    def find_sites(cls, town):
+        sites = straight_sites(town, min_length=50.0, parking=True)
+        sites = [
+            s
+            for s in sites
+            if has_parking(town, s.lanes[0], -1.0) and has_sidewalk(town, s.lanes[0])
+        ]
+        return away_from_crosswalks(town, sites)
+
+    def spawn(self, world) -> None:
+        town, rng = world.town, world.rng
+        lane = self.site.lanes[self.site.key]
+        w = town.index.width[lane]
+        s_c = self.site.s_on_key
+        clear_near(world, self.conflict_point, 30.0)
+        park_lat = -(w / 2 + PARKING_LANE_WIDTH / 2)
+        gap = float(self.params["gap"])
+        van = (float(rng.uniform(5.5, 7.0)), 2.3, float(rng.uniform(3.2, 3.6)))
+        s_front = s_c - gap / 2
+        park_vehicle(world, self.rows[0], lane, s_front, park_lat, van)
+        # parked cars: one after the gap, ``cars`` behind the van
+        s = s_c + gap / 2
+        car = (float(rng.uniform(4.2, 4.8)), 1.9, float(rng.uniform(1.4, 1.6)))
+        park_vehicle(world, self.rows[1], lane, s + car[0], park_lat, car, CAR)
+        s = s_front - van[0] - 1.0
+        n_cars = int(np.clip(self.params["cars"], 0, 2))
+        for k in range(2):
+            row = self.rows[2 + k]
+            if k >= n_cars:
+                continue
+            car = (float(rng.uniform(4.2, 4.8)), 1.9, float(rng.uniform(1.4, 1.6)))
+            park_vehicle(world, row, lane, s, park_lat, car, CAR)
+            s -= car[0] + float(rng.uniform(0.8, 1.5))
+        # the pedestrian waits on the sidewalk beside the van's front, facing the gap
+        self._start_lat = kerb_offset(town, lane, -1.0) + 0.8
+        start, _ = lane_point(town, lane, s_c - 0.25, -self._start_lat)
+        end, _ = lane_point(town, lane, s_c + 0.4, w / 2 + 3.0)
+        spawn_walker(world, self.rows[4], start, end, speed=float(self.params["speed"]))
+        self.hold_walker(world, self.rows[4])
+        self.hazard_rows = [int(self.rows[4])]
+
+    def update(self, world) -> None:
+        row = self.rows[4]
+        if world.table.hold[row] and self.due(world, self._start_lat / float(self.params["speed"])):
+            self.release_walker(world, row)
+
+
+@register_scenario
+class PedestrianCrossing(TimedScenario):
+    """A group of pedestrians crosses the junction-entry crosswalk in front of the ego.
+
+    The ego approaches a junction (any control; it may go straight or turn). A truck hides the
+    right-hand corner: on a multi-lane approach it waits at the stop line of the lane to the
+    ego's right, otherwise it is parked at the kerb just before the crosswalk. The pedestrians
+    wait on the corner behind the truck's front and cross the whole road on the crosswalk; the
+    first starts when the ego's arrival time equals its time to reach the ego's lane, the others
+    follow after short, random delays (as CARLA's idle times).
+
+    Parameters: ``count`` pedestrians (1-3); ``speed`` (m/s) range low end (each walks at
+    ``speed`` to ``speed + 0.5``).
+    """
+
+    name = "PedestrianCrossing"
+    family = "crossing"
+    v2x = True
+    max_actors = 4
+    towns = ("Town01", "Town05", "Town03")
+    trigger_distance = 45.0
+    defaults = {"count": 3, "speed": 1.4}
+
+    @classmethod
+    def find_sites(cls, town):
+        sites = []
+        for j in town.junctions:
+            if j.control == MERGE:
+                continue
+            for cid in j.connectors:
+                c = town.lanes[cid]
+                if not c.predecessors:
+                    continue
+                inc = c.predecessors[0]
+                if (
+                    town.index.length[inc] < 40
+                    or town.lanes[inc].kind != DRIVING
+                    or not has_crosswalk(town, inc, j.id)
+                ):
+                    continue
+                sites.append(Site((inc, cid), 0, town.index.length[inc] - CROSSWALK_HALF))
+        return sites
+
+    def spawn(self, world) -> None:
+        town, rng = world.town, world.rng
+        lane = self.site.lanes[0]
+        ix = town.index
+        w, length = ix.width[lane], ix.length[lane]
+        s_c = self.site.s_on_key
+        clear_near(world, self.conflict_point, 20.0)
+        right = ix.right[lane]
+        if right >= 0:  # a truck waits at the stop line of the lane to the right
+            size = truck_size(rng)
+            clear_lanes(world, [right])
+            s_front = ix.length[right] - STOP_LINE_SETBACK - 0.3
+            spawn_driver(
+                world,
+                self.rows[0],
+                int(right),
+                s_front - size[0] / 2,
+                kind=LARGE_VEHICLE,
+                hold=True,
+                size=size,
+            )
+            s_front = s_front * length / max(ix.length[right], 1e-6)
+            outer = w / 2 + ix.width[right] / 2 + size[1] / 2  # the truck's outer side
+        else:  # parked at the kerb just before the crosswalk
+            size = truck_size(rng)
+            s_front = length - 2 * CROSSWALK_HALF - 0.3
+            park_vehicle(world, self.rows[0], lane, s_front, -(w / 2 + size[1] / 2 + 0.3), size)
+            outer = w / 2 + size[1] + 0.3
+        self._truck_row = int(self.rows[0])
+        n = int(np.clip(self.params["count"], 1, 3))
+        far = kerb_offset(town, lane, 1.0) + 1.0
+        self._times, self._delays = [], []
+        for k in range(n):
+            lat0 = outer + 0.6  # close behind the truck's side: hidden from afar too
+            start, _ = lane_point(town, lane, s_front - 0.5 - 0.8 * k, -lat0)
+            end, _ = lane_point(town, lane, s_c - 1.0 + 0.9 * k, far)
+            speed = float(self.params["speed"]) + float(rng.uniform(0.0, 0.5))
+            spawn_walker(world, self.rows[1 + k], start, end, speed=speed)
+            self.hold_walker(world, self.rows[1 + k])
+            d_lane = np.linalg.norm(end - start) * lat0 / (lat0 + far)
+            self._times.append(d_lane / speed)
+            self._delays.append(0.0 if k == 0 else float(rng.uniform(0.3, 1.5)))
+        self.hazard_rows = [int(r) for r in self.rows[1 : 1 + n]]
+        self._released_at = None
+
+    def update(self, world) -> None:
+        t = world.table
+        if self._released_at is None:
+            if self.due(world, self._times[0]):
+                self._released_at = world.tick
+        if self._released_at is not None:
+            waited = (world.tick - self._released_at) * world.config.dt
+            for row, delay in zip(self.hazard_rows, self._delays):
+                if t.hold[row] and waited >= delay:
+                    self.release_walker(world, row)
+        if self.passed and t.behaviour[self._truck_row] == DRIVER:  # the waiting truck drives on
+            t.hold[self._truck_row] = False
+
+
+# the junction and turning families live in their own module (it imports the helpers above)
+from . import v2x_junction  # noqa: E402, F401

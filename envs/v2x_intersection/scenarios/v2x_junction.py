@@ -1,0 +1,454 @@
+"""V2X-specific junction scenarios: the ego turns at a junction and meets a hazard it cannot see.
+
+Two families:
+
+- ``turning``: a cyclist (:class:`VehicleTurningRoute`) or a pedestrian
+  (:class:`VehicleTurningRoutePedestrian`) crosses the road the ego turns into. After a right
+  turn it comes from the inner corner, hidden by a truck parked at the right kerb of the ego's
+  approach; after a left turn it steps out from behind a truck parked at the right kerb of the
+  exit road (the inner corner of a left turn lies open across the junction).
+- ``junction``: at an unsignalized junction the ego (on a road that must yield) turns while a
+  vehicle (:class:`NonSignalizedJunctionLeftTurn`, :class:`NonSignalizedJunctionRightTurn`) or a
+  flow of bicycles (:class:`CrossingBicycleFlow`) with priority arrives on the crossing road,
+  hidden by a truck parked at the near kerb of that road and by the corner buildings.
+
+Hazards are timed to the ego's arrival (see :class:`~.v2x.TimedScenario`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..actors import RIDER, draw_size
+from ..classes import BICYCLE, CAR, PEDESTRIAN
+from ..geometry import world_to_local_2d
+from ..town.model import DRIVING, LEFT, PRIORITY, RIGHT, STOP, STRAIGHT, Town
+from ..traffic import STOP_LINE_SETBACK
+from .base import Site
+from .placement import clear_lanes, clear_near, lane_point, spawn_driver, spawn_walker, truck_size
+from .registry import register_scenario
+from .v2x import (
+    CROSSWALK_HALF,
+    TimedScenario,
+    box_points,
+    carriageway_edge,
+    has_crosswalk,
+    kerb_offset,
+    park_vehicle,
+    route_eyes,
+    sight_blocked,
+    trigger_rsu_eye,
+)
+
+#: m into the exit lane where the hazard of a left turn crosses (crosswalk, 4.5 m, truck, 0.6 m)
+LEFT_TURN_CONFLICT = 2 * CROSSWALK_HALF + 4.5 + 9.0 + 0.6
+#: m between a truck parked at the exit road's kerb and the carriageway (a straight-corridor
+#: driver leaving the turn slightly askew must not mistake it for an obstacle in its lane)
+KERB_GAP = 1.0
+
+
+def lane_path(town: Town, lanes: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points ``(P, 2)`` of a lane sequence, the lane index of each point and its arc length on it."""
+    pts, owner, s_on = [], [], []
+    ix = town.index
+    for k, lane in enumerate(lanes):
+        s = np.arange(0.0, ix.length[lane], 0.5)
+        p, _ = ix.pose_at(np.full(len(s), lane), s)
+        pts.append(p)
+        owner.append(np.full(len(s), k))
+        s_on.append(s)
+    return np.concatenate(pts), np.concatenate(owner), np.concatenate(s_on)
+
+
+def first_conflict(
+    town: Town, ego_lanes: list[int], other_lanes: list[int], radius: float = 1.6
+) -> tuple[int, float, float] | None:
+    """Where the ego's lane sequence first comes within ``radius`` m of another one.
+
+    Returns:
+        ``(index into ego_lanes, arc length on that lane, arc length along other_lanes)`` or
+        ``None`` when the paths never meet.
+    """
+    a, a_owner, a_s = lane_path(town, ego_lanes)
+    b, _, _ = lane_path(town, other_lanes)
+    d = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=2)
+    close = np.flatnonzero(d.min(1) < radius)
+    if len(close) == 0:
+        return None
+    k = int(close[0])
+    j = int(np.argmin(d[k]))
+    return int(a_owner[k]), float(a_s[k]), 0.5 * j
+
+
+def side_of(town: Town, lane: int, xy: np.ndarray) -> float:
+    """-1 if ``xy`` lies right of ``lane`` (seen at its end), +1 if left."""
+    ln = town.lanes[lane]
+    h = np.arctan2(*(ln.points[-1] - ln.points[-2])[::-1])
+    return 1.0 if world_to_local_2d(xy, ln.points[-1], h)[1] > 0 else -1.0
+
+
+def extend_plan(town: Town, lanes: list[int], extra: int = 1) -> list[int]:
+    """``lanes`` plus up to ``extra`` driving successors (so a hazard drives on after the junction)."""
+    out = list(lanes)
+    for _ in range(extra):
+        succ = [s for s in town.lanes[out[-1]].successors if town.lanes[s].kind in (DRIVING,)]
+        if not succ:
+            break
+        out.append(succ[0])
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+class _TurnCrossing(TimedScenario):
+    """Shared logic of the turning family (see the subclasses)."""
+
+    family = "turning"
+    v2x = True
+    max_actors = 2
+    trigger_distance = 45.0
+    ego_v_max = 6.0
+    hazard_kind = PEDESTRIAN
+    towns = ("Town01", "Town05", "Town02")
+
+    @classmethod
+    def find_sites(cls, town):
+        sites = []
+        for j in town.junctions:
+            for cid in j.connectors:
+                c = town.lanes[cid]
+                if c.turn not in (LEFT, RIGHT) or not c.predecessors or not c.successors:
+                    continue
+                inc, ex = c.predecessors[0], c.successors[0]
+                if town.index.length[inc] < 30 or town.index.length[ex] < 35:
+                    continue
+                if not (has_crosswalk(town, ex, j.id) and has_crosswalk(town, inc, j.id)):
+                    continue
+                s_x = CROSSWALK_HALF if c.turn == RIGHT else LEFT_TURN_CONFLICT
+                sites.append(Site((inc, cid, ex), 2, s_x))
+        return sites
+
+    def spawn(self, world) -> None:
+        town, rng = world.town, world.rng
+        inc, conn, ex = self.site.lanes[:3]
+        ix = town.index
+        clear_near(world, self.conflict_point, 20.0)
+        size = truck_size(rng)
+        s_x = self.site.s_on_key
+        if town.lanes[conn].turn == RIGHT:
+            # a truck at the right kerb of the approach, its front at the crosswalk, hides the
+            # inner corner, where the hazard waits to cross the exit road on the crosswalk
+            lat = -(carriageway_edge(town, inc, -1.0) + size[1] / 2 + 0.3)
+            park_vehicle(
+                world, self.rows[0], inc, ix.length[inc] - 2 * CROSSWALK_HALF - 0.3, lat, size
+            )
+            self._lat0 = kerb_offset(town, ex, -1.0) + float(self.params["wait"])
+            start, _ = lane_point(town, ex, s_x, -self._lat0)
+        else:
+            # a truck parked at the right kerb of the exit road past the crosswalk; the hazard
+            # waits behind its front and crosses just ahead of it (hidden until the ego is in
+            # the exit lane)
+            edge = carriageway_edge(town, ex, -1.0)
+            park_vehicle(world, self.rows[0], ex, s_x - 0.6, -(edge + size[1] / 2 + KERB_GAP), size)
+            self._lat0 = edge + size[1] + KERB_GAP + float(self.params["wait"])
+            start, _ = lane_point(town, ex, s_x - 1.2, -self._lat0)
+        end, _ = lane_point(town, ex, s_x + 0.3, kerb_offset(town, ex, 1.0) + 1.0)
+        spawn_walker(
+            world,
+            self.rows[1],
+            start,
+            end,
+            speed=float(self.params["speed"]),
+            kind=self.hazard_kind,
+        )
+        self.hold_walker(world, self.rows[1])
+        self.hazard_rows = [int(self.rows[1])]
+
+    def update(self, world) -> None:
+        row = self.rows[1]
+        if world.table.hold[row] and self.due(world, self._lat0 / float(self.params["speed"])):
+            self.release_walker(world, row)
+
+
+@register_scenario
+class VehicleTurningRoute(_TurnCrossing):
+    """The ego turns at a junction and a cyclist crosses the road it turns into.
+
+    Right turn: a truck parked at the right kerb of the ego's approach, its front at the junction
+    crosswalk, hides the inner corner; the cyclist waits there and rides across the exit road on
+    its crosswalk. Left turn: a truck is parked at the right kerb of the exit road about 5 m past
+    the crosswalk; the cyclist waits behind its front and rides across the road just ahead of it
+    (about 18 m into the exit road, as CARLA's cyclist some 11 m after the junction). Either way
+    it starts when the ego's arrival time at the crossing equals its own.
+
+    Parameters: ``speed`` (m/s) of the cyclist; ``wait`` (m) how far from the kerb (right turn)
+    or the truck's side (left turn) it waits.
+    """
+
+    name = "VehicleTurningRoute"
+    hazard_kind = BICYCLE
+    defaults = {"speed": 4.0, "wait": 1.5}
+
+
+@register_scenario
+class VehicleTurningRoutePedestrian(_TurnCrossing):
+    """The ego turns at a junction and a pedestrian crosses the road it turns into.
+
+    As :class:`VehicleTurningRoute` with a pedestrian: after a right turn it walks from the inner
+    corner (hidden by a truck at the approach's right kerb) across the exit road on the
+    crosswalk; after a left turn it steps out from behind a truck parked at the exit road's right
+    kerb. Timed to the ego's arrival.
+
+    Parameters: ``speed`` (m/s) of the pedestrian; ``wait`` (m) how far from the kerb (right
+    turn) or the truck's side (left turn) it waits.
+    """
+
+    name = "VehicleTurningRoutePedestrian"
+    hazard_kind = PEDESTRIAN
+    defaults = {"speed": 1.8, "wait": 1.0}
+
+
+# ---------------------------------------------------------------------------------------------
+def priority_sites(town: Town, turn: int, hazard_side: float | None) -> list[Site]:
+    """Sites where the ego turns (``turn``) from a road that must yield at an unsignalized junction
+    while straight-through traffic with priority crosses or joins its path.
+
+    ``hazard_side``: -1 hazards from the ego's right, +1 from its left, ``None`` either. Priority
+    junctions are used where the town has suitable ones (the hazard's road has no sign), else
+    all-way stops (the hazard then takes priority it does not have). ``Site.extra`` holds the
+    hazard's lane sequence and the arc length of the conflict along it.
+    """
+    found: dict[int, list[Site]] = {PRIORITY: [], STOP: []}
+    for j in town.junctions:
+        if j.control not in found:
+            continue
+        for cid in j.connectors:
+            c = town.lanes[cid]
+            if c.turn != turn or not c.predecessors or not c.successors:
+                continue
+            inc, ex = c.predecessors[0], c.successors[0]
+            if inc not in j.stop_lanes or town.index.length[inc] < 30 or town.index.length[ex] < 20:
+                continue
+            for hid in j.connectors:
+                h = town.lanes[hid]
+                if h.turn != STRAIGHT or not h.predecessors or not h.successors:
+                    continue
+                h_inc = h.predecessors[0]
+                if town.lanes[h_inc].road == town.lanes[inc].road or town.index.length[h_inc] < 25:
+                    continue
+                if j.control == PRIORITY and h_inc in j.stop_lanes:
+                    continue
+                side = side_of(town, inc, town.lanes[h_inc].points[-1])
+                if hazard_side is not None and side != hazard_side:
+                    continue
+                hz = [h_inc, hid, h.successors[0]]
+                hit = first_conflict(town, [cid, ex], hz)
+                if hit is None:
+                    continue
+                key, s_key, s_h = hit
+                found[j.control].append(Site((inc, cid, ex), 1 + key, s_key, (tuple(hz), s_h)))
+    return found[PRIORITY] or found[STOP]
+
+
+class _PriorityHazard(TimedScenario):
+    """Shared logic of the junction family: ``hazard_count`` actors with priority approach on a
+    crossing road, held hidden ``distance`` m before the junction behind a truck parked at the near
+    kerb and released (at full speed) when their arrival time equals the ego's; the ego's
+    estimate assumes it drives off after its stop at the stop line."""
+
+    family = "junction"
+    v2x = True
+    trigger_distance = 45.0
+    timeout_s = 90.0
+    ego_v_max = 5.0
+    towns = ("Town01", "Town06", "Town02", "Town05")
+    turn = RIGHT
+    hazard_side: float | None = 1.0
+
+    @classmethod
+    def find_sites(cls, town):
+        return priority_sites(town, cls.turn, cls.hazard_side)
+
+    def hazard_count(self) -> int:
+        return 1
+
+    def spawn(self, world) -> None:
+        town, rng, t = world.town, world.rng, world.table
+        ix = town.index
+        inc = self.site.lanes[0]
+        hz, s_h = self.site.extra
+        h_inc = hz[0]
+        clear_near(world, town.junctions[ix.junction[self.site.lanes[1]]].center, 30.0)
+        clear_lanes(world, [inc, h_inc, *hz[1:]])
+        # truck parked at the kerb of the hazard's road, on the side facing the ego's approach
+        side = side_of(town, h_inc, town.lanes[inc].points[-1])
+        size = truck_size(rng)
+        lat = side * (carriageway_edge(town, h_inc, side) + size[1] / 2 + 0.3)
+        l_h = ix.length[h_inc]
+        s_front = l_h - 2 * CROSSWALK_HALF - float(self.params["truck_gap"])
+        park_vehicle(world, self.rows[0], h_inc, s_front, lat, size)
+        self._line_s = self.conflict_s - self._dist_line_to_conflict(town)
+        # the hazard(s), held upstream where the truck and buildings hide them from the ego
+        plan = extend_plan(town, list(hz))
+        n = self.hazard_count()
+        p_t, h_t = lane_point(town, h_inc, s_front - size[0] / 2, lat)
+        s0 = self._hidden_hold(world, h_inc, (p_t[0], p_t[1], size[0], size[1], h_t, size[2]))
+        self.hazard_rows = []
+        for k in range(n):
+            row = int(self.rows[1 + k])
+            s = (
+                s0
+                - k * float(self.params.get("spacing", 0.0))
+                - (rng.uniform(0.0, 4.0) if k else 0.0)
+            )
+            if s < 1.0:
+                break
+            self._spawn_hazard(world, row, h_inc, s, plan)
+            self.hazard_rows.append(row)
+        self._speed = float(self.params["speed"])
+        self._time = (l_h - s0 + s_h) / self._speed
+        self._ego_stopped = False
+        self._released = False
+        t.hold[self.hazard_rows] = True
+
+    def _hidden_hold(self, world, lane: int, truck: tuple) -> float:
+        """Arc length on ``lane`` where the (first) hazard waits: the one nearest the junction
+        (but at most ``distance`` m from it) hidden from the ego on its last 25 m to the stop
+        line and seen by the conflict's roadside unit; the best compromise if none is."""
+        town = world.town
+        l_h = town.index.length[lane]
+        far = max(l_h - float(self.params["distance"]), 2.0)
+        eyes = route_eyes(
+            world, self.route, self._line_s - 2.5 - np.array([0.0, 4.0, 10.0, 18.0, 25.0])
+        )
+        rsu = trigger_rsu_eye(world, self.route, self.conflict_point)[None]
+        best, best_score = far, -1.0
+        for s in np.arange(l_h - 2 * CROSSWALK_HALF - 6.0, far - 0.5, -1.0):
+            p, h = lane_point(town, lane, s)
+            pts = box_points(p, h, 4.5)
+            score = sight_blocked(world, eyes, pts, [truck]) - 0.5 * sight_blocked(
+                world, rsu, pts, [truck]
+            )
+            if score > best_score + 1e-6:
+                best, best_score = float(s), score
+            if score >= 0.999:
+                break
+        return best
+
+    def _dist_line_to_conflict(self, town: Town) -> float:
+        ix = town.index
+        lanes = list(self.site.lanes)
+        return float(
+            STOP_LINE_SETBACK + sum(ix.length[lanes[1 : self.site.key]]) + self.site.s_on_key
+        )
+
+    def _spawn_hazard(self, world, row: int, lane: int, s: float, plan: list[int]) -> None:
+        spawn_driver(world, row, lane, s, kind=CAR, hold=True, ignore_rules=True, plan=plan)
+
+    def update(self, world) -> None:
+        t = world.table
+        if self._released:
+            return
+        s = self.ego_s(world)
+        if not self._ego_stopped and (
+            s > self._line_s - 10.0 and t.speed[0] < 0.5 or s > self._line_s + 1.0
+        ):
+            self._ego_stopped = True
+        if self._ego_stopped and self.due(world, self._time):
+            self._released = True
+            rows = np.array(self.hazard_rows, np.int64)
+            limit = world.town.index.speed_limit[t.lane[rows]]
+            t.hold[rows] = False
+            t.speed[rows] = self._speed
+            t.v0[rows] = np.where(
+                t.kind[rows] == BICYCLE, self._speed, self._speed / np.maximum(limit, 1.0)
+            )
+
+
+@register_scenario
+class NonSignalizedJunctionRightTurn(_PriorityHazard):
+    """The ego turns right from a road that must yield; a car with priority comes from the left.
+
+    At a priority junction (the ego's approach has a stop sign; an all-way stop where the town has
+    no priority junction) the ego turns right into the lane of a car arriving straight from its
+    left. A truck parked at the near kerb of the crossing road, just before the crosswalk, and the
+    corner buildings hide the car from the ego waiting at its stop line; the car waits hidden
+    ``distance`` m before the junction and drives off at ``speed`` when its arrival time equals the
+    ego's (estimated as the ego driving off after its stop), ignoring the ego.
+
+    Parameters: ``speed`` (m/s) of the car; ``distance`` (m) from the junction where it waits;
+    ``truck_gap`` (m) between the truck's front and the crosswalk.
+    """
+
+    name = "NonSignalizedJunctionRightTurn"
+    max_actors = 2
+    turn = RIGHT
+    hazard_side = 1.0
+    defaults = {"speed": 8.0, "distance": 30.0, "truck_gap": 0.3}
+
+
+@register_scenario
+class NonSignalizedJunctionLeftTurn(_PriorityHazard):
+    """The ego turns left from a road that must yield; a car with priority comes from the right.
+
+    At a priority junction (all-way stop where the town has none) the ego turns left across the
+    crossing road while a car with priority arrives straight from its right, into the lane the ego
+    turns into. A truck parked at the near kerb of the crossing road and the corner buildings hide
+    the car; it waits ``distance`` m before the junction and drives off at ``speed`` when its arrival
+    time equals the ego's (after the ego's stop), ignoring the ego.
+
+    Parameters: ``speed`` (m/s) of the car; ``distance`` (m) from the junction where it waits;
+    ``truck_gap`` (m) between the truck's front and the crosswalk.
+    """
+
+    name = "NonSignalizedJunctionLeftTurn"
+    max_actors = 2
+    turn = LEFT
+    hazard_side = -1.0
+    defaults = {"speed": 8.0, "distance": 30.0, "truck_gap": 0.3}
+
+
+@register_scenario
+class CrossingBicycleFlow(_PriorityHazard):
+    """The ego turns at an unsignalized junction across a flow of bicycles with priority.
+
+    The ego, on a road that must yield, turns right (the flow comes from its left and rides on
+    into the lane the ego turns into) or left (the flow comes from its right). The bicycles ride
+    at the right edge of the crossing road (its bike lane); a truck parked at the near kerb and
+    the corner buildings hide them. They wait ``distance`` m before the junction, ``spacing`` m
+    (plus up to 4 m) apart, and ride off at ``speed`` when the first one's arrival time equals the
+    ego's, ignoring the ego: the ego must find a gap in the flow.
+
+    Parameters: ``count`` bicycles (1-5); ``speed`` (m/s); ``distance`` (m); ``spacing`` (m);
+    ``truck_gap`` (m) between the truck's front and the crosswalk.
+    """
+
+    name = "CrossingBicycleFlow"
+    max_actors = 6
+    defaults = {"count": 4, "speed": 5.0, "distance": 25.0, "spacing": 7.0, "truck_gap": 0.3}
+
+    @classmethod
+    def find_sites(cls, town):
+        return priority_sites(town, RIGHT, 1.0) + priority_sites(town, LEFT, -1.0)
+
+    def hazard_count(self) -> int:
+        return int(np.clip(self.params["count"], 1, self.max_actors - 1))
+
+    def _spawn_hazard(self, world, row: int, lane: int, s: float, plan: list[int]) -> None:
+        t = world.table
+        spawn_driver(
+            world,
+            row,
+            lane,
+            s,
+            kind=BICYCLE,
+            hold=True,
+            ignore_rules=True,
+            plan=plan,
+            size=draw_size(BICYCLE, world.rng),
+        )
+        t.behaviour[row] = RIDER
+        t.v0[row] = float(self.params["speed"])
+        edge = -(world.town.index.width[lane] / 2.0 - 0.6)
+        t.lat[row] = edge
+        p, h = lane_point(world.town, lane, s, edge)
+        t.pos[row], t.yaw[row] = p, h

@@ -1,0 +1,241 @@
+"""Tests of the closed-loop evaluation harness (collectors/evaluate.py, eval_env.py, leaderboard.py).
+
+A tiny suite of three short routes in Town01, small populations and a 40-tick time budget keep
+every evaluation to a few seconds; the two-worker run (spawned processes) dominates the time.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from tensordict.nn import TensorDictModule
+from torchrl.envs.utils import check_env_specs
+from v2xbench.collectors import jobs as J
+from v2xbench.collectors.eval_env import EvalEnv
+from v2xbench.collectors.evaluate import evaluate
+from v2xbench.collectors.leaderboard import build_leaderboard
+from v2xbench.envs.v2x_intersection.metrics import RouteRecord, compute_metrics
+from v2xbench.envs.v2x_intersection.route_files import SUITE_FORMAT, parse_route, save_json_atomic
+
+from v2xbench import cli
+
+CFG = {"num_vehicles": 3, "num_parked": 2, "num_pedestrians": 2, "num_bicycles": 0, "max_steps": 40}
+CANDIDATES = ("PedestrianCrossing", "ParkedObstacle", "DynamicObjectCrossing", "Accident",
+              "HardBreakRoute", "ParkingCrossingPedestrian")
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "my_agent.py"
+
+FLAKY_AGENT = '''
+import numpy as np
+
+class FlakyAgent:
+    """Drives slowly on route tiny_0, raises in act() on tiny_1, raises in reset() on tiny_2."""
+    obs_mode, privileged, rsu_policy = "objects", False, "none"
+
+    def reset(self, route_info):
+        self.route_id, self.ticks = route_info["route_id"], 0
+        if self.route_id == "tiny_2":
+            raise RuntimeError("reset exploded")
+
+    def act(self, obs):
+        self.ticks += 1
+        if self.route_id == "tiny_1" and self.ticks > 5:
+            raise ValueError("boom in act")
+        return np.array([0.3, 0.0, 0.0], np.float32)
+'''
+
+
+@pytest.fixture(scope="module")
+def suite(tmp_path_factory) -> str:
+    """A suite JSON of three short Town01 routes, one scenario each."""
+    from v2xbench.envs.v2x_intersection.suites_build import compose_route
+    from v2xbench.envs.v2x_intersection.town import get_town
+
+    town, rng = get_town("Town01"), np.random.default_rng(0)
+    routes = []
+    for name in CANDIDATES:
+        d = compose_route(town, rng, [name], f"tiny_{len(routes)}", seed=10 + len(routes))
+        if d is not None:
+            parse_route(d)
+            routes.append(d)
+        if len(routes) == 3:
+            break
+    assert len(routes) == 3, "could not compose three test routes"
+    path = tmp_path_factory.mktemp("suite") / "tiny.json"
+    save_json_atomic({"format": SUITE_FORMAT, "name": "tiny", "split": "tiny", "routes": routes}, path)
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def rf_run(suite, tmp_path_factory) -> tuple[Path, dict]:
+    """The route follower on the tiny suite, one worker."""
+    out = tmp_path_factory.mktemp("rf") / "route_follower"
+    return out, evaluate("route_follower", suite, seeds=1, workers=1, out=out, config=CFG, progress=False)
+
+
+@pytest.fixture(scope="module")
+def flaky_run(suite, tmp_path_factory) -> tuple[Path, dict]:
+    """An agent that fails on two of the three routes."""
+    d = tmp_path_factory.mktemp("flaky")
+    (d / "flaky.py").write_text(FLAKY_AGENT)
+    out = d / "out"
+    return out, evaluate(f"{d / 'flaky.py'}:FlakyAgent", suite, out=out, config=CFG, progress=False)
+
+
+def _results(out: Path) -> dict[str, dict]:
+    return {p.stem: json.loads(p.read_text()) for p in sorted((out / "routes").glob("*.json"))}
+
+
+def test_one_result_per_job_and_summary(rf_run):
+    out, summary = rf_run
+    res = _results(out)
+    assert sorted(res) == ["tiny_0_s0", "tiny_1_s0", "tiny_2_s0"]
+    for jid, r in res.items():
+        assert r["job_id"] == jid and r["agent"] == "route_follower" and r["error"] is None
+        assert r["ended_by"] in ("timeout", "completed") and r["ticks"] <= CFG["max_steps"]
+        assert r["town"] == "Town01" and len(r["scenario_types"]) == len(r["scenarios"]) == 1
+        assert set(r["scenarios"][0]) >= {"type", "triggered", "passed", "timed_out", "collision", "success"}
+        rec = RouteRecord.from_dict(r["record"])  # the stored record round-trips and gives the metrics
+        m = compute_metrics(rec)
+        assert m["driving_score"] == pytest.approx(r["metrics"]["driving_score"])
+        assert len(rec.ego_speed) == r["ticks"] and rec.seed == r["seed"]
+    assert not list((out / "routes").glob("*.tmp"))
+    assert summary["n_results"] == summary["n_jobs"] == 3
+    ds = np.mean([r["metrics"]["driving_score"] for r in res.values()])
+    assert summary["metrics"]["driving_score"] == pytest.approx(ds)
+    assert summary["metrics"]["driving_score_ci_low"] <= ds <= summary["metrics"]["driving_score_ci_high"]
+    assert set(summary["per_scenario"]) == {r["scenario_types"][0] for r in res.values()}
+    assert all(v["instances"] == 1 for v in summary["per_scenario"].values())
+    assert json.loads((out / "summary.json").read_text())["n_results"] == 3
+    md = (out / "summary.md").read_text()
+    assert "Driving score" in md and "scenario type" in md
+
+
+def test_resume_reruns_only_missing_job(rf_run, tmp_path):
+    src, _ = rf_run
+    out = tmp_path / "resume"
+    shutil.copytree(src, out)
+    before = _results(out)
+    (out / "routes" / "tiny_1_s0.json").unlink()
+    mtimes = {p.name: p.stat().st_mtime_ns for p in (out / "routes").glob("*.json")}
+    evaluate("route_follower", str(json.loads((out / "run.json").read_text())["suite"]), out=out,
+             config=CFG, progress=False)
+    after = _results(out)
+    assert sorted(after) == sorted(before)
+    for name, t in mtimes.items():
+        assert (out / "routes" / name).stat().st_mtime_ns == t  # untouched
+    assert after["tiny_1_s0"]["record"] == before["tiny_1_s0"]["record"]  # same seed, same drive
+    with pytest.raises(ValueError, match="agent"):  # another agent may not write into this dir
+        evaluate("random", after["tiny_1_s0"]["suite"], out=out, config=CFG, progress=False)
+
+
+def test_agent_exceptions_are_route_failures(flaky_run):
+    out, summary = flaky_run
+    res = _results(out)
+    assert len(res) == 3
+    ok, act_err, reset_err = res["tiny_0_s0"], res["tiny_1_s0"], res["tiny_2_s0"]
+    assert ok["error"] is None and ok["ticks"] == CFG["max_steps"]
+    assert act_err["ended_by"] == "error" and "boom in act" in act_err["error"]
+    assert "ValueError" in act_err["traceback"] and act_err["ticks"] == 5
+    assert act_err["metrics"]["driving_score"] == 0.0
+    assert reset_err["ended_by"] == "error" and "reset exploded" in reset_err["error"]
+    assert reset_err["ticks"] == 0 and reset_err["metrics"]["driving_score"] == 0.0
+    assert summary["metrics"]["n_crashed"] == 2
+    assert summary["metrics"]["driving_score"] == pytest.approx(ok["metrics"]["driving_score"] / 3)
+    assert {f["job_id"] for f in summary["failures"]} == {"tiny_1_s0", "tiny_2_s0"}
+    assert summary["ended_by"]["error"] == 2
+
+
+def test_two_workers_match_one_worker(rf_run, suite, tmp_path):
+    ref, _ = rf_run
+    out = tmp_path / "w2"
+    summary = evaluate("route_follower", suite, seeds=1, workers=2, out=out, config=CFG, progress=False)
+    one, two = _results(ref), _results(out)
+    assert sorted(one) == sorted(two)
+    for jid in one:
+        for key in ("record", "metrics", "scenarios", "ended_by", "seed"):
+            assert one[jid][key] == two[jid][key], (jid, key)
+    assert summary["run"]["workers"] == 2 and summary["n_results"] == 3
+
+
+def test_example_agent_via_cli_with_video(suite, tmp_path, capsys):
+    out = tmp_path / "cautious"
+    rc = cli.main(["eval", "--agent", f"{EXAMPLE}:CautiousDriver", "--suite", suite, "--out", str(out),
+                   "--max-routes", "1", "--video", "--quiet", "--set", "max_steps=30",
+                   "--set", "num_vehicles=3", "--set", "num_pedestrians=2"])
+    assert rc == 0
+    (r,) = _results(out).values()
+    assert r["agent_name"] == "CautiousDriver" and r["error"] is None and r["ticks"] == 30
+    assert r["config_overrides"] == {"max_steps": 30, "num_vehicles": 3, "num_pedestrians": 2}
+    assert Path(r["video"]).is_file() and Path(r["video"]).suffix == ".gif"
+    assert "CautiousDriver" in capsys.readouterr().out
+
+
+def test_plain_torchrl_policy(suite, tmp_path):
+    lin = torch.nn.Linear(9, 3)
+    with torch.no_grad():
+        lin.weight.zero_()
+        lin.bias.copy_(torch.tensor([0.6, 0.0, 0.0]))
+    policy = TensorDictModule(lin, in_keys=["ego"], out_keys=["action"])
+    summary = evaluate(policy, suite, out=tmp_path / "lin", max_routes=1, config=CFG, agent_name="linear",
+                       progress=False)
+    (r,) = _results(tmp_path / "lin").values()
+    assert r["agent_name"] == "linear" and r["error"] is None and r["ticks"] == CFG["max_steps"]
+    assert max(r["record"]["ego_speed"]) > 1.0  # the policy's throttle drove the car
+    assert summary["n_routes"] == 1
+
+
+def test_env_specs_and_idle_queue(suite, tmp_path):
+    env = EvalEnv(suite, tmp_path / "specs", agent="route_follower", max_routes=1, config=CFG)
+    check_env_specs(env)
+    env.close()
+    assert not list((tmp_path / "specs" / "claims").iterdir())  # close() released the unfinished job
+    idle = EvalEnv(suite, tmp_path / "idle", agent="route_follower", jobs=[], config=CFG)
+    td = idle.reset()
+    assert td["job"].item() == -1 and not td["done"].item()
+    td = idle.step(td.set("action", torch.zeros(3)))
+    assert td["next", "done"].item() and idle.world.ended  # nothing was simulated
+
+
+def test_claims_are_exclusive_and_stale_ones_cleared(tmp_path):
+    jobs = J.make_jobs(["a", "b"], seeds=2)
+    assert [j.job_id for j in jobs] == ["a_s0", "b_s0", "a_s1", "b_s1"]
+    assert J.job_seed(7, 2) == 2007
+    assert J.try_claim(tmp_path, "a_s0") and not J.try_claim(tmp_path, "a_s0")
+    assert J.try_claim(tmp_path, "b_s0")
+    J.write_json_atomic({"metrics": {"x": float("nan")}}, J.result_path(tmp_path, "b_s0"))
+    assert np.isnan(J.read_result(tmp_path, "b_s0")["metrics"]["x"])  # NaN stored as null
+    assert J.clear_stale_claims(tmp_path) == ["a_s0"]
+    assert J.count_results(tmp_path, jobs) == 1
+
+
+def test_leaderboard_from_two_runs(rf_run, flaky_run, tmp_path, capsys):
+    (rf, _), (fl, _) = rf_run, flaky_run
+    res = build_leaderboard([rf, fl, tmp_path / "missing"], tmp_path / "lb")
+    rows = res["rows"]
+    assert [r["agent"] for r in rows] == ["route_follower", "FlakyAgent"]  # sorted by DS
+    md = Path(res["markdown"]).read_text()
+    assert "route_follower" in md and "FlakyAgent" in md and "Per scenario type" in md
+    assert rows[0]["driving_score"] >= rows[1]["driving_score"]
+    if res["note"] is None:
+        assert len(res["plots"]) == 4 and all(Path(p).stat().st_size > 0 for p in res["plots"])
+    assert cli.main(["leaderboard", str(rf), str(fl), "--out", str(tmp_path / "lb2"), "--no-plots"]) == 0
+    assert "V2X-type DS" in capsys.readouterr().out
+    with pytest.raises(ValueError, match="summary"):
+        build_leaderboard([tmp_path / "missing"], tmp_path / "lb3")
+
+
+def test_lost_claim_is_recovered_when_all_workers_idle(suite, tmp_path):
+    from v2xbench.collectors.eval_env import copy_policy, make_env_factory
+    from v2xbench.collectors.evaluate import _run
+
+    out = tmp_path / "lost"
+    jobs = J.make_jobs(["tiny_0", "tiny_1"], seeds=1)
+    assert J.try_claim(out, "tiny_0_s0")  # a claim no worker will ever finish
+    env_fn = make_env_factory(suite=suite, out=str(out), agent="route_follower", jobs=jobs, config=CFG)
+    _run(env_fn, copy_policy(), 1, 32, out, jobs, 0, False, "rf")  # returns once both have results
+    assert J.count_results(out, jobs) == 2

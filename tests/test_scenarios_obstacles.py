@@ -1,0 +1,369 @@
+"""Obstacle, parking and cut-in scenarios: each one spawns, triggers, and its hazard really happens.
+
+Everything is measured on the world state recorded tick by tick (:func:`trace`): box geometry in
+the route frame, positions and speeds; never on flags the scenarios set themselves. Seeds are
+picked for short run-ups (fast tests); ``robustness`` runs the same checks over more seeds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+import v2xbench.envs.v2x_intersection.scenarios.obstacles  # noqa: F401  (registers)
+import v2xbench.envs.v2x_intersection.scenarios.parking  # noqa: F401  (registers)
+from v2xbench.agents.route_follower import RouteFollower
+from v2xbench.envs.v2x_intersection.actors import PARKED
+from v2xbench.envs.v2x_intersection.config import make_config
+from v2xbench.envs.v2x_intersection.geometry import box_corners_2d
+from v2xbench.envs.v2x_intersection.observations import ego_observation
+from v2xbench.envs.v2x_intersection.scenarios import build_episode, get_scenario
+from v2xbench.envs.v2x_intersection.town import get_town
+from v2xbench.envs.v2x_intersection.world import EGO_WIDTH, World
+
+SMALL = {"num_vehicles": 6, "num_parked": 4, "num_pedestrians": 4, "num_bicycles": 1}
+MARGIN = 0.5  # m: a lane is blocked when its widest free strip is narrower than the ego + this
+
+
+@dataclass
+class Trace:
+    """Per-tick world state of one scenario run (``T`` ticks, ``N`` actor rows)."""
+
+    pos: np.ndarray  # (T, N, 2)
+    yaw: np.ndarray  # (T, N)
+    speed: np.ndarray  # (T, N)
+    active: np.ndarray  # (T, N)
+    ego_s: np.ndarray  # (T,)
+    triggered: np.ndarray  # (T,)
+    world: World
+    sc: object
+
+
+def trace(
+    name: str,
+    seed: int,
+    town: str | None = None,
+    ticks: int = 400,
+    until_passed: bool = True,
+    until=None,
+) -> Trace:
+    """Run scenario ``name`` with the route follower and record the actor table every tick, until
+    ``ticks``, the route's end, the scenario passed (``until_passed``) or ``until(world, sc)``."""
+    cls = get_scenario(name)
+    town = town or cls.towns[0]
+    world = World(make_config(town=town, **SMALL))
+    route, scs = build_episode(name, get_town(town), np.random.default_rng(seed))
+    world.reset(seed=seed, route=route, scenarios=scs)
+    sc, driver, t = scs[0], RouteFollower(), world.table
+    log: dict[str, list] = {k: [] for k in ("pos", "yaw", "speed", "active", "ego_s", "triggered")}
+    for _ in range(ticks):
+        world.step(driver.act(ego_observation(world)), world.default_rsu_message())
+        for key, val in (("pos", t.pos), ("yaw", t.yaw), ("speed", t.speed), ("active", t.active)):
+            log[key].append(val.copy())
+        log["ego_s"].append(sc.ego_s(world))
+        log["triggered"].append(sc.triggered)
+        if (
+            (until_passed and sc.passed)
+            or world.is_route_complete()
+            or (until and until(world, sc))
+        ):
+            break
+    return Trace(**{k: np.array(v) for k, v in log.items()}, world=world, sc=sc)
+
+
+def route_frame(route, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Route arc length and signed lateral offset (m, left positive) of points ``(K, 2)``."""
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    j = np.linalg.norm(route.points[None] - xy[:, None], axis=2).argmin(1)
+    h, v = route.headings[j], xy - route.points[j]
+    return route.s[j], -np.sin(h) * v[:, 0] + np.cos(h) * v[:, 1]
+
+
+def box_in_route(tr: Trace, row: int, k: int = -1) -> tuple[float, float, float, float]:
+    """``(s_min, s_max, lat_min, lat_max)`` of actor ``row``'s box at tick ``k`` in the route frame."""
+    t = tr.world.table
+    c = box_corners_2d(tr.pos[k, row], t.length[row], t.width[row], tr.yaw[k, row])[0]
+    s, lat = route_frame(tr.world.route, c)
+    return s.min(), s.max(), lat.min(), lat.max()
+
+
+def free_width(tr: Trace, rows: list[int], half_lane: float, k: int = -1) -> float:
+    """Narrowest (over the stretch the boxes cover) widest free strip of the ego lane (m)."""
+    boxes = [box_in_route(tr, r, k) for r in rows if tr.active[k, r]]
+    worst = np.inf
+    for s in np.arange(min(b[0] for b in boxes), max(b[1] for b in boxes), 0.25):
+        cover = sorted(
+            (max(b[2], -half_lane), min(b[3], half_lane))
+            for b in boxes
+            if b[0] <= s <= b[1] and b[3] > -half_lane and b[2] < half_lane
+        )
+        edge, best = -half_lane, 0.0
+        for a, b in cover:
+            best, edge = max(best, a - edge), max(edge, b)
+        worst = min(worst, max(best, half_lane - edge))
+    return float(worst)
+
+
+def half_lane(tr: Trace) -> float:
+    sc = tr.sc
+    return float(tr.world.town.index.width[sc.site.lanes[sc.site.key]]) / 2
+
+
+def flow_rows(tr: Trace) -> list[int]:
+    """Rows the scenario owns beyond its hazard rows that ever drove (its traffic flow)."""
+    t = tr.world.table
+    own = np.flatnonzero(t.scenario == 0)
+    return [int(r) for r in own if r not in tr.sc.hazard_rows and tr.speed[:, r].max() > 1.0]
+
+
+def passes_near(tr: Trace, rows: list[int], point: np.ndarray, radius: float = 20.0) -> int:
+    """How many of ``rows`` come within ``radius`` m of ``point`` while moving (> 2 m/s)."""
+    near = (np.linalg.norm(tr.pos[:, rows] - point, axis=2) < radius) & (tr.speed[:, rows] > 2.0)
+    return int(np.sum(near.any(0) & tr.active[:, rows].any(0)))
+
+
+# ---------------------------------------------------------------------------------------- checks
+def stopped_after_trigger(world, sc) -> bool:
+    """The ego has come to a stop after the trigger (in front of a blockage)."""
+    return sc.triggered and world.table.speed[0] < 0.05 and world.tick - sc.trigger_tick > 20
+
+
+def check_lane_block(tr: Trace, two_way: bool) -> None:
+    """The boxes leave no room to pass inside the ego lane; on a multi-lane road they stay out of
+    the neighbour lane; on a two-way road an oncoming flow passes beside them."""
+    assert tr.triggered.any()
+    hl = half_lane(tr)
+    rows = tr.sc.hazard_rows
+    assert free_width(tr, rows, hl) < EGO_WIDTH + MARGIN
+    ahead = [box_in_route(tr, r) for r in rows]
+    assert min(b[0] for b in ahead) > tr.ego_s[0]
+    if two_way:
+        assert passes_near(tr, flow_rows(tr), tr.sc.conflict_point, 25.0) >= 1
+    else:
+        free = tr.sc.free
+        assert all(free * (b[3] if free > 0 else b[2]) < hl + 0.05 for b in ahead)
+    # the route follower, which keeps its lane, is stopped in front of the blockage
+    assert tr.speed[:, 0][tr.triggered].min() < 0.1
+    assert tr.ego_s[-1] < min(b[0] for b in ahead)
+
+
+def hazard_moving_for(seconds: float):
+    """Stop condition: the first hazard actor has been moving for ``seconds`` s."""
+
+    def until(world, sc) -> bool:
+        until.ticks += int(world.table.speed[sc.hazard_rows[0]] > 0.1)
+        return until.ticks > seconds / world.config.dt
+
+    until.ticks = 0
+    return until
+
+
+def check_cut_in(tr: Trace) -> None:
+    """The vehicle starts beside the ego lane and ends up in it, ahead of the ego and close."""
+    row = tr.sc.hazard_rows[0]
+    moving = np.flatnonzero(tr.speed[:, row] > 0.1)
+    assert len(moving), "the cut-in vehicle never moved"
+    k0 = moving[0]
+    s0, lat0 = route_frame(tr.world.route, tr.pos[k0 - 1, row])
+    assert abs(lat0[0]) > 2.5 and tr.triggered[k0]
+    s, lat = route_frame(tr.world.route, tr.pos[k0:, row])
+    ahead = s - tr.ego_s[k0:]
+    inside = np.flatnonzero((np.abs(lat) < 0.5) & (ahead > 0.0) & (ahead < 25.0))
+    assert len(inside) and inside[0] < 45, "no cut-in in front of the ego within 4.5 s"
+
+
+# --------------------------------------------------------------------------- per-scenario checks
+def check_multi_lane(tr: Trace) -> None:
+    check_lane_block(tr, two_way=False)
+
+
+def check_two_way(tr: Trace) -> None:
+    check_lane_block(tr, two_way=True)
+
+
+def door_open_for(seconds: float):
+    """Stop condition: the scenario's door (its second hazard row) has been open ``seconds`` s."""
+
+    def until(world, sc) -> bool:
+        door = sc.hazard_rows[1]
+        until.ticks = until.ticks + 1 if world.table.active[door] else 0
+        return until.ticks > seconds / world.config.dt
+
+    until.ticks = 0
+    return until
+
+
+def check_door(tr: Trace) -> None:
+    """The door opens close in front of the ego and then blocks the ego lane (closed, it did not)."""
+    car, door = tr.sc.hazard_rows
+    assert not tr.active[0, door] and tr.active[-1, door]
+    k = int(np.flatnonzero(tr.active[:, door])[0])
+    assert tr.triggered[k] and 5.0 < tr.sc.conflict_s - tr.ego_s[k] < 35.0
+    assert tr.world.table.behaviour[car] == PARKED
+    assert free_width(tr, [car, door], half_lane(tr)) < EGO_WIDTH + MARGIN
+    assert free_width(tr, [car, door], half_lane(tr), k=k - 1) > EGO_WIDTH + MARGIN
+    assert passes_near(tr, flow_rows(tr), tr.sc.conflict_point, 30.0) >= 1
+
+
+def check_debris(tr: Trace) -> None:
+    """Every piece of debris is small, ahead on the route and overlaps the ego's path."""
+    assert tr.triggered.any()
+    for row in tr.sc.hazard_rows:
+        s0, s1, lo, hi = box_in_route(tr, row)
+        assert lo < EGO_WIDTH / 2 and hi > -EGO_WIDTH / 2 and s0 > tr.ego_s[0]
+        assert tr.world.table.height[row] < 0.5
+
+
+def check_bicycles(tr: Trace) -> None:
+    """The bicycles start after the trigger and ride slowly on the ego's path just ahead of it."""
+    rows = tr.sc.hazard_rows
+    k = int(np.flatnonzero(tr.triggered)[0])
+    assert tr.speed[:k, rows].max() == 0.0 and tr.speed[k:, rows].max() > 2.0
+    hits = 0
+    for j in range(k, len(tr.ego_s)):
+        for r in rows:
+            s0, _, lo, hi = box_in_route(tr, r, j)
+            if (
+                0 < s0 - tr.ego_s[j] < 30
+                and lo < EGO_WIDTH / 2
+                and hi > -EGO_WIDTH / 2
+                and tr.speed[j, r] < 3.6
+            ):
+                hits += 1
+    assert hits > 10, "the ego never caught up with slow bicycles on its path"
+    if tr.sc.two_way:
+        assert passes_near(tr, flow_rows(tr), tr.sc.conflict_point, 40.0) >= 1
+
+
+def ego_near_blocker_for(seconds: float):
+    """Stop condition: the ego has been within 13 m of the blocker for ``seconds`` s."""
+
+    def until(world, sc) -> bool:
+        t, row = world.table, sc.hazard_rows[0]
+        near = np.linalg.norm(t.pos[0] - t.pos[row]) < 13.0
+        until.ticks = until.ticks + 1 if near else 0
+        return until.ticks > seconds / world.config.dt
+
+    until.ticks = 0
+    return until
+
+
+def check_blocked(tr: Trace) -> None:
+    """A car stands on the route right after the junction until the ego stopped close behind it."""
+    row = tr.sc.hazard_rows[0]
+    _, _, lo, hi = box_in_route(tr, row, 0)
+    assert lo < 0.5 and hi > -0.5
+    near = np.flatnonzero(np.linalg.norm(tr.pos[:, 0] - tr.pos[:, row], axis=1) < 13.0)
+    assert len(near), "the ego never reached the blocker"
+    k = int(near[0])
+    assert np.all(tr.speed[:, row] == 0.0) and tr.speed[k:, 0].min() < 0.1
+
+
+def check_hard_brake(tr: Trace) -> None:
+    """The lead car, in the ego lane just ahead, brakes at 6-8 m/s^2 for >= 0.4 s to a stop."""
+    row = tr.sc.hazard_rows[0]
+    acc = np.diff(tr.speed[:, row]) / 0.1
+    run = np.convolve((acc < -6.0) & (acc > -7.9), np.ones(4), "valid") == 4  # IDM clips at -8
+    run &= tr.triggered[1 : len(run) + 1]
+    assert run.any(), "no sustained hard braking"
+    k = int(np.flatnonzero(run)[0])
+    assert tr.speed[k + 4 :, row].min() < 0.05
+    s, lat = route_frame(tr.world.route, tr.pos[k, row])
+    assert abs(lat[0]) < 0.5 and 5.0 < s[0] - tr.ego_s[k] < 30.0
+
+
+def check_parking_exit(tr: Trace) -> None:
+    """The ego starts in the parking lane between two parked cars; traffic passes its slot."""
+    sc, town, t = tr.sc, tr.world.town, tr.world.table
+    lane = sc.site.lanes[sc.site.key]
+    _, s_ego, d = town.index.project(tr.pos[0, 0][None], np.array([lane]))
+    assert d[0] > 2.5
+    parked = np.flatnonzero((t.scenario == 0) & (t.behaviour == PARKED))
+    _, s_p, d_p = town.index.project(tr.pos[0, parked], np.array([lane]))
+    assert np.all(np.abs(d_p - d[0]) < 0.3) and (s_p > s_ego[0]).any() and (s_p < s_ego[0]).any()
+    assert np.all(np.abs(s_p - s_ego[0]) < 15.0)
+    _, _, d_ego = town.index.project(tr.pos[:, 0], np.array([lane]))
+    out = d_ego > 1.0  # the ego is still (mostly) in the parking lane
+    threat = passing = 0
+    for r in sc.hazard_rows:
+        _, s_r, d_r = town.index.project(tr.pos[:, r], np.array([lane]))
+        on = (d_r < 0.5) & tr.active[:, r]
+        threat += int(
+            np.any(out & on & (s_r < s_ego[0]) & (s_r > s_ego[0] - 40.0) & (tr.speed[:, r] > 3.0))
+        )
+        passing += int(np.any(on[1:] & on[:-1] & (s_r[:-1] < s_ego[0]) & (s_r[1:] >= s_ego[0])))
+    assert threat >= 1, "no traffic approaching in the target lane while the ego leaves its slot"
+    assert passing >= 2, "traffic does not flow past the slot"
+
+
+#: name -> (check, trace keyword arguments, (seed, town) used by the fast test)
+CASES = {
+    "Accident": (check_multi_lane, {"ticks": 260, "until": stopped_after_trigger}, (3, "Town12")),
+    "ConstructionObstacle": (
+        check_multi_lane,
+        {"ticks": 260, "until": stopped_after_trigger},
+        (3, "Town12"),
+    ),
+    "ParkedObstacle": (
+        check_multi_lane,
+        {"ticks": 260, "until": stopped_after_trigger},
+        (2, "Town12"),
+    ),
+    "AccidentTwoWays": (
+        check_two_way,
+        {"ticks": 260, "until": stopped_after_trigger},
+        (3, "Town06"),
+    ),
+    "ConstructionObstacleTwoWays": (
+        check_two_way,
+        {"ticks": 260, "until": stopped_after_trigger},
+        (3, "Town06"),
+    ),
+    "ParkedObstacleTwoWays": (
+        check_two_way,
+        {"ticks": 260, "until": stopped_after_trigger},
+        (2, "Town06"),
+    ),
+    "VehicleOpensDoorTwoWays": (check_door, {"ticks": 260, "until": "door"}, (0, "Town06")),
+    "ControlLoss": (check_debris, {"ticks": 260, "until": stopped_after_trigger}, (4, "Town02")),
+    "HazardAtSideLane": (check_bicycles, {"ticks": 230}, (3, "Town12")),
+    "HazardAtSideLaneTwoWays": (check_bicycles, {"ticks": 230}, (3, "Town06")),
+    "BlockedIntersection": (check_blocked, {"ticks": 320, "until": "blocked"}, (4, "Town01")),
+    "HardBreakRoute": (check_hard_brake, {"ticks": 320}, (3, "Town12")),
+    "ParkingCutIn": (check_cut_in, {"ticks": 300, "until": "moving"}, (1, "Town12")),
+    "StaticCutIn": (check_cut_in, {"ticks": 300, "until": "moving"}, (2, "Town03")),
+    "ParkingExit": (check_parking_exit, {"ticks": 200, "until_passed": False}, (0, "Town03")),
+}
+
+
+def run_case(name: str, seed: int, town: str | None = None, ticks_scale: float = 1.0) -> Trace:
+    """Trace scenario ``name`` with its case's settings and apply its check (raises on failure)."""
+    check, kw, _ = CASES[name]
+    kw = dict(kw)
+    if kw.get("until") == "door":
+        kw["until"] = door_open_for(2.0)
+    elif kw.get("until") == "blocked":
+        kw["until"] = ego_near_blocker_for(3.0)
+    elif kw.get("until") == "moving":
+        kw["until"] = hazard_moving_for(5.0)
+    kw["ticks"] = int(kw["ticks"] * ticks_scale)
+    tr = trace(name, seed, town, **kw)
+    check(tr)
+    return tr
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_scenario_hazard_happens(name):
+    seed, town = CASES[name][2]
+    run_case(name, seed, town)
+
+
+def test_all_own_scenarios_fit_the_test_town():
+    from v2xbench.envs.v2x_intersection.scenarios.placement import pick_site
+
+    for name in CASES:
+        cls = get_scenario(name)
+        assert cls.family and not cls.v2x and cls.towns
+        pick_site(cls, get_town("Town12"), np.random.default_rng(0))  # raises if it does not fit
+        pick_site(cls, get_town(cls.towns[0]), np.random.default_rng(0))

@@ -5,8 +5,11 @@ from __future__ import annotations
 from collections import Counter
 
 import pytest
-
-from v2xbench.envs.v2x_intersection.route_files import SUITE_DIR, build_episode_from_spec, load_suite
+from v2xbench.envs.v2x_intersection.route_files import (
+    SUITE_DIR,
+    build_episode_from_spec,
+    load_suite,
+)
 from v2xbench.envs.v2x_intersection.scenarios import SCENARIOS
 from v2xbench.envs.v2x_intersection.town import TEST_TOWNS, TRAIN_TOWNS
 

@@ -236,17 +236,10 @@ def check_bicycles(tr: Trace) -> None:
         assert passes_near(tr, flow_rows(tr), tr.sc.conflict_point, 40.0) >= 1
 
 
-def ego_near_blocker_for(seconds: float):
-    """Stop condition: the ego has been within 13 m of the blocker for ``seconds`` s."""
-
-    def until(world, sc) -> bool:
-        t, row = world.table, sc.hazard_rows[0]
-        near = np.linalg.norm(t.pos[0] - t.pos[row]) < 13.0
-        until.ticks = until.ticks + 1 if near else 0
-        return until.ticks > seconds / world.config.dt
-
-    until.ticks = 0
-    return until
+def ego_stopped_near_blocker(world, sc) -> bool:
+    """Stop condition: the ego stands within 13 m of the blocker."""
+    t, row = world.table, sc.hazard_rows[0]
+    return bool(np.linalg.norm(t.pos[0] - t.pos[row]) < 13.0 and t.speed[0] < 0.05)
 
 
 def check_blocked(tr: Trace) -> None:
@@ -329,7 +322,11 @@ CASES = {
     "ControlLoss": (check_debris, {"ticks": 260, "until": stopped_after_trigger}, (4, "Town02")),
     "HazardAtSideLane": (check_bicycles, {"ticks": 230}, (3, "Town12")),
     "HazardAtSideLaneTwoWays": (check_bicycles, {"ticks": 230}, (3, "Town06")),
-    "BlockedIntersection": (check_blocked, {"ticks": 320, "until": "blocked"}, (4, "Town01")),
+    "BlockedIntersection": (
+        check_blocked,
+        {"ticks": 320, "until": ego_stopped_near_blocker},
+        (4, "Town01"),
+    ),
     "HardBreakRoute": (check_hard_brake, {"ticks": 320}, (3, "Town12")),
     "ParkingCutIn": (check_cut_in, {"ticks": 300, "until": "moving"}, (1, "Town12")),
     "StaticCutIn": (check_cut_in, {"ticks": 300, "until": "moving"}, (2, "Town03")),
@@ -343,8 +340,6 @@ def run_case(name: str, seed: int, town: str | None = None, ticks_scale: float =
     kw = dict(kw)
     if kw.get("until") == "door":
         kw["until"] = door_open_for(2.0)
-    elif kw.get("until") == "blocked":
-        kw["until"] = ego_near_blocker_for(3.0)
     elif kw.get("until") == "moving":
         kw["until"] = hazard_moving_for(5.0)
     kw["ticks"] = int(kw["ticks"] * ticks_scale)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from .actors import WALKER, ActorTable
+from .classes import VEHICLE_CLASSES
 from .town.model import PolylineIndex, Town
 
 
@@ -57,13 +58,15 @@ def step_walkers(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, 
     walking = idx[t.path[idx] >= 0]
     crossing = idx[t.path[idx] < 0]
 
-    # crossing pedestrians move on their segment
+    # crossing pedestrians move on their segment (background walkers wait while a vehicle
+    # stands in their way; scenario walkers are scripted hazards and walk on)
     if len(crossing):
         seg = t.cross_to[crossing] - t.cross_from[crossing]
         left = t.cross_to[crossing] - t.pos[crossing]
         dist = np.linalg.norm(left, axis=1)
-        step = t.speed[crossing] * dt
         u = seg / np.maximum(np.linalg.norm(seg, axis=1, keepdims=True), 1e-9)
+        blocked = _vehicle_ahead(t, t.pos[crossing] + u * PED_LOOKAHEAD) & (t.scenario[crossing] < 0)
+        step = np.where(blocked, 0.0, t.speed[crossing] * dt)
         t.pos[crossing] += u * np.minimum(step, dist)[:, None]
         t.yaw[crossing] = np.arctan2(u[:, 1], u[:, 0])
         done = crossing[(dist <= step) & (t.scenario[crossing] < 0)]  # scenario walkers stop at the end
@@ -106,6 +109,23 @@ def step_walkers(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, 
         _, s_o, _ = ix.project(t.pos[i][None], np.array([opp]))
         target, _ = ix.pose_at(np.array([opp]), s_o)
         _start_crossing(t, i, t.pos[i].copy(), target[0])
+
+
+PED_LOOKAHEAD = 1.0  # m: a crossing walker waits while this point ahead of it is inside a vehicle
+VEHICLE_MARGIN = 0.3  # m added around vehicle boxes for that test
+
+
+def _vehicle_ahead(t: ActorTable, points: np.ndarray) -> np.ndarray:
+    """``(M,)`` whether each of ``points`` ``(M, 2)`` lies inside an active vehicle's box."""
+    veh = np.flatnonzero(t.active & np.isin(t.kind, VEHICLE_CLASSES))
+    if len(veh) == 0:
+        return np.zeros(len(points), bool)
+    d = points[:, None, :] - t.pos[veh][None]  # (M, V, 2)
+    c, s = np.cos(t.yaw[veh]), np.sin(t.yaw[veh])
+    along = d[..., 0] * c + d[..., 1] * s
+    across = -d[..., 0] * s + d[..., 1] * c
+    inside = (np.abs(along) < t.length[veh] / 2 + VEHICLE_MARGIN) & (np.abs(across) < t.width[veh] / 2 + VEHICLE_MARGIN)
+    return inside.any(1)
 
 
 def _start_crossing(t: ActorTable, i: int, a: np.ndarray, b: np.ndarray) -> None:

@@ -207,6 +207,7 @@ class TimedScenario(Scenario):
     def setup(self, world, rows: np.ndarray) -> None:
         self._ego_wait = 0.0  # s the ego has been standing near the conflict
         self._walk_speed: dict[int, float] = {}  # walking speeds of held walkers
+        self._walking: set[int] = set()  # walkers released
         super().setup(world, rows)
 
     def ego_eta(self, world, s_target: float | None = None) -> float:
@@ -256,6 +257,22 @@ class TimedScenario(Scenario):
         """Let a walker held by :meth:`hold_walker` go at its walking speed."""
         world.table.hold[row] = False
         world.table.speed[row] = self._walk_speed.get(int(row), 1.4)
+        self._walking.add(int(row))
+
+    def walkers_yield(self, world) -> None:
+        """Released walkers pause while the ego's body blocks their next metre (they cross in
+        front of a moving ego but do not walk into one standing on their path); call every tick."""
+        t = world.table
+        for row in self._walking:
+            left = t.cross_to[row] - t.pos[row]
+            dist = float(np.hypot(*left))
+            if not t.active[row] or t.path[row] >= 0 or dist < 0.05:
+                continue
+            ahead = t.pos[row] + left / dist * min(1.0, dist)
+            x, y = world_to_local_2d(ahead, t.pos[0], float(t.yaw[0]))
+            blocked = abs(x) < t.length[0] / 2 + 0.4 and abs(y) < t.width[0] / 2 + 0.4
+            t.hold[row] = blocked
+            t.speed[row] = 0.0 if blocked else self._walk_speed[row]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -309,9 +326,12 @@ class DynamicObjectCrossing(TimedScenario):
         self.hazard_rows = [int(self.rows[1])]
 
     def update(self, world) -> None:
-        row = self.rows[1]
-        if world.table.hold[row] and self.due(world, self._start_lat / float(self.params["speed"])):
+        row = int(self.rows[1])
+        if row not in self._walking and self.due(
+            world, self._start_lat / float(self.params["speed"])
+        ):
             self.release_walker(world, row)
+        self.walkers_yield(world)
 
 
 @register_scenario
@@ -379,9 +399,12 @@ class ParkingCrossingPedestrian(TimedScenario):
         self.hazard_rows = [int(self.rows[4])]
 
     def update(self, world) -> None:
-        row = self.rows[4]
-        if world.table.hold[row] and self.due(world, self._start_lat / float(self.params["speed"])):
+        row = int(self.rows[4])
+        if row not in self._walking and self.due(
+            world, self._start_lat / float(self.params["speed"])
+        ):
             self.release_walker(world, row)
+        self.walkers_yield(world)
 
 
 @register_scenario
@@ -479,9 +502,11 @@ class PedestrianCrossing(TimedScenario):
                 self._released_at = world.tick
         if self._released_at is not None:
             waited = (world.tick - self._released_at) * world.config.dt
+            clear = self.conflict_s - self.ego_s(world) > self.occupied_m
             for row, delay in zip(self.hazard_rows, self._delays):
-                if t.hold[row] and waited >= delay:
+                if row not in self._walking and waited >= delay and clear:
                     self.release_walker(world, row)
+        self.walkers_yield(world)
         if self.passed and t.behaviour[self._truck_row] == DRIVER:  # the waiting truck drives on
             t.hold[self._truck_row] = False
 

@@ -164,9 +164,10 @@ class _TurnCrossing(TimedScenario):
         self.hazard_rows = [int(self.rows[1])]
 
     def update(self, world) -> None:
-        row = self.rows[1]
-        if world.table.hold[row] and self.due(world, self._lat0 / float(self.params["speed"])):
+        row = int(self.rows[1])
+        if row not in self._walking and self.due(world, self._lat0 / float(self.params["speed"])):
             self.release_walker(world, row)
+        self.walkers_yield(world)
 
 
 @register_scenario

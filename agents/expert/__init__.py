@@ -1,0 +1,21 @@
+"""The privileged expert driver and its restricted oracles (see :mod:`.planner`).
+
+Registered agent names (import this package to register them):
+
+- ``expert``: :class:`Expert`, the rule planner over every actor (privileged ground truth);
+- ``oracle_ego``: :class:`EgoOnlyOracle`, the same planner on what the ego sees (+ 2 s memory);
+- ``oracle_v2x``: :class:`V2XOracle`, that plus the objects received from the RSU.
+"""
+
+from __future__ import annotations
+
+from ..interface import AGENTS, register_agent
+from .agents import EgoOnlyOracle, Expert, V2XOracle
+from .objects import Objects
+from .planner import Plan, Planner, PlannerParams
+
+for _name, _cls in (("expert", Expert), ("oracle_ego", EgoOnlyOracle), ("oracle_v2x", V2XOracle)):
+    if _name not in AGENTS:
+        register_agent(_name)(_cls)
+
+__all__ = ["EgoOnlyOracle", "Expert", "Objects", "Plan", "Planner", "PlannerParams", "V2XOracle"]

@@ -1,0 +1,293 @@
+"""Lateral manoeuvres: going around static obstacles and making room for emergency vehicles.
+
+A manoeuvre is a lateral offset ``O`` (m, left positive) of the route path, ramped in and out
+with a cosine profile over route arc lengths ``s0 -> s1`` (in) and ``s2 -> s3`` (out).
+
+- Obstacles: static objects in the ego's corridor ahead are grouped into a cluster (items less
+  than ``CLUSTER_GAP_M`` apart); the smallest offset whose corridor clears every standing object
+  around the cluster with a margin is chosen among those the road allows (in-lane nudge, a
+  same-direction neighbour lane, or the opposite lane of a two-way road, the latter penalized).
+  Leaving the own lane needs the target lane clear: no vehicle beside or closing from behind,
+  and, in the opposite lane, no oncoming vehicle reaching the cluster's end before the ego is
+  back. Before the ego reaches the cluster a manoeuvre that is no longer safe is aborted.
+- Emergency vehicles closing in from behind in the ego's lane: move to a neighbour lane (right
+  first) while it passes.
+
+Offsets are capped at ``MAX_OFFSET`` (< 3 m) so the ego stays within the route-progress capture
+radius of the event monitor.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from v2xbench.envs.v2x_intersection.classes import BICYCLE, PEDESTRIAN
+
+from .junction import travel_time
+from .objects import Objects
+from .route_track import PathWindow, RouteTrack
+
+MAX_OFFSET = 2.9  # m
+IN_LANE_SLACK = 0.3  # m the ego centre may leave its lane centre band beyond the lane edge
+CLUSTER_GAP_M = 10.0  # m between obstacles of one cluster
+STATIC_MARGINS = (0.6, 0.45, 0.3)  # m lateral clearance to standing objects, tried in order
+VRU_MARGIN = 1.0  # m lateral clearance to pedestrians and bicycles
+OPPOSITE_PENALTY = 2.0  # m-equivalent cost of using the opposite lane
+PASS_SPEED = 13.0  # m/s, speed cap while in the opposite lane
+ABORT_MAX_OFFSET = 0.6  # m: beyond this shift a started pass is completed, not aborted
+
+
+@dataclass
+class Manoeuvre:
+    """An active lateral offset (route arc lengths in m)."""
+
+    offset: float
+    s0: float
+    s1: float
+    s2: float
+    s3: float
+    kind: str  # "obstacle" | "emergency"
+    invades: bool  # uses the opposite lane
+    s_obst: tuple[float, float] = (0.0, 0.0)  # cluster start / end stations (obstacles)
+
+    def value(self, s: np.ndarray) -> np.ndarray:
+        """Offset (m) at route arc lengths ``s``."""
+        up = np.clip((s - self.s0) / max(self.s1 - self.s0, 1e-3), 0.0, 1.0)
+        down = np.clip((s - self.s2) / max(self.s3 - self.s2, 1e-3), 0.0, 1.0)
+        w = 0.5 - 0.5 * np.cos(np.pi * up) - (0.5 - 0.5 * np.cos(np.pi * down))
+        return self.offset * w
+
+
+class LateralPlanner:
+    """Chooses and tracks lateral manoeuvres (see module docstring).
+
+    Args:
+        track: the route. half_length, half_width: ego box halves (m).
+    """
+
+    def __init__(self, track: RouteTrack, half_length: float, half_width: float) -> None:
+        self.track, self.hl, self.hw = track, half_length, half_width
+        self.man: Manoeuvre | None = None
+        self.speed_cap = np.inf
+
+    def offsets(self, s_ego: float):
+        """``f(st) -> offsets`` for stations relative to the ego (``None`` when none is active)."""
+        if self.man is None:
+            return None
+        man = self.man
+        return lambda st: man.value(st + s_ego)
+
+    def _lane_room(self, lane: int) -> tuple[float, float, float]:
+        """``(right limit, left limit, opposite-lane threshold)`` of offsets (m) on ``lane``."""
+        ix = self.track.town.index
+        ln = self.track.town.lanes[lane]
+        w = float(ix.width[lane])
+        nudge = w / 2.0 - self.hw + IN_LANE_SLACK
+        left = min(w, MAX_OFFSET) if (ln.left >= 0 or ln.opposite >= 0) else nudge
+        right = -min(w, MAX_OFFSET) if ln.right >= 0 else -nudge
+        opp = nudge if (ln.left < 0 and ln.opposite >= 0) else np.inf
+        return right, left, opp
+
+    def update(
+        self,
+        s_ego: float,
+        v: float,
+        win: PathWindow,
+        objs: Objects,
+        st: np.ndarray,
+        lat: np.ndarray,
+        cos_r: np.ndarray,
+        sin_r: np.ndarray,
+    ) -> None:
+        """Start, keep, abort or finish a manoeuvre.
+
+        Args:
+            s_ego: ego route arc length (m). v: ego speed (m/s).
+            win: the path window (unshifted route). objs: the object list.
+            st, lat, cos_r, sin_r: the objects in the route frame (``PathWindow.project``).
+        """
+        self.speed_cap = np.inf
+        e_lat = np.abs(0.5 * objs.length * sin_r) + np.abs(0.5 * objs.width * cos_r)
+        e_long = np.abs(0.5 * objs.length * cos_r) + np.abs(0.5 * objs.width * sin_r)
+        speed = objs.speed
+        if self.man is not None and s_ego > self.man.s3:
+            self.man = None
+        if self.man is not None:
+            self._keep(s_ego, v, win, objs, st, lat, cos_r, e_lat, e_long, speed)
+            return
+        if self._emergency(s_ego, v, win, objs, st, lat, cos_r, e_lat, e_long, speed):
+            return
+        self._obstacle(s_ego, v, win, objs, st, lat, cos_r, e_lat, e_long, speed)
+
+    # ------------------------------------------------------------------ obstacles
+    def _intruding(self, objs, lat, e_lat, speed, half_lane: float) -> np.ndarray:
+        """Standing objects reaching into the ego's lane (``half_lane``: half lane width, m)."""
+        return objs.static & (speed < 0.3) & (np.abs(lat) - e_lat < half_lane - 0.1)
+
+    def _cluster(self, v, half_lane, objs, st, lat, e_lat, e_long, speed):
+        """``(start, end)`` stations (m, relative) of the obstacles blocking the corridor ahead."""
+        intr = self._intruding(objs, lat, e_lat, speed, half_lane)
+        block = intr & (np.abs(lat) < self.hw + e_lat + 0.3) & (st - e_long > self.hl - 0.5)
+        block &= st < max(30.0, 3.0 * v + 20.0)
+        if not np.any(block):
+            return None
+        lo = hi = float(np.min((st - e_long)[block]))
+        for i in np.argsort(st):
+            if (
+                not intr[i]
+                or st[i] - e_long[i] > hi + CLUSTER_GAP_M
+                or st[i] + e_long[i] < lo - 1.0
+            ):
+                continue
+            hi = max(hi, float(st[i] + e_long[i]))
+        return lo, hi
+
+    def _best_offset(
+        self, lane, lo, hi, objs, st, lat, e_lat, e_long, speed
+    ) -> tuple[float, bool] | None:
+        right, left, opp = self._lane_room(lane)
+        cand = np.arange(-MAX_OFFSET, MAX_OFFSET + 1e-6, 0.1)
+        cand = cand[(cand >= right - 1e-6) & (cand <= left + 1e-6)]
+        span = (
+            (st + e_long > lo - self.hl - 4.0) & (st - e_long < hi + self.hl + 4.0) & (speed < 0.3)
+        )
+        vru = (objs.kind == PEDESTRIAN) | (objs.kind == BICYCLE)
+        for margin in STATIC_MARGINS:
+            need = self.hw + e_lat[span] + np.where(vru[span], VRU_MARGIN, margin)
+            free = np.all(np.abs(lat[span][None, :] - cand[:, None]) >= need[None, :], axis=1)
+            if np.any(free):
+                c = cand[free]
+                cost = np.abs(c) + np.where(c > opp, OPPOSITE_PENALTY, 0.0)
+                k = int(np.argmin(cost))
+                return float(c[k]), bool(c[k] > opp)
+        return None
+
+    def _target_clear(
+        self, off, invades, s_ego, v, lo, hi, objs, st, lat, cos_r, e_lat, e_long, speed
+    ) -> bool:
+        """No moving vehicle beside / closing from behind in the target band, and no oncoming one
+        reaching the cluster end before the ego is back (relative stations: ``lo``, ``hi``)."""
+        moving = (speed > 0.3) & ~objs.static
+        band = moving & (np.abs(lat - off) < self.hw + e_lat + 1.0)
+        if not np.any(band):
+            return True
+        same = band & (cos_r > 0.5)
+        behind_room = 8.0 + 1.5 * np.maximum(speed - v, 0.0) + 0.8 * speed
+        if np.any(same & (st > -self.hl - behind_room) & (st - e_long < self.hl + 6.0)):
+            return False
+        oncoming = band & (cos_r < -0.5) & (st > -self.hl)
+        if np.any(oncoming):
+            exit_st = hi + 2.0 * self.hl + 10.0  # where the ego is back in its lane
+            t_man = float(travel_time(exit_st, v, 2.0, max(v, PASS_SPEED))) + 1.0
+            if np.any(oncoming & (st - e_long - speed * t_man < exit_st + 5.0)):
+                return False
+        return True
+
+    def _obstacle(self, s_ego, v, win, objs, st, lat, cos_r, e_lat, e_long, speed) -> None:
+        lane = int(win.lanes[min(int(np.searchsorted(win.st, 0.0)), len(win.st) - 1)])
+        half_lane = 0.5 * float(self.track.town.index.width[lane])
+        cl = self._cluster(v, half_lane, objs, st, lat, e_lat, e_long, speed)
+        if cl is None:
+            return
+        lo, hi = cl
+        k = int(np.clip(np.searchsorted(win.st, lo), 0, len(win.st) - 1))
+        lane = int(win.lanes[k])
+        best = self._best_offset(lane, lo, hi, objs, st, lat, e_lat, e_long, speed)
+        if best is None or abs(best[0]) < 0.05:
+            return
+        off, invades = best
+        leaves = (
+            abs(off) > self.track.town.index.width[lane] / 2.0 - self.hw + IN_LANE_SLACK + 1e-6
+            or invades
+        )
+        if leaves and not self._target_clear(
+            off, invades, s_ego, v, lo, hi, objs, st, lat, cos_r, e_lat, e_long, speed
+        ):
+            return
+        ramp = float(np.clip(2.0 * v + 8.0, 8.0, 25.0)) * max(abs(off) / 3.0, 0.5)
+        s1 = s_ego + lo - self.hl - 1.0
+        s0 = max(s1 - ramp, s_ego)
+        s2 = s_ego + hi + self.hl + 1.5
+        self.man = Manoeuvre(
+            off, s0, max(s1, s0 + 4.0), s2, s2 + ramp, "obstacle", invades, (s_ego + lo, s_ego + hi)
+        )
+
+    def _keep(self, s_ego, v, win, objs, st, lat, cos_r, e_lat, e_long, speed) -> None:
+        man = self.man
+        if man.kind == "emergency":
+            self._keep_emergency(s_ego, v, objs, st, lat, speed)
+            return
+        # extend the cluster with standing objects found further along, while not yet returning
+        if s_ego < man.s2:
+            lane = int(win.lanes[min(int(np.searchsorted(win.st, 0.0)), len(win.st) - 1)])
+            intr = self._intruding(
+                objs, lat, e_lat, speed, 0.5 * float(self.track.town.index.width[lane])
+            )
+            more = intr & (st - e_long < man.s_obst[1] - s_ego + CLUSTER_GAP_M)
+            more &= st + e_long > man.s_obst[1] - s_ego
+            if np.any(more):
+                hi = float(np.max((st + e_long)[more]))
+                ramp = man.s3 - man.s2
+                man.s_obst = (man.s_obst[0], s_ego + hi)
+                man.s2 = max(man.s2, s_ego + hi + self.hl + 1.5)
+                man.s3 = man.s2 + ramp
+        before = s_ego + self.hl < man.s_obst[0] - 1.0
+        if man.invades or abs(man.offset) > 1.5:
+            lo, hi = man.s_obst[0] - s_ego, man.s_obst[1] - s_ego
+            cur = abs(float(man.value(np.array([s_ego]))[0]))
+            if (
+                before
+                and cur < ABORT_MAX_OFFSET
+                and not self._target_clear(
+                    man.offset,
+                    man.invades,
+                    s_ego,
+                    v,
+                    lo,
+                    hi,
+                    objs,
+                    st,
+                    lat,
+                    cos_r,
+                    e_lat,
+                    e_long,
+                    speed,
+                )
+            ):
+                self.man = None  # abort: back to the lane, wait behind the obstacle, plan again
+                return
+            self.speed_cap = PASS_SPEED if man.invades else np.inf
+
+    # ------------------------------------------------------------------ emergency vehicles
+    def _emergency(self, s_ego, v, win, objs, st, lat, cos_r, e_lat, e_long, speed) -> bool:
+        ev = objs.emergency & (st < 0.0) & (st > -90.0) & (np.abs(lat) < 2.5) & (cos_r > 0.5)
+        ev &= (speed > v + 0.5) | (st > -30.0)
+        if not np.any(ev):
+            return False
+        lane = int(win.lanes[min(int(np.searchsorted(win.st, 0.0)), len(win.st) - 1)])
+        ln = self.track.town.lanes[lane]
+        w = min(float(self.track.town.index.width[lane]), MAX_OFFSET)
+        options = [o for o, nb in ((-w, ln.right), (w, ln.left)) if nb >= 0]
+        for off in options:
+            if self._target_clear(
+                off, False, s_ego, v, 5.0, 15.0, objs, st, lat, cos_r, e_lat, e_long, speed
+            ):
+                ramp = float(np.clip(1.5 * v + 8.0, 10.0, 20.0))
+                self.man = Manoeuvre(off, s_ego, s_ego + ramp, np.inf, np.inf, "emergency", False)
+                self.speed_cap = 8.0
+                return True
+        self.speed_cap = np.inf
+        return False
+
+    def _keep_emergency(self, s_ego, v, objs, st, lat, speed) -> None:
+        man = self.man
+        ev = objs.emergency
+        behind = ev & (st < self.hl + 12.0) & (st > -120.0)
+        if np.isfinite(man.s2):
+            return
+        if not np.any(behind):
+            ramp = float(np.clip(1.5 * v + 8.0, 10.0, 20.0))
+            man.s2, man.s3 = s_ego, s_ego + ramp
+        else:
+            self.speed_cap = 8.0

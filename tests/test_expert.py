@@ -209,3 +209,46 @@ def test_planner_speed_with_many_objects():
     per_call = (time.perf_counter() - t0) / 20
     assert len(objs) >= 40
     assert per_call < 0.05  # generous: ~1-5 ms on a laptop, CI machines vary
+
+
+@pytest.mark.parametrize(
+    "scenario,town,seed",
+    [
+        ("InvadingTurn", "Town01", 0),  # moves right, inside its lane, for invading oncoming cars
+        ("ParkingExit", "Town03", 0),  # waits for a gap in the flow before leaving the slot
+        ("VehicleOpensDoorTwoWays", "Town01", 1),  # replans when the door opens, then overtakes
+        ("InterurbanActorFlow", "Town01", 0),  # finds a gap in the oncoming flow to turn left
+    ],
+)
+def test_expert_passes_scenario_without_collision(scenario, town, seed):
+    t = get_town(town)
+    world = World(make_config(town=town))
+    route, scenarios = build_episode(scenario, t, np.random.default_rng(seed))
+    expert = start(world, Expert(), seed=seed, route=route, scenarios=scenarios)
+    sc = scenarios[0]
+    for _ in range(time_budget_steps(world)):
+        world.step(expert.act(None), world.default_rsu_message())
+        if sc.passed or world.is_route_complete():
+            break
+    counts = world.monitor.counts
+    assert sc.passed, {inf.EVENT_NAMES[i]: int(n) for i, n in enumerate(counts) if n}
+    assert not any(counts[c] for c in BAD), {inf.EVENT_NAMES[i]: int(n) for i, n in enumerate(counts) if n}
+
+
+def test_held_manoeuvre_offsets_are_finite():
+    from v2xbench.agents.expert.lateral import Manoeuvre
+
+    man = Manoeuvre(-2.9, 10.0, 20.0, np.inf, np.inf, "emergency", False)
+    off = man.value(np.array([0.0, 15.0, 30.0, 1e6]))
+    assert np.all(np.isfinite(off)) and off[0] == 0.0 and np.isclose(off[2], -2.9)
+
+
+def test_route_track_lane_change_segments():
+    town = get_town("Town03")
+    world = World(make_config(town="Town03", **EMPTY))
+    route, _ = build_episode("ParkingExit", town, np.random.default_rng(0))
+    track = RouteTrack(town, route)
+    assert track.merges and track.merges[0][0] == 0.0
+    a, b = track.merges[0]
+    assert track.merging(a) == 0.0 and track.merging(b - 0.1) is None
+    del world

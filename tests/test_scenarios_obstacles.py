@@ -203,7 +203,7 @@ def check_door(tr: Trace) -> None:
     assert tr.world.table.behaviour[car] == PARKED
     assert free_width(tr, [car, door], half_lane(tr)) < EGO_WIDTH + MARGIN
     assert free_width(tr, [car, door], half_lane(tr), k=k - 1) > EGO_WIDTH + MARGIN
-    assert passes_near(tr, flow_rows(tr), tr.sc.conflict_point, 30.0) >= 1
+    assert passes_near(tr, flow_rows(tr), tr.sc.conflict_point, 50.0) >= 1
 
 
 def check_debris(tr: Trace) -> None:

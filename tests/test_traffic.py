@@ -315,3 +315,40 @@ def test_jaywalking_happens_with_probability_one():
 def test_pedestrians_move_continuously(walk_run):
     # a walker covers speed * dt per tick; allow 50 % for the lateral blending of a turn
     assert walk_run["max_step_ratio"] < 1.5
+
+
+def test_crossing_walker_waits_while_the_ego_stands_in_its_way():
+    from v2xbench.envs.v2x_intersection.pedestrians import step_walkers
+
+    class _Net:  # only crossing walkers move here: no sidewalk network is needed
+        index = object()
+
+    t = ActorTable.empty(2)
+    t.active[:] = True
+    t.kind[:] = [0, 2]  # the ego (a car) and a pedestrian
+    t.behaviour[1], t.scenario[:] = WALKER, -1
+    t.length[:], t.width[:] = [4.6, 0.5], [1.9, 0.5]
+    t.pos[:] = [[0.0, 0.0], [0.0, -2.0]]  # the walker 2 m to the ego's right, crossing to the left
+    t.path[1], t.cross_from[1], t.cross_to[1], t.speed[1] = -1, [0.0, -2.0], [0.0, 8.0], 1.4
+    rng = np.random.default_rng(0)
+    step_walkers(t, _Net(), rng, 0.1, 0.0)
+    assert t.pos[1, 1] == pytest.approx(-2.0)  # 1 m ahead of it is inside the ego: it waits
+    t.pos[0] = [10.0, 0.0]  # the ego moved on
+    step_walkers(t, _Net(), rng, 0.1, 0.0)
+    assert t.pos[1, 1] == pytest.approx(-2.0 + 0.14)
+
+
+def test_held_scenario_vehicles_do_not_block_junctions():
+    from v2xbench.envs.v2x_intersection.town import get_town
+    from v2xbench.envs.v2x_intersection.traffic import junction_clear
+
+    town = get_town("Town01")
+    j = town.junctions[0]
+    t = ActorTable.empty(2)
+    t.active[:] = True
+    t.behaviour[:] = DRIVER
+    t.lane[:] = j.incoming[0]
+    t.pos[1] = j.center  # a vehicle standing inside the junction
+    assert not junction_clear(t, town, 0, 0)
+    t.hold[1] = True  # a held scenario prop (e.g. BlockedIntersection's car) is an obstacle only
+    assert junction_clear(t, town, 0, 0)

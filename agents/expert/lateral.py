@@ -35,6 +35,10 @@ STATIC_MARGINS = (0.6, 0.45, 0.3)  # m lateral clearance to standing objects, tr
 VRU_MARGIN = 1.0  # m lateral clearance to pedestrians and bicycles
 OPPOSITE_PENALTY = 2.0  # m-equivalent cost of using the opposite lane
 PASS_SPEED = 13.0  # m/s, speed cap while in the opposite lane
+PASS_ACCEL = 2.3  # m/s^2 while overtaking through the opposite lane (nuPlan comfort: 2.4)
+PASS_EXIT_M = 6.0  # m past the obstacle's end (plus half the ego) where the ego is back in lane
+PASS_BUFFER_S = 0.7  # s kept between the ego's return and the oncoming vehicle's arrival
+INVADER_MARGIN = 0.4  # m kept from oncoming vehicles that cut into the ego's lane
 ABORT_MAX_OFFSET = 0.6  # m: beyond this shift a started pass is completed, not aborted
 
 
@@ -54,7 +58,10 @@ class Manoeuvre:
     def value(self, s: np.ndarray) -> np.ndarray:
         """Offset (m) at route arc lengths ``s``."""
         up = np.clip((s - self.s0) / max(self.s1 - self.s0, 1e-3), 0.0, 1.0)
-        down = np.clip((s - self.s2) / max(self.s3 - self.s2, 1e-3), 0.0, 1.0)
+        if np.isfinite(self.s2):
+            down = np.clip((s - self.s2) / max(self.s3 - self.s2, 1e-3), 0.0, 1.0)
+        else:  # held until further notice (emergency vehicle still behind)
+            down = np.zeros_like(np.asarray(s, float))
         w = 0.5 - 0.5 * np.cos(np.pi * up) - (0.5 - 0.5 * np.cos(np.pi * down))
         return self.offset * w
 
@@ -118,6 +125,8 @@ class LateralPlanner:
             return
         if self._emergency(s_ego, v, win, objs, st, lat, cos_r, e_lat, e_long, speed):
             return
+        if self._invading(s_ego, v, win, objs, st, lat, cos_r, e_lat, e_long, speed):
+            return
         self._obstacle(s_ego, v, win, objs, st, lat, cos_r, e_lat, e_long, speed)
 
     # ------------------------------------------------------------------ obstacles
@@ -164,23 +173,27 @@ class LateralPlanner:
         return None
 
     def _target_clear(
-        self, off, invades, s_ego, v, lo, hi, objs, st, lat, cos_r, e_lat, e_long, speed
+        self, off, invades, s_ego, v, lo, hi, objs, st, lat, cos_r, e_lat, e_long, speed,
+        strict: bool = True,
     ) -> bool:
         """No moving vehicle beside / closing from behind in the target band, and no oncoming one
-        reaching the cluster end before the ego is back (relative stations: ``lo``, ``hi``)."""
+        reaching the cluster end before the ego is back (relative stations: ``lo``, ``hi``).
+        ``strict=False`` (a pass already begun) drops the safety buffers: a manoeuvre is aborted
+        only for a real conflict, so that the ego does not stop half-turned toward the other lane."""
         moving = (speed > 0.3) & ~objs.static
         band = moving & (np.abs(lat - off) < self.hw + e_lat + 1.0)
         if not np.any(band):
             return True
-        same = band & (cos_r > 0.5)
+        same = band & (cos_r > 0.5) & (np.abs(lat - off) < np.abs(lat))  # not the ego's follower
         behind_room = 8.0 + 1.5 * np.maximum(speed - v, 0.0) + 0.8 * speed
         if np.any(same & (st > -self.hl - behind_room) & (st - e_long < self.hl + 6.0)):
             return False
         oncoming = band & (cos_r < -0.5) & (st > -self.hl)
         if np.any(oncoming):
-            exit_st = hi + 2.0 * self.hl + 10.0  # where the ego is back in its lane
-            t_man = float(travel_time(exit_st, v, 2.0, max(v, PASS_SPEED))) + 1.0
-            if np.any(oncoming & (st - e_long - speed * t_man < exit_st + 5.0)):
+            exit_st = hi + self.hl + (PASS_EXIT_M if strict else 2.0)  # ego back in its lane
+            t_man = float(travel_time(exit_st, v, PASS_ACCEL, max(v, PASS_SPEED)))
+            t_man += PASS_BUFFER_S if strict else 0.0
+            if np.any(oncoming & (st - e_long - speed * t_man < exit_st + (3.0 if strict else 0.0))):
                 return False
         return True
 
@@ -191,6 +204,9 @@ class LateralPlanner:
         if cl is None:
             return
         lo, hi = cl
+        queued = ~objs.static & (speed < 0.3) & (np.abs(lat) < self.hw + e_lat + 0.3)
+        if np.any(queued & (st > 0.0) & (st - e_long < lo)):
+            return  # a vehicle waits in the lane before the obstacle: queue behind it first
         k = int(np.clip(np.searchsorted(win.st, lo), 0, len(win.st) - 1))
         lane = int(win.lanes[k])
         best = self._best_offset(lane, lo, hi, objs, st, lat, e_lat, e_long, speed)
@@ -213,10 +229,28 @@ class LateralPlanner:
             off, s0, max(s1, s0 + 4.0), s2, s2 + ramp, "obstacle", invades, (s_ego + lo, s_ego + hi)
         )
 
+    def _still_clears(self, man, s_ego, objs, st, lat, e_lat, e_long, speed) -> bool:
+        """Whether the manoeuvre's offset still clears every standing object around its cluster."""
+        lo, hi = man.s_obst[0] - s_ego, man.s_obst[1] - s_ego
+        span = (st + e_long > lo - 1.0) & (st - e_long < hi + 1.0) & (speed < 0.3)
+        vru = (objs.kind == PEDESTRIAN) | (objs.kind == BICYCLE)
+        need = self.hw + e_lat + np.where(vru, VRU_MARGIN, STATIC_MARGINS[-1])
+        return not np.any(span & (np.abs(lat - man.offset) < need))
+
     def _keep(self, s_ego, v, win, objs, st, lat, cos_r, e_lat, e_long, speed) -> None:
         man = self.man
         if man.kind == "emergency":
             self._keep_emergency(s_ego, v, objs, st, lat, speed)
+            return
+        if man.kind == "invading":
+            if np.isfinite(man.s2):
+                return
+            need = self._invader_offset(win, objs, st, lat, cos_r, e_lat, e_long, speed, v)
+            if need is None:
+                ramp = float(np.clip(1.5 * v + 6.0, 6.0, 15.0))
+                man.s2, man.s3 = s_ego, s_ego + ramp
+            elif need < man.offset:
+                man.offset = need  # a wider invader: move further over
             return
         # extend the cluster with standing objects found further along, while not yet returning
         if s_ego < man.s2:
@@ -233,6 +267,9 @@ class LateralPlanner:
                 man.s2 = max(man.s2, s_ego + hi + self.hl + 1.5)
                 man.s3 = man.s2 + ramp
         before = s_ego + self.hl < man.s_obst[0] - 1.0
+        if before and not self._still_clears(man, s_ego, objs, st, lat, e_lat, e_long, speed):
+            self.man = None  # something moved into the chosen corridor (a door opened): replan
+            return
         if man.invades or abs(man.offset) > 1.5:
             lo, hi = man.s_obst[0] - s_ego, man.s_obst[1] - s_ego
             cur = abs(float(man.value(np.array([s_ego]))[0]))
@@ -253,11 +290,37 @@ class LateralPlanner:
                     e_lat,
                     e_long,
                     speed,
+                    strict=False,
                 )
             ):
                 self.man = None  # abort: back to the lane, wait behind the obstacle, plan again
                 return
             self.speed_cap = PASS_SPEED if man.invades else np.inf
+
+    # ------------------------------------------------------------------ invading oncoming traffic
+    def _invader_offset(self, win, objs, st, lat, cos_r, e_lat, e_long, speed, v) -> float | None:
+        """Offset (m, < 0: to the right) that keeps ``INVADER_MARGIN`` from oncoming vehicles
+        reaching into the ego's lane from the left within the next few seconds; None if there
+        are none (or they leave the ego room without moving)."""
+        reach = np.maximum(st - e_long, 0.0) / np.maximum(speed + v, 1.0)
+        onc = (cos_r < -0.5) & (speed > 0.5) & ~objs.static & (st + e_long > -self.hl) & (reach < 5.0)
+        onc &= lat > 0.0
+        room = lat - e_lat - INVADER_MARGIN - self.hw  # how far the ego centre may be left
+        onc &= room < 0.0
+        if not np.any(onc):
+            return None
+        lane = int(win.lanes[min(int(np.searchsorted(win.st, 0.0)), len(win.st) - 1)])
+        right, _, _ = self._lane_room(lane)
+        return float(max(np.min(room[onc]), right))
+
+    def _invading(self, s_ego, v, win, objs, st, lat, cos_r, e_lat, e_long, speed) -> bool:
+        """Start moving right, inside the lane, for oncoming vehicles that cut into it."""
+        need = self._invader_offset(win, objs, st, lat, cos_r, e_lat, e_long, speed, v)
+        if need is None or need > -0.1:
+            return False
+        ramp = float(np.clip(1.0 * v + 4.0, 4.0, 12.0))
+        self.man = Manoeuvre(need, s_ego, s_ego + ramp, np.inf, np.inf, "invading", False)
+        return True
 
     # ------------------------------------------------------------------ emergency vehicles
     def _emergency(self, s_ego, v, win, objs, st, lat, cos_r, e_lat, e_long, speed) -> bool:

@@ -22,7 +22,7 @@ ego sees, plus what the RSU sent); only the object list differs.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from v2xbench.envs.v2x_intersection.classes import BICYCLE, PEDESTRIAN
@@ -33,7 +33,7 @@ from v2xbench.envs.v2x_intersection.town.model import Town
 
 from .junction import JunctionRules, travel_time
 from .lanes import lane_map
-from .lateral import LateralPlanner
+from .lateral import PASS_ACCEL, LateralPlanner
 from .longitudinal import LonParams, accel_now, envelope, rollout
 from .objects import Objects
 from .prediction import forecast
@@ -125,6 +125,7 @@ class Planner:
         p, hl = self.p, self.hl
         pos = np.asarray(pos, float)
         j, s_ego = self.track.localize(pos)
+        self._s_ego = s_ego
         ahead = float(np.clip(6.0 * v + 40.0, 60.0, 170.0))
         win0 = self.track.window(j, s_ego, ahead)
         d = objs.pos - pos
@@ -165,19 +166,21 @@ class Planner:
             reasons.append(why)
         # speed envelope (limits, curves, manoeuvre caps)
         vlim = np.minimum(win.vlim, self.lateral.speed_cap)
-        env = envelope(win.st, vlim, hl, self.lon)
+        man = self.lateral.man
+        lon = self.lon if man is None or not man.invades else replace(self.lon, accel=PASS_ACCEL)
+        env = envelope(win.st, vlim, hl, lon)
         # predicted conflicts along the nominal profile
-        se, ve = rollout(v, env, cons, ROLL_DT, ROLL_STEPS, self.lon)
+        se, ve = rollout(v, env, cons, ROLL_DT, ROLL_STEPS, lon)
         n_base = len(cons)
         for c in self._conflicts(v, fc, win, offs, se, ve, objs, st, e_long, cr, speed):
             cons.append(c)
             reasons.append("conflict")
         i0 = min(max(int((0.0 - env[0]) / 2.0), 0), len(env[1]) - 1)
-        a, which = accel_now(v, float(env[1][i0]), cons, self.lon)
+        a, which = accel_now(v, float(env[1][i0]), cons, lon)
         throttle, brake = self._pedals(v, a)
         steer = self._steer(pos, yaw, v, win)
         if len(cons) > n_base:
-            se, ve = rollout(v, env, cons, ROLL_DT, ROLL_STEPS, self.lon)
+            se, ve = rollout(v, env, cons, ROLL_DT, ROLL_STEPS, lon)
         wps, speeds = self._waypoints(pos, yaw, se, ve, win)
         return Plan(
             np.array([throttle, steer, brake], np.float32),
@@ -216,6 +219,7 @@ class Planner:
         if not np.any(hit):
             return []
         out = []
+        merge_wait = self.track.merging(self._s_ego)
         hyp = idx[hit] // t
         first = np.flatnonzero(np.concatenate([[True], hyp[1:] != hyp[:-1]]))
         sel = np.flatnonzero(hit)[first]
@@ -230,6 +234,9 @@ class Planner:
                 gap = float(st_now[i] - e_long_now[i] - hl)
                 if gap > 0.0:
                     out.append((gap, float(max(speed[i] * cr_now[i], 0.0)), p.leader_s0, p.headway))
+                elif merge_wait is not None and not vru[q]:
+                    # the ego is changing lanes in front of it: wait for a gap before the change
+                    out.append((merge_wait, 0.0, 0.2, 0.0))
                 continue
             margin = p.stop_margin_vru if vru[q] else p.stop_margin
             gap = s_lo - hl - margin

@@ -12,7 +12,12 @@ from dataclasses import dataclass
 
 import numpy as np
 from v2xbench.envs.v2x_intersection.routes import Route
-from v2xbench.envs.v2x_intersection.town.model import CONNECTOR, Town
+from v2xbench.envs.v2x_intersection.town.model import (
+    CHANGE_LANE_LEFT,
+    CHANGE_LANE_RIGHT,
+    CONNECTOR,
+    Town,
+)
 from v2xbench.envs.v2x_intersection.traffic import STOP_LINE_SETBACK
 
 MAX_LAT_ACCEL = 2.2  # m/s^2 in curves
@@ -61,7 +66,25 @@ class RouteTrack:
             ix.speed_limit[route.lane_ids], np.sqrt(MAX_LAT_ACCEL / np.maximum(kappa, 1e-4))
         )
         self.entries = self._entries(town, route)
+        self.merges = self._merges(route)
         self.idx = 0
+
+    @staticmethod
+    def _merges(route: Route) -> list[tuple[float, float]]:
+        """``(s_start, s_end)`` route arc lengths (m) of every lane-change segment (a run of
+        ``change_lane_*`` commands: the path moves sideways into another lane or out of a slot)."""
+        lc = np.isin(route.commands, (CHANGE_LANE_LEFT, CHANGE_LANE_RIGHT)).astype(np.int8)
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], lc, [0]])))
+        return [(float(route.s[a]), float(route.s[min(b, len(route.s) - 1)])) for a, b in edges.reshape(-1, 2)]
+
+    def merging(self, s_ego: float, commit: float = 0.35) -> float | None:
+        """If the ego is in (or just before) a lane-change segment and has covered less than
+        ``commit`` of it, the distance (m, >= 0) to the segment start, where it waits for a gap;
+        None otherwise."""
+        for a, b in self.merges:
+            if a - 15.0 <= s_ego < a + commit * (b - a):
+                return max(a - s_ego, 0.0)
+        return None
 
     @staticmethod
     def _entries(town: Town, route: Route) -> list[JunctionEntry]:

@@ -58,8 +58,8 @@ def step_walkers(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, 
     walking = idx[t.path[idx] >= 0]
     crossing = idx[t.path[idx] < 0]
 
-    # crossing pedestrians move on their segment (background walkers wait while a vehicle
-    # stands in their way; scenario walkers are scripted hazards and walk on)
+    # crossing pedestrians move on their segment (background walkers wait while the ego stands
+    # in their way; scenario walkers are scripted hazards and walk on)
     if len(crossing):
         seg = t.cross_to[crossing] - t.cross_from[crossing]
         left = t.cross_to[crossing] - t.pos[crossing]
@@ -111,21 +111,22 @@ def step_walkers(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, 
         _start_crossing(t, i, t.pos[i].copy(), target[0])
 
 
-PED_LOOKAHEAD = 1.0  # m: a crossing walker waits while this point ahead of it is inside a vehicle
-VEHICLE_MARGIN = 0.3  # m added around vehicle boxes for that test
+PED_LOOKAHEAD = 1.0  # m: a crossing walker waits while this point ahead of it is inside the ego
+VEHICLE_MARGIN = 0.3  # m added around the ego's box for that test
 
 
 def _vehicle_ahead(t: ActorTable, points: np.ndarray) -> np.ndarray:
-    """``(M,)`` whether each of ``points`` ``(M, 2)`` lies inside an active vehicle's box."""
-    veh = np.flatnonzero(t.active & np.isin(t.kind, VEHICLE_CLASSES))
-    if len(veh) == 0:
+    """``(M,)`` whether each of ``points`` ``(M, 2)`` lies inside the ego's box (plus a margin).
+
+    Only the ego is tested: walkers do not walk into the car being evaluated, while among
+    background actors a wait rule could deadlock (car waits for walker waits for car)."""
+    if len(t.active) == 0 or not t.active[0] or t.kind[0] not in VEHICLE_CLASSES:
         return np.zeros(len(points), bool)
-    d = points[:, None, :] - t.pos[veh][None]  # (M, V, 2)
-    c, s = np.cos(t.yaw[veh]), np.sin(t.yaw[veh])
-    along = d[..., 0] * c + d[..., 1] * s
-    across = -d[..., 0] * s + d[..., 1] * c
-    inside = (np.abs(along) < t.length[veh] / 2 + VEHICLE_MARGIN) & (np.abs(across) < t.width[veh] / 2 + VEHICLE_MARGIN)
-    return inside.any(1)
+    d = points - t.pos[0]
+    c, s = np.cos(t.yaw[0]), np.sin(t.yaw[0])
+    along = d[:, 0] * c + d[:, 1] * s
+    across = -d[:, 0] * s + d[:, 1] * c
+    return (np.abs(along) < t.length[0] / 2 + VEHICLE_MARGIN) & (np.abs(across) < t.width[0] / 2 + VEHICLE_MARGIN)
 
 
 def _start_crossing(t: ActorTable, i: int, a: np.ndarray, b: np.ndarray) -> None:

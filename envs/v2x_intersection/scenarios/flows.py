@@ -275,7 +275,9 @@ class Flow:
 class FlowScenario(Scenario):
     """Base of the actor-flow scenarios: ``site.extra`` holds ``(path, conflict_s_on_path)`` per
     flow; rows are shared out between the flows. Parameters: ``speed`` (m/s) of the flow,
-    ``spacing_min`` / ``spacing_max`` (m) between its vehicles."""
+    ``spacing_min`` / ``spacing_max`` (m) between its vehicles. Crossing and merging flows are
+    dense on average but their spacings reach ~6-7 s, so that a gap a careful driver accepts comes
+    every few vehicles (with tighter flows the rule expert waited out the scenario timeout)."""
 
     family = "flow"
     max_actors = 16
@@ -283,7 +285,7 @@ class FlowScenario(Scenario):
     upstream = 120.0  # m of flow before its conflict point
     downstream = 35.0  # m of flow after it
     ignore_rules = True
-    defaults = {"speed": 10.0, "spacing_min": 20.0, "spacing_max": 40.0}
+    defaults = {"speed": 10.0, "spacing_min": 25.0, "spacing_max": 70.0}
 
     def spawn(self, world) -> None:
         flows = resolve_extra(self, world.town)
@@ -419,7 +421,7 @@ class EnterActorFlowV2(FlowScenario):
 
     name = "EnterActorFlowV2"
     towns = ("Town04", "Town06", "Town01")
-    defaults = {"speed": 14.0, "spacing_min": 25.0, "spacing_max": 45.0}
+    defaults = {"speed": 14.0, "spacing_min": 30.0, "spacing_max": 90.0}
 
     @classmethod
     def find_sites(cls, town):
@@ -438,7 +440,7 @@ class MergerIntoSlowTraffic(FlowScenario):
     name = "MergerIntoSlowTraffic"
     towns = ("Town04", "Town06", "Town02", "Town01")
     upstream = 90.0
-    defaults = {"speed": 4.0, "spacing_min": 10.0, "spacing_max": 15.0}
+    defaults = {"speed": 4.0, "spacing_min": 12.0, "spacing_max": 30.0}
 
     @classmethod
     def find_sites(cls, town):
@@ -456,7 +458,7 @@ class MergerIntoSlowTrafficV2(FlowScenario):
     name = "MergerIntoSlowTrafficV2"
     towns = ("Town06", "Town02", "Town01", "Town05")
     upstream = 90.0
-    defaults = {"speed": 4.0, "spacing_min": 10.0, "spacing_max": 15.0}
+    defaults = {"speed": 4.0, "spacing_min": 12.0, "spacing_max": 30.0}
 
     @classmethod
     def find_sites(cls, town):
@@ -518,7 +520,7 @@ class InterurbanActorFlow(FlowScenario):
 
     name = "InterurbanActorFlow"
     towns = ("Town06", "Town02", "Town01", "Town05")
-    defaults = {"speed": 11.0, "spacing_min": 20.0, "spacing_max": 40.0}
+    defaults = {"speed": 11.0, "spacing_min": 25.0, "spacing_max": 75.0}
 
     @classmethod
     def find_sites(cls, town):
@@ -538,7 +540,7 @@ class InterurbanAdvancedActorFlow(FlowScenario):
 
     name = "InterurbanAdvancedActorFlow"
     towns = ("Town06", "Town02", "Town01", "Town05")
-    defaults = {"speed": 10.0, "spacing_min": 25.0, "spacing_max": 45.0}
+    defaults = {"speed": 10.0, "spacing_min": 25.0, "spacing_max": 70.0}
 
     @classmethod
     def find_sites(cls, town):

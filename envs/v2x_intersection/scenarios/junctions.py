@@ -49,7 +49,7 @@ class SignalizedJunctionLeftTurn(FlowScenario):
     name = "SignalizedJunctionLeftTurn"
     family = "junction"
     towns = ("Town01", "Town03", "Town05", "Town02")
-    defaults = {"speed": 10.0, "spacing_min": 25.0, "spacing_max": 45.0}
+    defaults = {"speed": 10.0, "spacing_min": 25.0, "spacing_max": 70.0}
 
     @classmethod
     def find_sites(cls, town):
@@ -68,7 +68,7 @@ class SignalizedJunctionRightTurn(FlowScenario):
     name = "SignalizedJunctionRightTurn"
     family = "junction"
     towns = ("Town01", "Town03", "Town05", "Town02")
-    defaults = {"speed": 10.0, "spacing_min": 25.0, "spacing_max": 45.0}
+    defaults = {"speed": 10.0, "spacing_min": 25.0, "spacing_max": 70.0}
 
     @classmethod
     def find_sites(cls, town):

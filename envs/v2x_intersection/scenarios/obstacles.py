@@ -32,6 +32,7 @@ from .registry import register_scenario
 
 CONE = (0.4, 0.4, 0.7)  # m, traffic cone (length, width, height)
 FLOW_ROWS = 5  # actor rows reserved for an oncoming flow
+ENTRY_HIDDEN_M = 90.0  # a lane flow re-enters vehicles only while the ego is farther from its entry
 #: oncoming flow: mean spacing (m) and desired speed (factor of the speed limit)
 FLOW_DEFAULTS: dict[str, float] = {"flow_gap": 55.0, "flow_speed": 0.8}
 MULTI_TOWNS = ("Town03", "Town04", "Town01", "Town05")
@@ -98,8 +99,10 @@ class LaneFlow:
     """A stream of vehicles along one lane, recycled in a fixed set of table rows.
 
     At spawn, vehicles are spread over ``[s_lo, s_hi]`` of the lane; every tick a free row (one
-    whose vehicle reached the end of its plan) re-enters at ``s_lo`` once the previous vehicle is
-    ``gap`` m (times a uniform factor in [0.5, 1.5]) down the lane and the entry is clear. Rows
+    whose vehicle reached the end of its plan) re-enters at ``s_lo`` (only while the ego is more
+    than ``ENTRY_HIDDEN_M`` from there: vehicles never pop up in view) once the previous vehicle is
+    ``gap`` m (times a uniform factor in [0.5, 2.5], so that the flow leaves gaps long enough to
+    overtake through now and then) down the lane and the entry is clear. Rows
     keep their size (collision shapes are built once per episode).
     """
 
@@ -124,7 +127,7 @@ class LaneFlow:
         self.last, self.next_gap, self.plan_id = -1, gap, -1
 
     def _draw_gap(self, rng: np.random.Generator) -> float:
-        return float(self.gap * rng.uniform(0.5, 1.5))
+        return float(self.gap * rng.uniform(0.5, 2.5))
 
     def _put(self, world, row: int, s: float) -> None:
         t = world.table
@@ -178,8 +181,8 @@ class LaneFlow:
         ):
             return
         p, _ = lane_point(world.town, self.lane, self.s_lo)
-        if occupied(t, p, 7.0):
-            return
+        if occupied(t, p, 7.0) or np.linalg.norm(t.pos[0] - p) < ENTRY_HIDDEN_M:
+            return  # no vehicle appears out of nowhere within sight of the ego
         self._put(world, free[0], self.s_lo)
         self.next_gap = self._draw_gap(world.rng)
 

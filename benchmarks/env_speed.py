@@ -34,19 +34,22 @@ def _rate(env, action, steps: int, seed: int = 0) -> float:
     return n / (time.perf_counter() - t0)
 
 
-def measure(steps: int) -> dict:
-    """Measure V2XBench and highway-env step rates; returns a JSON-able dict."""
+def measure(steps: int, config: dict | None = None) -> dict:
+    """Measure V2XBench (``gym.make`` with ``config``) and highway-env step rates; returns a
+    JSON-able dict."""
     import gymnasium as gym
     import numpy as np
 
     import v2xbench  # noqa: F401  (registers the ids)
 
-    env = gym.make("V2XIntersection-v0")
+    env = gym.make("V2XIntersection-v0", **(config or {}))
     env.reset(seed=0)
-    actors = int(env.unwrapped.world.table.active.sum())
+    w = env.unwrapped.world
+    actors = int(w.table.active.sum())
     ours = _rate(env, np.array([0.3, 0.0, 0.0], np.float32), steps)
     rows = {"v2xbench_objects": {"steps_per_s": ours, "actors": actors, "sim_s_per_step": 0.1,
-                                 "sim_s_per_wall_s": ours * 0.1}}
+                                 "sim_s_per_wall_s": ours * 0.1, "config": dict(config or {}),
+                                 "scenarios": [type(sc).__name__ for sc in w.scenarios]}}
     try:
         import highway_env  # noqa: F401
 

@@ -19,10 +19,14 @@ def measure(workers: int = 2, max_routes: int | None = None, extra: list[str] | 
             cmd += ["--max-routes", str(max_routes)]
         cmd += extra or []
         t0 = time.perf_counter()
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+        try:
+            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+            code, text = proc.returncode, proc.stderr or proc.stdout
+        except subprocess.TimeoutExpired:
+            code, text = -1, f"timed out after {timeout:.0f} s"
         dt = time.perf_counter() - t0
     out = {"command": " ".join(["v2xbench", *cmd[3:]]),
-           "seconds": dt, "returncode": proc.returncode, "goal_seconds": 600.0}
-    if proc.returncode != 0:
-        out["error"] = (proc.stderr or proc.stdout)[-2000:]
+           "seconds": dt, "returncode": code, "goal_seconds": 600.0}
+    if code != 0:
+        out["error"] = text[-2000:]
     return out

@@ -16,8 +16,10 @@ def _report() -> dict:
         "results": {
             "objects": {"results": {
                 "v2xbench_objects": {"steps_per_s": 5000.0, "actors": 56, "scenarios": ["ParkingExit"]},
-                "intersection-v0": {"steps_per_s": 90.0, "ratio_v2xbench_to_this": 55.6, "sim_time_ratio": 5.6},
-                "highway-fast-v0": {"steps_per_s": 120.0, "ratio_v2xbench_to_this": 41.7, "sim_time_ratio": 4.2},
+                "intersection-v0": {"steps_per_s": 6.0, "frames_per_step": 15, "ratio_v2xbench_to_this": 833.0,
+                                    "sim_time_ratio": 83.3},
+                "highway-fast-v0": {"steps_per_s": 12.0, "frames_per_step": 5, "ratio_v2xbench_to_this": 416.0,
+                                    "sim_time_ratio": 41.6},
             }},
             "sensors": {"parts": parts, "full_rig_ticks_per_s": 80.0},
             "batched": {"rows": [{"worlds": 1, "agent_steps_per_s": 900.0},

@@ -21,32 +21,40 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
+_CPU_RATE: dict = {}
+
 
 def _rate(env, action, steps: int, seed: int = 0) -> float:
+    """Env steps per wall second (the rate per CPU second is left in ``_CPU_RATE[id(env)]``)."""
     env.reset(seed=seed)
     n = 0
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     while n < steps:
         _, _, term, trunc, _ = env.step(action)
         n += 1
         if term or trunc:
             env.reset(seed=seed + n)
+    _CPU_RATE[id(env)] = n / max(time.process_time() - c0, 1e-9)
     return n / (time.perf_counter() - t0)
 
 
-def measure(steps: int) -> dict:
-    """Measure V2XBench and highway-env step rates; returns a JSON-able dict."""
+def measure(steps: int, config: dict | None = None) -> dict:
+    """Measure V2XBench (``gym.make`` with ``config``) and highway-env step rates; returns a
+    JSON-able dict."""
     import gymnasium as gym
     import numpy as np
 
     import v2xbench  # noqa: F401  (registers the ids)
 
-    env = gym.make("V2XIntersection-v0")
+    env = gym.make("V2XIntersection-v0", **(config or {}))
     env.reset(seed=0)
-    actors = int(env.unwrapped.world.table.active.sum())
+    w = env.unwrapped.world
+    actors = int(w.table.active.sum())
     ours = _rate(env, np.array([0.3, 0.0, 0.0], np.float32), steps)
-    rows = {"v2xbench_objects": {"steps_per_s": ours, "actors": actors, "sim_s_per_step": 0.1,
-                                 "sim_s_per_wall_s": ours * 0.1}}
+    rows = {"v2xbench_objects": {"steps_per_s": ours, "steps_per_cpu_s": _CPU_RATE[id(env)], "actors": actors,
+                                 "sim_s_per_step": 0.1,
+                                 "sim_s_per_wall_s": ours * 0.1, "config": dict(config or {}),
+                                 "scenarios": [type(sc).__name__ for sc in w.scenarios]}}
     try:
         import highway_env  # noqa: F401
 
@@ -59,7 +67,8 @@ def measure(steps: int) -> dict:
             frames = cfg["simulation_frequency"] // cfg["policy_frequency"]
             rate = _rate(he, idle, max(steps // 10, 20))
             sim = 1.0 / cfg["policy_frequency"]
-            rows[name] = {"steps_per_s": rate, "frames_per_step": frames, "sim_s_per_step": sim,
+            rows[name] = {"steps_per_s": rate, "steps_per_cpu_s": _CPU_RATE[id(he)], "frames_per_step": frames,
+                          "sim_s_per_step": sim,
                           "sim_s_per_wall_s": rate * sim, "ratio_v2xbench_to_this": ours / rate,
                           "sim_time_ratio": ours * 0.1 / (rate * sim)}
     except ImportError:

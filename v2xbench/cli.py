@@ -7,6 +7,7 @@ Commands:
     scenarios   list the 38 scenario types, or render a video of each
     eval        closed-loop evaluation of an agent on a route suite (per-route JSON, summary)
     leaderboard leaderboard table, plots and per-scenario breakdown from evaluation results
+    bench       benchmark suite (speed vs highway-env, sensors, batched worlds, eval time, memory)
 """
 
 from __future__ import annotations
@@ -139,6 +140,12 @@ def _eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bench(args: argparse.Namespace) -> int:
+    from v2xbench.benchmarks.suite import run
+
+    return run(args)
+
+
 def _leaderboard(args: argparse.Namespace) -> int:
     from v2xbench.collectors.leaderboard import build_leaderboard
 
@@ -196,6 +203,13 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--agent-name", default=None, help="display name in the summary and leaderboard")
     ev.add_argument("--quiet", action="store_true", help="no progress bar")
     ev.set_defaults(func=_eval)
+    bn = sub.add_parser("bench", help="benchmark suite: speed against highway-env, sensors, batching, eval, memory",
+                        description="Run the benchmark suite (benchmarks/suite.py): prints a table, writes "
+                        "OUT/suite.json, OUT/suite.md and OUT/suite.png.")
+    from v2xbench.benchmarks.suite import add_arguments as _bench_arguments
+
+    _bench_arguments(bn)
+    bn.set_defaults(func=_bench)
     lb = sub.add_parser("leaderboard", help="leaderboard table and plots from evaluation result dirs")
     lb.add_argument("results", nargs="+", help="result directories (each with a summary.json)")
     lb.add_argument("--out", default="leaderboard")

@@ -55,7 +55,7 @@ class EventMonitor:
         self._wrong_way_active = False
         self._outside_active = False
         self._off_road_active = False
-        self._driving_pts = town.index.point_ids(np.array([ln.id for ln in town.lanes if ln.kind != PARKING]))
+        self._driving_pts = _driving_point_ids(town)
 
     def emit(self, code: int, tick: int, other: int = -1, value: float = 0.0) -> None:
         """Record an event (scenarios emit ``SCENARIO_TIMEOUT`` and ``YIELD_EMERGENCY`` here)."""
@@ -98,7 +98,7 @@ class EventMonitor:
         if dev > ROUTE_DEVIATION_M and not self.counts[ROUTE_DEVIATION]:
             self.emit(ROUTE_DEVIATION, tick, -1, dev)
         # lane-relative checks: nearest lane among drivable lanes
-        lane, s, dist = self.town.index.project(ego[None], point_ids=self._driving_pts)
+        lane, s, dist = self.town.index.project_near(ego, self._driving_pts)
         lane, s, dist = int(lane[0]), float(s[0]), float(dist[0])
         width = self.town.index.width[lane]
         outside = dist > width / 2.0 + 0.3
@@ -141,3 +141,13 @@ class EventMonitor:
     def _is_stop_lane(self, lane: int) -> bool:
         j = self.town.index.junction_ahead[lane]
         return j >= 0 and lane in self.town.junctions[j].stop_lanes
+
+
+def _driving_point_ids(town: Town) -> np.ndarray:
+    """Point ids of all non-parking lanes (cached on the town)."""
+    cached = getattr(town, "_driving_point_ids", None)
+    if cached is None:
+        cached = town.index.point_ids(np.array([ln.id for ln in town.lanes if ln.kind != PARKING]))
+        cached.setflags(write=False)
+        object.__setattr__(town, "_driving_point_ids", cached)
+    return cached

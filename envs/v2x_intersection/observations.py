@@ -192,7 +192,7 @@ def ego_observation(world) -> dict[str, np.ndarray]:
         light = float(LIGHT_STOP_SIGN)
     dist_line = -1.0
     if ix.stop_at_end[lane]:
-        _, s_lane, _ = ix.project(ego_xy[None], point_ids=ix.point_ids(np.array([lane])))
+        _, s_lane, _ = ix.project(ego_xy[None], point_ids=ix.lane_point_ids(lane))
         dist_line = float(ix.length[lane] - STOP_LINE_SETBACK - s_lane[0])
     yaw_rate = t.speed[0] * np.tan(world.last_control[1] * world.params.max_steer) / world.params.wheelbase
     ego = np.array([t.speed[0], t.accel[0], yaw_rate, *world.last_control, light, dist_line,

@@ -106,6 +106,24 @@ class Boxes:
         return cls(center, b(length), b(width), b(yaw), b(z0), b(height))
 
     @classmethod
+    def trusted(
+        cls,
+        center: np.ndarray,
+        length: np.ndarray,
+        width: np.ndarray,
+        yaw: np.ndarray,
+        z0: np.ndarray,
+        height: np.ndarray,
+    ) -> Boxes:
+        """Wrap fresh float64 arrays (``(N, 2)`` and ``(N,)``, owned by the caller and not written
+        afterwards) without the copies and checks of the constructor (a hot path of every tick)."""
+        self = object.__new__(cls)
+        for name, a in zip(_FIELDS, (center, length, width, yaw, z0, height)):
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
+        return self
+
+    @classmethod
     def empty(cls) -> Boxes:
         """A set of zero boxes."""
         return cls.from_arrays(np.zeros((0, 2)), 0.0, 0.0)
@@ -117,7 +135,10 @@ class Boxes:
 
     def subset(self, idx: np.ndarray) -> Boxes:
         """Boxes selected by an index array or boolean mask ``(N,)``."""
-        return Boxes(*(getattr(self, f)[idx] for f in _FIELDS))
+        idx = np.asarray(idx)
+        if idx.ndim != 1 or (idx.dtype != bool and idx.dtype.kind not in "iu"):
+            return Boxes(*(getattr(self, f)[idx] for f in _FIELDS))
+        return Boxes.trusted(*(getattr(self, f)[idx] for f in _FIELDS))  # fancy indexing copies
 
     def __len__(self) -> int:
         return self.center.shape[0]

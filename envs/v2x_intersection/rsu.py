@@ -151,4 +151,6 @@ def select_active(rsus: RSUSet, ego_xy: np.ndarray, ego_yaw: float, max_range: f
     out = np.where(ok[order][:slots], order[:slots], -1)
     if out[0] < 0:  # nothing forward-facing: fall back to the nearest unit
         out[0] = int(np.argmin(dist))
-    return np.pad(out, (0, max(0, slots - len(out))), constant_values=-1).astype(np.int64)
+    if len(out) < slots:
+        out = np.concatenate([out, np.full(slots - len(out), -1, out.dtype)])
+    return out.astype(np.int64)

@@ -7,7 +7,10 @@ Specs (all float32 unless noted, leading dim ``N``): observation keys as
 ``config.rsu_policy``. Partial resets follow TorchRL's ``"_reset"`` mask. Seeding: ``set_seed``
 seeds a generator from which every world's reset seeds are drawn, so a run is reproducible.
 
-The worlds are stepped one after another in this version; see ``benchmarks/`` for throughput.
+The worlds live in one :class:`~.batch.WorldBatch`: actions are validated as one ``(N, 3)``
+array and observations are written into preallocated ``(N, ...)`` buffers that become the output
+tensors (one copy per key, no per-world dict stacking). For several processes wrap it in TorchRL's
+``MultiSyncCollector`` (``benchmarks/suite.py`` measures both).
 """
 
 from __future__ import annotations
@@ -20,10 +23,9 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
+from .batch import WorldBatch, validate_controls
 from .config import make_config
-from .episode import EpisodeTracker
-from .observations import ego_observation, ego_space, validate_control
-from .world import World
+from .observations import ego_space
 
 _EXTRA = ("route_completion", "v2x_bps")
 
@@ -36,15 +38,10 @@ def _spec(space, n: int, device) -> Composite | Unbounded:
     return Unbounded(shape=(n, *space.shape), dtype=dtype, device=device)
 
 
-def _stack_nested(per_world: list[dict], device) -> dict:
-    """Stack a list of (nested) observation dicts into (nested) tensors."""
-    out = {}
-    for k, v in per_world[0].items():
-        if isinstance(v, dict):
-            out[k] = _stack_nested([o[k] for o in per_world], device)
-        else:
-            out[k] = torch.as_tensor(np.stack([o[k] for o in per_world]), device=device)
-    return out
+def _tensors(buf: dict, device) -> dict:
+    """Copy (nested) ``(N, ...)`` NumPy buffers into (nested) tensors."""
+    return {k: _tensors(v, device) if isinstance(v, dict) else torch.tensor(v, device=device)
+            for k, v in buf.items()}
 
 
 class V2XTorchEnv(EnvBase):
@@ -57,11 +54,11 @@ class V2XTorchEnv(EnvBase):
             raise ValueError(f"num_worlds={num_worlds!r} must be a positive int")
         super().__init__(batch_size=torch.Size([num_worlds]), device=device)
         self.config = make_config(**config)
-        self.worlds = [World(self.config) for _ in range(num_worlds)]
-        self.trackers: list[EpisodeTracker | None] = [None] * num_worlds
+        self.batch = WorldBatch(num_worlds, self.config)
         self._seed_rng = np.random.default_rng(self.config.seed)
-        self._last_obs: list[dict | None] = [None] * num_worlds
+        self._started = np.zeros(num_worlds, bool)
         n = num_worlds
+        self._extra = {k: np.zeros((n, 1), np.float32) for k in _EXTRA}
         obs = _spec(ego_space(self.config), n, self.device)
         for k in _EXTRA:
             obs[k] = Unbounded(shape=(n, 1), dtype=torch.float32, device=self.device)
@@ -73,49 +70,45 @@ class V2XTorchEnv(EnvBase):
         flag = Categorical(n=2, shape=(n, 1), dtype=torch.bool, device=self.device)
         self.done_spec = Composite(done=flag, terminated=flag.clone(), truncated=flag.clone(), shape=(n,))
 
-    def _obs(self, i: int) -> dict:
-        w = self.worlds[i]
-        o = ego_observation(w)
-        o["route_completion"] = np.array([w.monitor.route_completion], np.float32)
-        bytes_sent = w.channel.stats()["bytes_sent_total"]
-        o["v2x_bps"] = np.array([bytes_sent / (w.tick * w.config.dt) if w.tick else 0.0], np.float32)
-        self._last_obs[i] = o
-        return o
+    @property
+    def worlds(self) -> list:
+        """The ``N`` worlds (``self.batch.worlds``)."""
+        return self.batch.worlds
 
-    def _stack(self, per_world: list[dict]) -> dict:
-        return _stack_nested(per_world, self.device)
+    def _outputs(self, rows) -> dict:
+        for i in rows:
+            w = self.batch.worlds[i]
+            self._extra["route_completion"][i, 0] = w.monitor.route_completion
+            bytes_sent = w.channel.stats()["bytes_sent_total"]
+            self._extra["v2x_bps"][i, 0] = bytes_sent / (w.tick * w.config.dt) if w.tick else 0.0
+        return _tensors({**self.batch.obs, **self._extra}, self.device)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         n = self.batch_size[0]
         mask = np.ones(n, bool)
         if tensordict is not None and "_reset" in tensordict.keys():
             mask = tensordict.get("_reset").reshape(n).cpu().numpy().astype(bool)
-        for i in range(n):
-            if mask[i] or self._last_obs[i] is None:
-                self.worlds[i].reset(seed=int(self._seed_rng.integers(2**31)))
-                self.trackers[i] = EpisodeTracker(self.worlds[i])
-                self._obs(i)
-        out = self._stack(self._last_obs)
+        mask |= ~self._started
+        rows = np.flatnonzero(mask)
+        for i in rows:
+            self.batch.reset_world(int(i), int(self._seed_rng.integers(2**31)))
+        self._started |= mask
+        out = self._outputs(rows)
         false = torch.zeros(n, 1, dtype=torch.bool, device=self.device)
         return TensorDict({**out, "done": false, "terminated": false.clone(), "truncated": false.clone()},
                           batch_size=self.batch_size, device=self.device)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        actions = tensordict.get("action").detach().cpu().numpy()
         n = self.batch_size[0]
-        reward = np.zeros((n, 1), np.float32)
-        term = np.zeros((n, 1), bool)
-        trunc = np.zeros((n, 1), bool)
-        for i, w in enumerate(self.worlds):
-            control = validate_control(actions[i], f"action[{i}]")
-            events = w.step(control, w.default_rsu_message())
-            r, te, tr, _ = self.trackers[i].after_step(events)
-            reward[i, 0], term[i, 0], trunc[i, 0] = r, te, tr
-            self._obs(i)
-        out = self._stack(self._last_obs)
+        actions = tensordict.get("action").detach().cpu().numpy()
+        b = self.batch
+        b.step(validate_controls(actions, n))
+        out = self._outputs(range(n))
         t = lambda a: torch.as_tensor(a, device=self.device)  # noqa: E731
-        return TensorDict({**out, "reward": t(reward), "done": t(term | trunc), "terminated": t(term),
-                           "truncated": t(trunc)}, batch_size=self.batch_size, device=self.device)
+        term, trunc = b.terminated.reshape(n, 1).copy(), b.truncated.reshape(n, 1).copy()
+        return TensorDict({**out, "reward": t(b.reward.astype(np.float32).reshape(n, 1)), "done": t(term | trunc),
+                           "terminated": t(term), "truncated": t(trunc)},
+                          batch_size=self.batch_size, device=self.device)
 
     def _set_seed(self, seed: int | None) -> None:
         self._seed_rng = np.random.default_rng(seed)

@@ -50,7 +50,8 @@ def junction_clear(t: ActorTable, town: Town, jid: int, me: int) -> bool:
     """No other vehicle inside junction ``jid`` (and, for a minor-road vehicle at a priority
     junction, none arriving on a major approach within 30 m)."""
     j = town.junctions[jid]
-    veh = t.active & ~t.hold & np.isin(t.behaviour, (EGO, DRIVER, RIDER))  # held: scenario props
+    b = t.behaviour
+    veh = t.active & ~t.hold & ((b == EGO) | (b == DRIVER) | (b == RIDER))  # held: scenario props
     veh[me] = False
     inside = np.linalg.norm(t.pos - j.center, axis=1) < j.radius + 1.0
     if np.any(veh & inside):

@@ -100,16 +100,28 @@ def visible_fraction(
         return np.zeros(0)
     pts = sample_points(boxes, targets).reshape(-1, 3)  # (M*K, 3)
     rel = pts - sensor_pos
-    ok = np.einsum("ij,ij->i", rel, rel) <= float(max_range) ** 2
+    rel2 = np.einsum("ij,ij->i", rel, rel)
+    ok = rel2 <= float(max_range) ** 2
     if hfov is not None and hfov < 2.0 * np.pi:
         bearing = np.arctan2(rel[:, 1], rel[:, 0])
         ok &= np.abs(wrap_angle(bearing - sensor_yaw)) <= 0.5 * hfov
     cand = np.flatnonzero(ok)
     if len(cand):
         extra = np.asarray(ignore, dtype=np.intp).reshape(-1)
-        own = np.repeat(targets, K)[cand, None]  # each point's target box never blocks it
-        ig = np.concatenate([own, np.broadcast_to(extra, (len(cand), len(extra)))], axis=1)
-        blocked = segments_blocked(sensor_pos, pts[cand], boxes, ig, chunk_elems=chunk_elems)
+        own = np.repeat(targets, K)[cand]  # each point's target box never blocks it
+        # Only boxes that reach into the disc swept by the segments can block one: drop the others
+        # (exact: a dropped box cannot intersect any segment, and every kept (segment, box) pair
+        # is computed by the same element-wise operations as without the cut).
+        reach = np.sqrt(np.max(rel2[cand])) + 1.0
+        dc = boxes.center - sensor_pos[:2]
+        radius = 0.5 * np.hypot(boxes.length, boxes.width)
+        keep = np.einsum("ij,ij->i", dc, dc) < (reach + radius) ** 2
+        remap = np.cumsum(keep) - 1
+        remap[~keep] = -1  # ignored boxes that were dropped: nothing to ignore
+        ig = np.empty((len(cand), 1 + len(extra)), np.intp)
+        ig[:, 0] = remap[own]
+        ig[:, 1:] = np.where(extra >= 0, remap[extra], -1)
+        blocked = segments_blocked(sensor_pos, pts[cand], boxes.subset(keep), ig, chunk_elems=chunk_elems)
         ok[cand[blocked]] = False
     return ok.reshape(m, K).mean(axis=1)
 

@@ -297,10 +297,11 @@ class World:
         """All boxes that block sight: active actors (rows first) then static boxes."""
         t = self.table
         s = self.static_boxes
-        return Boxes.from_arrays(
+        n = len(t)
+        return Boxes.trusted(
             np.concatenate([t.pos, s[:, :2]]), np.concatenate([t.length, s[:, 2]]),
             np.concatenate([t.width, s[:, 3]]), np.concatenate([t.yaw, s[:, 4]]),
-            np.concatenate([np.where(t.active, t.height, 0.0), self.static_heights]),
+            np.zeros(n + len(s)), np.concatenate([np.where(t.active, t.height, 0.0), self.static_heights]),
         )
 
     def _perceive(self) -> None:

@@ -346,6 +346,44 @@ class PolylineIndex:
         """Indices into ``points`` of all vertices of the polylines ``candidates``."""
         return np.concatenate([np.arange(self.offset[c], self.offset[c] + self.n_points[c]) for c in candidates])
 
+    def lane_point_ids(self, lane: int) -> np.ndarray:
+        """``point_ids([lane])`` for one polyline, cached (read-only)."""
+        cache = self.__dict__.setdefault("_lane_pids", {})
+        pid = cache.get(lane)
+        if pid is None:
+            pid = np.arange(self.offset[lane], self.offset[lane] + self.n_points[lane])
+            pid.setflags(write=False)
+            cache[lane] = pid
+        return pid
+
+    def project_near(self, xy: np.ndarray, point_ids: np.ndarray, radius: float = 10.0):
+        """:meth:`project` of one query ``xy (2,)`` against ``point_ids``, with the same result,
+        searching first only the points within ``radius`` m on each axis.
+
+        Exact: when the nearest point of that square is closer than ``radius``, every point
+        outside it is farther, so the full search would pick the same vertex (ties go to the
+        first id, and the square keeps ``point_ids`` order). Otherwise it falls back to the full
+        search.
+        """
+        key = id(point_ids)
+        cache = self.__dict__.setdefault("_near_cache", {})
+        entry = cache.get(key)
+        if entry is None or entry[0] is not point_ids:
+            order = np.argsort(self.points[point_ids, 0], kind="stable")
+            entry = (point_ids, order, self.points[point_ids[order], 0])
+            cache[key] = entry
+        _, order, xs = entry
+        x, y = float(xy[0]), float(xy[1])
+        lo, hi = np.searchsorted(xs, (x - radius, x + radius))
+        sub = order[lo:hi]
+        pts = self.points[point_ids[sub]]
+        sub = sub[np.abs(pts[:, 1] - y) <= radius]
+        if len(sub):
+            d2 = ((np.asarray(xy, dtype=np.float64).reshape(1, 2) - self.points[point_ids[sub]]) ** 2).sum(-1)
+            if d2.min() < radius * radius:
+                return self.project(xy, point_ids=point_ids[np.sort(sub)])
+        return self.project(xy, point_ids=point_ids)
+
     def project(self, xy: np.ndarray, candidates: np.ndarray | None = None,
                 point_ids: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Nearest polyline point to each query ``xy (N, 2)``.

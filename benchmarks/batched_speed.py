@@ -1,0 +1,62 @@
+"""Batched agent-steps per second: ``N`` worlds in the native TorchRL env, on up to 2 processes.
+
+``N = 1`` runs in-process (one :class:`V2XTorchEnv` with one world); ``N >= 2`` runs TorchRL's
+``MultiSyncCollector`` with 2 worker processes, each stepping one ``V2XTorchEnv(num_worlds=N/2)``
+with random actions (no policy network). An agent-step is one world advancing one tick with its
+observation written. Collector start-up (process spawn, imports, first reset) is not timed: the
+clock starts at the first batch.
+"""
+
+from __future__ import annotations
+
+import time
+
+
+def _make(n: int, config: dict):
+    from v2xbench.envs.v2x_intersection import V2XTorchEnv
+
+    return lambda: V2XTorchEnv(num_worlds=n, **config)
+
+
+def measure_one(n: int, steps: int, config: dict | None = None) -> dict:
+    """Agent-steps/s for ``n`` worlds with about ``steps`` agent-steps timed."""
+    import torch
+
+    config = dict(config or {})
+    torch.set_num_threads(1)
+    if n == 1:
+        env = _make(1, config)()
+        env.set_seed(0)
+        env.rollout(5)
+        t0 = time.perf_counter()
+        td = env.rollout(steps, break_when_any_done=False)
+        dt = time.perf_counter() - t0
+        return {"worlds": 1, "processes": 1, "agent_steps": int(td.numel()), "seconds": dt,
+                "agent_steps_per_s": td.numel() / dt}
+    from torchrl.collectors import MultiSyncCollector
+
+    per = n // 2
+    frames = max(n * 4, (steps // n) * n)
+    col = MultiSyncCollector([_make(per, config)] * 2, policy=None, frames_per_batch=2 * per * max(4, 128 // per),
+                             total_frames=-1, cat_results="stack")
+    try:
+        it = iter(col)
+        next(it)  # warm-up batch: workers are up and every world has been reset
+        got, t0 = 0, time.perf_counter()
+        while got < frames:
+            got += next(it).numel()
+        dt = time.perf_counter() - t0
+    finally:
+        col.shutdown()
+    return {"worlds": n, "processes": 2, "agent_steps": got, "seconds": dt, "agent_steps_per_s": got / dt}
+
+
+def measure(worlds=(1, 4, 16, 64), steps: int = 2000, config: dict | None = None) -> dict:
+    """One row per ``N`` in ``worlds``."""
+    return {"rows": [measure_one(n, steps, config) for n in worlds], "goal_agent_steps_per_s": 20000.0}
+
+
+if __name__ == "__main__":
+    import json
+
+    print(json.dumps(measure(), indent=2))

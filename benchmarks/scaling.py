@@ -1,0 +1,45 @@
+"""Cost growth: objects-mode ticks/s against the number of actors (10 to 200).
+
+Each row is ``gym.make("V2XIntersection-v0")`` on Town01 with the population scaled to ``A``
+actors in total (ego + 55 % NPC vehicles, 15 % parked, 25 % pedestrians, 5 % bicycles; spawning
+may place fewer when the town is full: the row reports the actors actually active), a constant
+action and the built-in RSU policy, timed over ``steps`` env steps (single process).
+"""
+
+from __future__ import annotations
+
+import time
+
+
+def population(total: int) -> dict:
+    """Config counts for about ``total`` actors including the ego."""
+    a = max(total - 1, 0)
+    veh, parked, peds = round(0.55 * a), round(0.15 * a), round(0.25 * a)
+    return dict(num_vehicles=veh, num_parked=parked, num_pedestrians=peds,
+                num_bicycles=max(a - veh - parked - peds, 0))
+
+
+def measure(actors=(10, 25, 50, 100, 150, 200), steps: int = 300, seed: int = 0) -> dict:
+    import gymnasium as gym
+    import numpy as np
+
+    import v2xbench  # noqa: F401
+
+    rows = []
+    action = np.array([0.3, 0.0, 0.0], np.float32)
+    for total in actors:
+        env = gym.make("V2XIntersection-v0", **population(total))
+        env.reset(seed=seed)
+        active = int(env.unwrapped.world.table.active.sum())
+        for _ in range(5):
+            env.step(action)
+        n, t0, c0 = 0, time.perf_counter(), time.process_time()
+        while n < steps:
+            _, _, term, trunc, _ = env.step(action)
+            n += 1
+            if term or trunc:
+                env.reset(seed=seed + n)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        rows.append({"actors_requested": total, "actors": active, "ticks_per_s": n / wall,
+                     "ticks_per_s_cpu": n / cpu, "ms_per_tick": 1e3 * wall / n})
+    return {"rows": rows}

@@ -1,0 +1,200 @@
+"""``N`` worlds stepped as one batch, with observations in preallocated ``(N, ...)`` arrays.
+
+:class:`WorldBatch` is the core of the batched APIs: the native TorchRL env
+(:class:`~.torchrl_env.V2XTorchEnv`) and the Gymnasium vector env (:class:`V2XVectorEnv`, what
+``gym.make_vec("V2XIntersection-v0", num_envs=N)`` returns). Per tick it
+
+1. validates all ``(N, 3)`` actions at once (same checks and clipping as the single env);
+2. advances every world by one tick with its built-in RSU policy (``World.step``, the fixed step
+   order of :mod:`.world`);
+3. writes each world's observation into row ``i`` of the batch buffers (no per-step stacking of
+   dicts) and fills ``(N,)`` reward / terminated / truncated arrays.
+
+A batch of ``N`` worlds gives exactly the observations, rewards and flags of ``N`` single
+:class:`~.gym_env.V2XIntersectionEnv` s reset with the same seeds and driven with the same actions
+(``tests/test_batch.py``).
+
+What is vectorized across worlds in this version: action validation, the reward/flag arrays and
+the observation buffers. The world tick itself (traffic, pedestrians, scenarios, perception) runs
+world after world; ``benchmarks/`` measures where the time goes.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from .config import make_config
+from .episode import EpisodeTracker
+from .observations import ego_action_space, ego_observation, ego_space
+from .world import StepError, World
+
+_LOW = np.array([0.0, -1.0, 0.0])
+_HIGH = np.array([1.0, 1.0, 1.0])
+
+
+def validate_controls(actions, n: int) -> np.ndarray:
+    """Check ``(n, 3)`` ego controls and clip them into range (``validate_control`` per row)."""
+    a = np.asarray(actions)
+    if a.dtype.kind not in "fiu":
+        raise ValueError(f"actions: expected a numeric array of shape ({n}, 3), got dtype {a.dtype}")
+    if a.shape != (n, 3):
+        raise ValueError(f"actions: expected shape ({n}, 3) = (throttle, steer, brake) per world, got {a.shape}")
+    a = a.astype(np.float64)
+    bad = ~np.isfinite(a).all(axis=1)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"action[{i}]: contains NaN or inf: {a[i].tolist()}")
+    return np.clip(a, _LOW, _HIGH)
+
+
+def _alloc(space: gym.Space, n: int):
+    if isinstance(space, gym.spaces.Dict):
+        return {k: _alloc(v, n) for k, v in space.spaces.items()}
+    return np.zeros((n, *space.shape), space.dtype)
+
+
+def _write(buf, obs, i: int) -> None:
+    for k, v in obs.items():
+        if isinstance(v, dict):
+            _write(buf[k], v, i)
+        else:
+            buf[k][i] = v
+
+
+def _copy(buf):
+    return {k: _copy(v) if isinstance(v, dict) else v.copy() for k, v in buf.items()}
+
+
+class WorldBatch:
+    """``N`` :class:`~.world.World` s with shared ``(N, ...)`` observation buffers.
+
+    Attributes:
+        worlds: the worlds. trackers: their :class:`~.episode.EpisodeTracker` (``None`` before the
+            first reset). obs: nested dict of ``(N, ...)`` arrays (``observations.ego_space``
+            layout), row ``i`` = world ``i``'s observation of its current tick.
+        reward, terminated, truncated: ``(N,)`` results of the last :meth:`step`.
+        infos: per-world info dicts of the last reset/step (``episode.EpisodeTracker.info``).
+    """
+
+    def __init__(self, num_worlds: int, config=None, **kwargs: Any) -> None:
+        if not isinstance(num_worlds, int) or isinstance(num_worlds, bool) or num_worlds < 1:
+            raise ValueError(f"num_worlds={num_worlds!r} must be a positive int")
+        self.config = make_config(config, **kwargs)
+        self.n = num_worlds
+        self.worlds = [World(self.config) for _ in range(num_worlds)]
+        self.trackers: list[EpisodeTracker | None] = [None] * num_worlds
+        self.space = ego_space(self.config)
+        self.obs = _alloc(self.space, num_worlds)
+        self.reward = np.zeros(num_worlds, np.float64)
+        self.terminated = np.zeros(num_worlds, bool)
+        self.truncated = np.zeros(num_worlds, bool)
+        self.infos: list[dict] = [{} for _ in range(num_worlds)]
+
+    def reset_world(self, i: int, seed: int | None = None, **episode: Any) -> None:
+        """Reset world ``i`` (``episode``: ``route``/``scenarios``/``spec`` of ``World.reset``)."""
+        w = self.worlds[i]
+        w.reset(seed=seed, **episode)
+        self.trackers[i] = EpisodeTracker(w)
+        _write(self.obs, ego_observation(w), i)
+        self.reward[i], self.terminated[i], self.truncated[i] = 0.0, False, False
+        self.infos[i] = self.trackers[i].info()
+
+    def reset(self, seeds, mask=None) -> None:
+        """Reset the worlds where ``mask (N,)`` is true (all by default) with ``seeds[i]``."""
+        mask = np.ones(self.n, bool) if mask is None else np.asarray(mask, bool).reshape(self.n)
+        for i in np.flatnonzero(mask):
+            self.reset_world(int(i), None if seeds[i] is None else int(seeds[i]))
+
+    def step(self, actions, active=None) -> None:
+        """Advance the worlds (those where ``active (N,)`` is true; all by default) by one tick.
+
+        Raises:
+            ValueError: bad actions (shape, dtype, NaN/inf; out-of-range values are clipped).
+            StepError: a world to step was never reset (``World.step`` also raises for a world
+                that has ended; the episode tracker's own end is left to the caller's resets).
+        """
+        controls = validate_controls(actions, self.n)
+        idx = range(self.n) if active is None else np.flatnonzero(np.asarray(active, bool))
+        for i in idx:
+            tr = self.trackers[i]
+            if tr is None:
+                raise StepError(f"world {i}: step() called before reset()")
+            w = self.worlds[i]
+            events = w.step(controls[i], w.default_rsu_message())
+            r, te, tc, info = tr.after_step(events)
+            self.reward[i], self.terminated[i], self.truncated[i] = r, te, tc
+            self.infos[i] = info
+            _write(self.obs, ego_observation(w), i)
+
+    def copy_obs(self) -> dict:
+        """A copy of the observation buffers (the buffers are overwritten by the next step)."""
+        return _copy(self.obs)
+
+
+class V2XVectorEnv(VectorEnv):
+    """Gymnasium vector env over a :class:`WorldBatch` (``gym.make_vec``'s vector entry point).
+
+    ``gym.make_vec("V2XIntersection-v0", num_envs=N, **config)`` builds it (``vectorization_mode``
+    ``"sync"``/``"async"`` still give Gymnasium's wrappers of ``N`` single envs). Autoreset is
+    Gymnasium's default ``NEXT_STEP`` mode: the step after an episode ends resets that world
+    (reward 0, not done) and ignores its action. Seeding: ``reset(seed=s)`` resets world ``i``
+    with seed ``s + i`` (a list gives each world its own); the same seeds make the same episodes
+    as single envs. Infos are Gymnasium's batched dicts (``info[key]`` arrays plus ``_key``
+    masks).
+    """
+
+    metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def __init__(self, num_envs: int = 1, render_mode: str | None = None, **config: Any) -> None:
+        if render_mode is not None:
+            raise ValueError("V2XVectorEnv does not render; use gym.make for render_mode='rgb_array'")
+        self.batch = WorldBatch(num_envs, **config)
+        self.num_envs = num_envs
+        self.config = self.batch.config
+        self.single_observation_space = self.batch.space
+        self.single_action_space = ego_action_space()
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.action_space = batch_space(self.single_action_space, num_envs)
+        self.render_mode = None
+        self._autoreset = np.zeros(num_envs, bool)
+        self._seed_rng = np.random.default_rng(self.config.seed)
+
+    def _infos(self) -> dict:
+        infos: dict = {}
+        for i, info in enumerate(self.batch.infos):
+            infos = self._add_info(infos, info, i)
+        return infos
+
+    def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
+        n = self.num_envs
+        if seed is None:
+            seeds = [int(s) for s in self._seed_rng.integers(2**31, size=n)]
+        elif isinstance(seed, int):
+            seeds = [seed + i for i in range(n)]
+        else:
+            if len(seed) != n:
+                raise ValueError(f"reset: {len(seed)} seeds for {n} worlds")
+            seeds = [int(s) if s is not None else int(self._seed_rng.integers(2**31)) for s in seed]
+        mask = None
+        if options is not None and "reset_mask" in options:
+            mask = np.asarray(options["reset_mask"], bool)
+        self.batch.reset(seeds, mask)
+        self._autoreset[:] = False if mask is None else self._autoreset & ~mask
+        return self.batch.copy_obs(), self._infos()
+
+    def step(self, actions):
+        b = self.batch
+        again = self._autoreset.copy()
+        b.step(actions, active=~again)
+        for i in np.flatnonzero(again):
+            b.reset_world(int(i), int(self._seed_rng.integers(2**31)))
+        self._autoreset = b.terminated | b.truncated
+        return (b.copy_obs(), b.reward.copy(), b.terminated.copy(), b.truncated.copy(), self._infos())
+
+
+__all__ = ["V2XVectorEnv", "WorldBatch", "validate_controls"]

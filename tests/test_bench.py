@@ -1,0 +1,62 @@
+"""The benchmark suite's report plumbing (table, plot, README update) on a synthetic report.
+
+No timing is asserted here: ``.ci/run`` runs ``v2xbench bench --quick`` as a smoke test.
+"""
+
+from __future__ import annotations
+
+import pytest
+from v2xbench.benchmarks import suite
+
+
+def _report() -> dict:
+    parts = {k: {"wall_ms": 1.0} for k in ("full_rig", "scene", "ego_cameras_batched", "lidar", "bev")}
+    return {
+        "date": "2026-01-01 00:00 UTC", "machine": "test machine", "quick": False,
+        "results": {
+            "objects": {"results": {
+                "v2xbench_objects": {"steps_per_s": 5000.0, "actors": 56, "scenarios": ["ParkingExit"]},
+                "intersection-v0": {"steps_per_s": 6.0, "frames_per_step": 15, "ratio_v2xbench_to_this": 833.0,
+                                    "sim_time_ratio": 83.3},
+                "highway-fast-v0": {"steps_per_s": 12.0, "frames_per_step": 5, "ratio_v2xbench_to_this": 416.0,
+                                    "sim_time_ratio": 41.6},
+            }},
+            "sensors": {"parts": parts, "full_rig_ticks_per_s": 80.0},
+            "batched": {"rows": [{"worlds": 1, "agent_steps_per_s": 900.0},
+                                 {"worlds": 64, "agent_steps_per_s": 25000.0}]},
+            "eval": {"seconds": 420.0, "returncode": 0},
+            "scaling": {"rows": [{"actors": 10, "ticks_per_s": 900.0}, {"actors": 200, "ticks_per_s": 300.0}]},
+            "memory": {"resets": 10000, "rss_start_mib": 400.0, "rss_end_mib": 401.0, "rss_max_mib": 402.0,
+                       "growth_second_half_mib": 0.5, "trace": [(0, 400.0), (10000, 401.0)]},
+        },
+    }
+
+
+def test_table_marks_targets_met_and_missed():
+    md = suite.table(_report())
+    lines = {ln.split("|")[1].strip(): ln for ln in md.splitlines() if ln.startswith("| ")}
+    assert "test machine" in md and "2026-01-01" in md
+    assert next(v for k, v in lines.items() if k.startswith("objects mode")).rstrip(" |").endswith("met")
+    assert next(v for k, v in lines.items() if k.startswith("sensors mode")).rstrip(" |").endswith("missed")
+    assert next(v for k, v in lines.items() if k.startswith("batched")).rstrip(" |").endswith("met")
+    assert "7.0 min" in md
+
+
+def test_plot_and_readme_update(tmp_path):
+    png = tmp_path / "suite.png"
+    suite.plot(_report(), png)
+    assert png.stat().st_size > 1000
+    readme = tmp_path / "README.md"
+    readme.write_text(f"# x\n\nbefore\n{suite.BEGIN}\nold table\n{suite.END}\nafter\n")
+    suite.update_readme(readme, "NEW TABLE\n", "docs/media/bench_suite.png")
+    text = readme.read_text()
+    assert "NEW TABLE" in text and "old table" not in text and text.endswith("after\n")
+    assert text.count(suite.BEGIN) == 1 and "bench_suite.png" in text
+    readme.write_text("no markers")
+    with pytest.raises(ValueError, match="bench:begin"):
+        suite.update_readme(readme, "x", None)
+
+
+def test_unknown_row_is_an_error():
+    with pytest.raises(ValueError, match="unknown row"):
+        suite.run_rows(("nope",), quick=True)

@@ -239,3 +239,30 @@ def test_lost_claim_is_recovered_when_all_workers_idle(suite, tmp_path):
     env_fn = make_env_factory(suite=suite, out=str(out), agent="route_follower", jobs=jobs, config=CFG)
     _run(env_fn, copy_policy(), 1, 32, out, jobs, 0, False, "rf")  # returns once both have results
     assert J.count_results(out, jobs) == 2
+
+
+def test_tensordict_policy_agent_drives_through_the_interface():
+    import gymnasium as gym
+    import torch
+    from tensordict.nn import TensorDictModule
+    from v2xbench.agents.interface import to_control
+    from v2xbench.agents.torchrl_policy import TensorDictPolicyAgent
+
+    torch.manual_seed(0)
+    env = gym.make("v2xbench:V2XIntersection-v0", num_vehicles=2, num_pedestrians=0)
+    obs, _ = env.reset(seed=0)
+    net = torch.nn.Linear(obs["ego"].shape[0], 3)
+    agent = TensorDictPolicyAgent(TensorDictModule(net, in_keys=["ego"], out_keys=["action"]))
+    agent.reset({})
+    a = agent.act(obs)
+    expect = net(torch.as_tensor(obs["ego"]).float()).detach().numpy()
+    assert a.shape == (3,) and np.allclose(a, expect, atol=1e-6)
+    env.step(np.clip(to_control(a, obs), [0, -1, 0], [1, 1, 1]))
+    wp = TensorDictPolicyAgent(TensorDictModule(torch.nn.Linear(obs["ego"].shape[0], 16), in_keys=["ego"],
+                                                out_keys=["action"]), waypoints=True)
+    out = wp.act(obs)
+    assert out["waypoints"].shape == (8, 2) and to_control(out, obs).shape == (3,)
+    bad = TensorDictPolicyAgent(TensorDictModule(torch.nn.Linear(obs["ego"].shape[0], 3), in_keys=["ego"],
+                                                 out_keys=["other"]))
+    with pytest.raises(KeyError, match="action"):
+        bad.act(obs)

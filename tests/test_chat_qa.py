@@ -202,3 +202,14 @@ def test_scoring(qa, tiny_dataset, tmp_path, capsys):
     assert main(["qa", "score", str(tiny_dataset), str(pred)]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["missing"] == len(qa) - 5
+
+
+def test_show_keyframe(qa, tiny_dataset, tmp_path, capsys):
+    from PIL import Image
+
+    out = tmp_path / "kf.png"
+    assert main(["qa", "show", str(tiny_dataset), "--out", str(out), "--scale", "2"]) == 0
+    md = capsys.readouterr().out
+    assert "| alignment | rsu_to_ego |" in md and "Prompt context" in md
+    w, h = Image.open(out).size
+    assert w > 3 * 64 and h > 3 * 32

@@ -153,3 +153,15 @@ def test_perturbed_frames_keep_the_expert_label(tmp_path, monkeypatch):
     assert (diff[noisy] > 0).all() and (diff[~noisy] == 0).all()
     meta = json.loads((shards_dir(tmp_path) / "train_000_s0" / "shard.json").read_text())
     assert sum(e[1] for e in meta["perturbations"]) >= int(noisy.sum())
+
+
+def test_cli_collect_and_validate(tmp_path, capsys):
+    out = tmp_path / "cli"
+    args = ["collect", "--scale", "tiny", "--max-routes", "1", "--max-ticks", "12", "--camera-size", "16x8",
+            "--lidar-scale", "0.25", "--sensors", "rgb", "--out", str(out), "--quiet"]
+    assert main(args) == 0
+    assert "1/1 episodes, 13 frames, 2 keyframes" in capsys.readouterr().out
+    assert main(["data", "validate", str(out)]) == 0
+    other = [a if a != "16x8" else "32x16" for a in args]
+    assert main(other) == 2  # a resume with other settings is refused
+    assert main(["collect", "--sensors", "radar", "--out", str(tmp_path / "x"), "--quiet"]) == 2

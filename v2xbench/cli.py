@@ -160,7 +160,8 @@ def _collect(args: argparse.Namespace) -> int:
     sensors = tuple(s for s in args.sensors.split(",") if s) if args.sensors is not None else None
     cfg = CollectConfig.for_scale(args.scale, suite=args.suite, seeds=args.seeds, max_routes=args.max_routes,
                                   max_ticks=args.max_ticks, sensors=sensors, camera_size=size,
-                                  perturb=False if args.no_perturb else None, env=_parse_set(args.set) or None)
+                                  perturb=False if args.no_perturb else None, env=_parse_set(args.set) or None,
+                                  val_fraction=args.val_fraction, lidar_scale=args.lidar_scale)
     t0 = time.perf_counter()
     man = collect(cfg, args.out, workers=args.workers, progress=not args.quiet, max_episodes=args.max_episodes)
     frames = sum(s["frames"] for s in man["shards"].values())
@@ -205,6 +206,14 @@ def _qa_stats(args: argparse.Namespace) -> int:
 
     st = stats(load_items(args.path))
     print(json.dumps(st, indent=1) if args.json else stats_text(st))
+    return 0
+
+
+def _qa_show(args: argparse.Namespace) -> int:
+    from v2xbench.collectors.chat.show import show
+
+    print(show(args.root, args.out, args.keyframe, args.scale))
+    print(f"\nwrote {args.out}")
     return 0
 
 
@@ -291,6 +300,10 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument("--sensors", default=None,
                     help="comma list stored every tick, of rgb,depth,semantic,lidar,bev (default rgb,bev)")
     co.add_argument("--camera-size", default=None, help="WxH of the 7 cameras (default 128x64)")
+    co.add_argument("--lidar-scale", type=float, default=None,
+                    help="fraction of the default LiDAR channels/azimuths (faster, coarser GT visibility)")
+    co.add_argument("--val-fraction", type=float, default=None,
+                    help="share of train-suite routes held out as the val split (default 0.1)")
     co.add_argument("--no-perturb", action="store_true", help="no recovery noise")
     co.add_argument("--set", action="append", metavar="KEY=VALUE", help="environment config override (repeatable)")
     co.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -312,6 +325,12 @@ def build_parser() -> argparse.ArgumentParser:
     qs.add_argument("path", help="data set folder or qa.jsonl")
     qs.add_argument("--json", action="store_true")
     qs.set_defaults(func=_qa_stats)
+    qw = qas.add_parser("show", help="mosaic of a keyframe's 7 camera images + its QA pairs (Markdown)")
+    qw.add_argument("root", help="data set folder (after `qa build`)")
+    qw.add_argument("--out", default="keyframe.png")
+    qw.add_argument("--keyframe", default=None, help="<episode>_t<tick> (default: the most informative)")
+    qw.add_argument("--scale", type=int, default=3, help="image upscaling factor")
+    qw.set_defaults(func=_qa_show)
     qc = qas.add_parser("score", help="score predicted answers (JSONL of {id, answer}) against the reference")
     qc.add_argument("reference", help="data set folder or qa.jsonl")
     qc.add_argument("predictions", help="JSONL with one {\"id\", \"answer\"} per line")

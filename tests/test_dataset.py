@@ -165,3 +165,19 @@ def test_cli_collect_and_validate(tmp_path, capsys):
     other = [a if a != "16x8" else "32x16" for a in args]
     assert main(other) == 2  # a resume with other settings is refused
     assert main(["collect", "--sensors", "radar", "--out", str(tmp_path / "x"), "--quiet"]) == 2
+
+
+def test_failed_episode_is_recorded_and_retried(tmp_path, monkeypatch):
+    cfg = CollectConfig(max_routes=1, max_ticks=5, camera_size=(16, 8), lidar_scale=0.25, sensors=())
+
+    def broken(self, world):
+        raise RuntimeError("sensor fault")
+
+    real = SensorRig.capture
+    monkeypatch.setattr(SensorRig, "capture", broken)
+    man = collect(cfg, tmp_path, progress=False)
+    assert man["failed"] == {"train_000_s0": "RuntimeError: sensor fault"} and not man["complete"]
+    assert validate(tmp_path)["pending"] == ["train_000_s0"] and validate(tmp_path)["temporary"] == []
+    monkeypatch.setattr(SensorRig, "capture", real)
+    man = collect(cfg, tmp_path, progress=False)
+    assert man["failed"] == {} and man["complete"] and validate(tmp_path)["temporary"] == []

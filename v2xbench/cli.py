@@ -167,6 +167,8 @@ def _collect(args: argparse.Namespace) -> int:
     frames = sum(s["frames"] for s in man["shards"].values())
     keyframes = sum(s["keyframes"] for s in man["shards"].values())
     state = "complete" if man.get("complete") else f"{len(man['episodes']) - len(man['shards'])} episodes pending"
+    for sid, err in man.get("failed", {}).items():
+        print(f"FAILED {sid}: {err}", file=sys.stderr)
     print(f"{len(man['shards'])}/{len(man['episodes'])} episodes, {frames} frames, {keyframes} keyframes "
           f"in {args.out} ({state}; this run {time.perf_counter() - t0:.0f} s)")
     return 0

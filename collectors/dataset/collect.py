@@ -5,7 +5,8 @@ index) job of the suite (``collectors.jobs``: same ids and world seeds as the ev
 each episode into one shard (:mod:`.shards`), recorded at 10 Hz (:mod:`.record`) with keyframe
 facts and the seven camera images every ``KEYFRAME_EVERY`` ticks (:mod:`..chat.facts`).
 
-Resuming: running again on the same root skips finished shards, removes temporary folders of
+An episode that raises (world or expert) is recorded under ``failed`` in the manifest with its
+error, and the others go on; a later run retries it. Resuming: running again on the same root skips finished shards, removes temporary folders of
 interrupted episodes and re-runs them from their seed; episodes are deterministic (world seed,
 expert, perturbation seed), so a resumed collection has the same content as an uninterrupted one.
 The settings are stored in ``manifest.json`` and must match on resume.
@@ -18,7 +19,7 @@ paper's ~500 runs).
 from __future__ import annotations
 
 import dataclasses
-import os
+import shutil
 import time
 import zlib
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -151,37 +152,10 @@ def _save_images(frame: dict, tmp: Path, root_rel: str, tick: int) -> dict[str, 
     return out
 
 
-def run_episode(cfg: CollectConfig, job: J.Job, root: str | Path) -> dict:
-    """Drive one job with the expert and write its shard; returns the shard's metadata."""
-    import torch
-    from tensordict import TensorDict
-    from v2xbench.agents.expert import Expert
-    from v2xbench.envs.v2x_intersection.config import make_config
-    from v2xbench.envs.v2x_intersection.episode import EpisodeTracker
-    from v2xbench.envs.v2x_intersection.route_files import load_suite_cached
-    from v2xbench.envs.v2x_intersection.world import World
-
+def _drive(cfg, world, expert, tracker, cap, rig, rcfg, perturber, tmp, rel, episode):
+    """Step one episode; returns ``(frame records, keyframe facts, how it ended)``."""
     from ..chat.facts import keyframe_facts
-    from .record import reason_code  # noqa: F401  (documented with the record)
 
-    torch.set_num_threads(1)
-    t0 = time.perf_counter()
-    spec = load_suite_cached(cfg.suite)[job.route_index]
-    seed = J.job_seed(spec.seed, job.seed_index)
-    world = World(make_config(town=spec.town, obs_mode="objects", **cfg.env))
-    world.reset(seed=seed, spec=spec)
-    expert = Expert()
-    expert.bind(world)
-    expert.reset({})
-    tracker = EpisodeTracker(world)
-    cap = tracker.max_steps if cfg.max_ticks is None else min(cfg.max_ticks, tracker.max_steps)
-    rig = _rig(cfg)
-    rcfg = RecordConfig(tuple(cfg.sensors), cfg.max_boxes)
-    perturber = Perturber(PerturbConfig() if cfg.perturb else None, seed, world.config.dt)
-    tmp = temp_shard(root, job.job_id)
-    rel = f"shards/{job.job_id}"
-    episode = {"episode": job.job_id, "route_id": spec.id, "town": spec.town,
-               "scenarios": [s.type for s in spec.scenarios]}
     rows, keyframes = [], []
     history: dict = {"speed": {}, "command": {}}
     ended = "max_ticks"
@@ -209,6 +183,43 @@ def run_episode(cfg: CollectConfig, job: J.Job, root: str | Path) -> dict:
             frame = rig.capture(world)
             rows.append(frame_record(world, frame, expert, control, False, rcfg))
             break
+    return rows, keyframes, ended
+
+
+def run_episode(cfg: CollectConfig, job: J.Job, root: str | Path) -> dict:
+    """Drive one job with the expert and write its shard; returns the shard's metadata."""
+    import torch
+    from tensordict import TensorDict
+    from v2xbench.agents.expert import Expert
+    from v2xbench.envs.v2x_intersection.config import make_config
+    from v2xbench.envs.v2x_intersection.episode import EpisodeTracker
+    from v2xbench.envs.v2x_intersection.route_files import load_suite_cached
+    from v2xbench.envs.v2x_intersection.world import World
+
+    torch.set_num_threads(1)
+    t0 = time.perf_counter()
+    spec = load_suite_cached(cfg.suite)[job.route_index]
+    seed = J.job_seed(spec.seed, job.seed_index)
+    world = World(make_config(town=spec.town, obs_mode="objects", **cfg.env))
+    world.reset(seed=seed, spec=spec)
+    expert = Expert()
+    expert.bind(world)
+    expert.reset({})
+    tracker = EpisodeTracker(world)
+    cap = tracker.max_steps if cfg.max_ticks is None else min(cfg.max_ticks, tracker.max_steps)
+    rig = _rig(cfg)
+    rcfg = RecordConfig(tuple(cfg.sensors), cfg.max_boxes)
+    perturber = Perturber(PerturbConfig() if cfg.perturb else None, seed, world.config.dt)
+    tmp = temp_shard(root, job.job_id)
+    rel = f"shards/{job.job_id}"
+    episode = {"episode": job.job_id, "route_id": spec.id, "town": spec.town,
+               "scenarios": [s.type for s in spec.scenarios]}
+    try:
+        rows, keyframes, ended = _drive(cfg, world, expert, tracker, cap, rig, rcfg, perturber, tmp, rel,
+                                        episode)
+    except Exception:
+        shutil.rmtree(tmp, ignore_errors=True)  # a failed episode leaves nothing behind
+        raise
     data = _stack(rows)
     td = TensorDict(data, batch_size=[len(rows)])
     td.memmap_(tmp / "data")
@@ -292,7 +303,7 @@ def collect(cfg: CollectConfig, root: str | Path, workers: int = 1, progress: bo
     for sid, meta in done.items():
         shard_info.setdefault(sid, _summary(meta))
     manifest = {"format": MANIFEST_FORMAT, "config": cfg.to_json(), "episodes": [j.job_id for j in jobs],
-                "shards": {k: v for k, v in shard_info.items() if k in done}}
+                "shards": {k: v for k, v in shard_info.items() if k in done}, "failed": {}}
     write_json_atomic(manifest, man_path)
     todo = [j for j in jobs if j.job_id not in done]
     if max_episodes is not None:
@@ -306,20 +317,37 @@ def collect(cfg: CollectConfig, root: str | Path, workers: int = 1, progress: bo
 
     def record(meta: dict) -> None:
         manifest["shards"][meta["episode"]] = _summary(meta)
+        manifest["failed"].pop(meta["episode"], None)
         write_json_atomic(manifest, man_path)
         if bar is not None:
             frames = sum(s["frames"] for s in manifest["shards"].values())
             bar.update(1)
             bar.set_postfix(frames=frames)
 
+    def failed(job: J.Job, e: Exception) -> None:
+        manifest["failed"][job.job_id] = f"{type(e).__name__}: {e}"
+        write_json_atomic(manifest, man_path)
+        if bar is not None:
+            bar.update(1)
+
     if workers <= 1 or len(todo) <= 1:
         for job in todo:
-            record(dict(run_episode(cfg, job, root), episode=job.job_id))
+            try:
+                meta = run_episode(cfg, job, root)
+            except Exception as e:  # noqa: BLE001  (an episode's failure is recorded; the rest go on)
+                failed(job, e)
+                continue
+            record(dict(meta, episode=job.job_id))
     else:
         with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as ex:
             futs = {ex.submit(run_episode, cfg, job, str(root)): job for job in todo}
             for fut in as_completed(futs):
-                record(dict(fut.result(), episode=futs[fut].job_id))
+                try:
+                    meta = fut.result()
+                except Exception as e:  # noqa: BLE001
+                    failed(futs[fut], e)
+                    continue
+                record(dict(meta, episode=futs[fut].job_id))
     if bar is not None:
         bar.close()
     manifest["complete"] = all(j.job_id in manifest["shards"] for j in jobs)
@@ -327,10 +355,5 @@ def collect(cfg: CollectConfig, root: str | Path, workers: int = 1, progress: bo
     return manifest
 
 
-def default_workers() -> int:
-    """Worker processes to use when not told: the CPU count, at most 2."""
-    return max(1, min(2, os.cpu_count() or 1))
-
-
-__all__ = ["SCALES", "SENSORS", "CollectConfig", "collect", "default_workers", "route_split",
+__all__ = ["SCALES", "SENSORS", "CollectConfig", "collect", "route_split",
            "run_episode"]

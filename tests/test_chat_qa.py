@@ -143,6 +143,8 @@ def test_descriptive_answers_agree_with_the_facts(qa, tiny_dataset):
         elif it["type"] == "behavior":
             assert closed_label("speed_decision", it["answer"]) == it["label"]["speed_decision"]
             assert ("reason", it["label"]["reason"]) in slots(it["answer"])
+            if it["label"]["speed_decision"] in ("accelerate", "keep"):  # never "... because it is red"
+                assert it["label"]["reason"] in ("free", "follow", "clear_until", "other")
         elif it["type"] == "critical_objects":
             for o in it["label"]["objects"]:
                 assert f"#{o['id']}" in it["answer"] and f"({o['x']:.1f}, {o['y']:.1f})" in it["answer"]

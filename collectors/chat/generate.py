@@ -13,7 +13,9 @@ perception  critical_objects    descriptive  up to two fused objects by risk (fa
 alignment   rsu_to_ego          coordinate   exact rigid transform RSU camera -> ego
 planning    speed_decision      closed       expert's planned speeds
 planning    path_decision       closed       route command ahead / nudge
-planning    behavior            descriptive  speed + path decision + expert's binding reason
+planning    behavior            descriptive  speed + path decision + the reason that explains
+                                             it (:func:`effective_reason` of the expert's
+                                             binding constraint)
 planning    previous_command    closed       logged navigation command at tick - 1
 planning    speed_trend         closed       logged speeds at tick and tick - 10
 =========== =================== ============ ===============================================
@@ -123,8 +125,11 @@ def _critical(f: dict, rng) -> tuple[str, dict]:
     if not crit:
         return _pick(rng, T.CRIT_NONE), {"objects": []}
     parts = []
-    for o in crit:
-        impact = T.IMPACT[o["impact"]].format(m=o["closest_m"], s=o["closest_s"], gap=o["path_gap"] or 0.0)
+    for k, o in enumerate(crit):
+        key = "collision_risk_behind" if o["impact"] == "collision_risk" and o["x"] < 0 else o["impact"]
+        impact = T.IMPACT[key].format(m=o["closest_m"], s=o["closest_s"], gap=o["path_gap"] or 0.0)
+        if k == 0 and o["impact"] != "monitor":
+            impact += T.RESPONSE.get(f["plan"]["speed_decision"], "")
         cls = T.CLASS[o["class"]]
         parts.append(_pick(rng, T.CRIT_ONE).format(cls=cls, Cls=_cap(cls), id=o["id"], x=o["x"], y=o["y"],
                                                    motion=T.MOTION[o["motion"]], v=o["speed"],
@@ -134,15 +139,34 @@ def _critical(f: dict, rng) -> tuple[str, dict]:
     return " ".join(parts), slots
 
 
+def effective_reason(decision: str, constraint: str) -> str:
+    """The reason that explains a speed decision (the expert's binding constraint, re-read).
+
+    A stop-type constraint (light, sign, yield, conflict) explains decelerating or stopping; while
+    the ego still accelerates or keeps its speed it only bounds how far the way is clear
+    (``clear_until``). A leader explains slowing down; otherwise the ego follows it (``follow``).
+    A free road explains accelerating or keeping; slowing on a free road is a ``slow_zone``.
+    """
+    slowing = decision in ("decelerate", "stop")
+    if constraint in T.STOP_THINGS:
+        return constraint if slowing else "clear_until"
+    if constraint == "leader":
+        return "leader" if slowing else "follow"
+    if constraint == "free":
+        return "slow_zone" if slowing else "free"
+    return "other"
+
+
 def _behavior(f: dict, rng) -> tuple[str, dict]:
     p = f["plan"]
     top = f["critical"][0] if f["critical"] else None
     cls = T.CLASS[top["class"]] if top else ("vehicle" if p["reason"] == "leader" else "road user")
-    reason = T.REASON.get(p["reason"], T.REASON["other"]).format(cls=cls)
+    why = effective_reason(p["speed_decision"], p["reason"])
+    reason = T.REASON[why].format(cls=cls, what=T.STOP_THINGS.get(p["reason"], ""))
     speed, path = T.SPEED[p["speed_decision"]], T.PATH[p["path_decision"]]
     text = _pick(rng, T.BEHAVIOR).format(speed=speed, Speed=_cap(speed), path=path, reason=reason)
     return text, {"speed_decision": p["speed_decision"], "path_decision": p["path_decision"],
-                  "reason": p["reason"]}
+                  "reason": why, "constraint": p["reason"]}
 
 
 def _closed(kind: str, value: str, rng) -> str:
@@ -188,4 +212,5 @@ def keyframe_qa(f: dict, seed: int = 0) -> list[dict]:
     return out
 
 
-__all__ = ["CAMERA_ORDER", "LEVELS", "TYPES", "context_text", "keyframe_id", "keyframe_qa"]
+__all__ = ["CAMERA_ORDER", "LEVELS", "TYPES", "context_text", "effective_reason", "keyframe_id",
+           "keyframe_qa"]

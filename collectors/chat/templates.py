@@ -103,20 +103,27 @@ CRIT_ONE = (
     "{Cls} #{id}: located at ({x:.1f}, {y:.1f}) m in the ego frame, {motion} ({v:.1f} m/s), {seen}. Impact: {impact}.",
 )
 IMPACT = {
-    "collision_risk": "collision risk: it comes within {m:.1f} m of the ego in about {s:.1f} s, so the ego must yield or brake",
-    "in_path": "it is in the ego's path {gap:.0f} m ahead, so the ego must keep a safe distance",
-    "monitor": "it is close to the ego's path but poses no immediate conflict, so the ego should monitor it",
+    "collision_risk": "it comes within {m:.1f} m of the ego in about {s:.1f} s (collision risk)",
+    "collision_risk_behind": "it closes in from behind, within {m:.1f} m of the ego in about {s:.1f} s (collision risk)",
+    "in_path": "it is in the ego's path {gap:.0f} m ahead",
+    "monitor": "it is near the ego's path with no immediate conflict, so the ego monitors it",
 }
-REASON = {  # clauses: "because <reason>"
+RESPONSE = {"decelerate": ", so the ego slows down", "stop": ", so the ego stops"}
+REASON = {  # clauses: "because <reason>"; keys are the behaviour's effective reasons
     "free": "the road ahead is clear",
     "leader": "a slower {cls} is ahead in the same lane",
+    "follow": "it follows the {cls} ahead at a safe gap",
     "red": "the traffic light ahead is red",
     "yellow": "the traffic light ahead is yellow",
     "stop_sign": "there is a stop sign at the junction ahead",
     "yield": "the ego must yield to crossing traffic at the junction",
     "conflict": "a {cls} is predicted to cross the ego's path",
+    "clear_until": "the way is clear up to the {what} ahead",
+    "slow_zone": "a curve or a lower speed limit is ahead",
     "other": "of the current traffic situation",
 }
+STOP_THINGS = {"red": "red light", "yellow": "yellow light", "stop_sign": "stop sign",
+               "yield": "junction", "conflict": "conflict zone"}
 BEHAVIOR = (
     "The ego should {speed} and {path}, because {reason}.",
     "Speed decision: {speed}; path decision: {path}. The key reason is that {reason}.",

@@ -25,7 +25,7 @@ QUESTIONS: dict[str, tuple[str, ...]] = {
     ),
     "rsu_to_ego": (
         "A {cls} is at ({x:.2f}, {y:.2f}, {z:.2f}) m in the roadside camera frame (x right, y down, z forward). Where is it in the ego frame (x forward, y left, z up)?",
-        "The roadside camera sees a {cls} at camera coordinates ({x:.2f}, {y:.2f}, {z:.2f}) m. Convert this position to the ego vehicle frame.",
+        "A {cls} has coordinates ({x:.2f}, {y:.2f}, {z:.2f}) m in the roadside camera frame. Convert this position to the ego vehicle frame.",
         "In the RSU camera frame a {cls} is located at ({x:.2f}, {y:.2f}, {z:.2f}) m. What are its coordinates relative to the ego vehicle?",
     ),
     "speed_decision": (

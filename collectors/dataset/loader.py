@@ -96,11 +96,12 @@ class V2XDataset(Dataset):
 
 
 def replay_buffer(root: str | Path, split: str = "train", batch_size: int = 32,
-                  keys: Sequence | None = None, seed: int | None = None):
+                  keys: Sequence | None = None):
     """A TorchRL ``ReplayBuffer`` sampling frames of a split (a view over the shards).
 
     Its storage holds frame indices (``ListStorage``); ``collate_fn`` reads the sampled frames
-    from the memmaps, so ``rb.sample()`` returns a TensorDict of batch size ``[batch_size]``.
+    from the memmaps, so ``rb.sample()`` returns a TensorDict of batch size ``[batch_size]``
+    (sampling draws from torch's global generator: ``torch.manual_seed`` makes it reproducible).
     """
     from torchrl.data import ListStorage, ReplayBuffer
     from torchrl.data.replay_buffers.samplers import RandomSampler
@@ -109,8 +110,6 @@ def replay_buffer(root: str | Path, split: str = "train", batch_size: int = 32,
     rb = ReplayBuffer(storage=ListStorage(max_size=len(ds)), sampler=RandomSampler(),
                       collate_fn=ds.collate, batch_size=batch_size)
     rb.extend(list(range(len(ds))))
-    if seed is not None:
-        torch.manual_seed(seed)
     return rb
 
 

@@ -181,3 +181,9 @@ def test_failed_episode_is_recorded_and_retried(tmp_path, monkeypatch):
     monkeypatch.setattr(SensorRig, "capture", real)
     man = collect(cfg, tmp_path, progress=False)
     assert man["failed"] == {} and man["complete"] and validate(tmp_path)["temporary"] == []
+
+
+@pytest.mark.slow  # spawns two worker processes (imports torch twice)
+def test_two_worker_processes_write_the_same_shards(tiny_dataset, tmp_path):
+    collect(TINY, tmp_path, workers=2, progress=False)
+    assert _shard_files(tmp_path) == _shard_files(tiny_dataset)

@@ -1,0 +1,1 @@
+"""Chat-V2XBench: keyframe facts, QA generation, export and scoring."""

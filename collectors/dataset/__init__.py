@@ -1,0 +1,1 @@
+"""Expert data collection, shards, loading (issue #8)."""

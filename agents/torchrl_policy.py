@@ -23,15 +23,15 @@ import torch
 from tensordict import TensorDict
 
 
+def obs_tensors(obs: dict, device: str | torch.device = "cpu") -> dict:
+    """(Nested) NumPy observation dict -> (nested) dict of tensors."""
+    return {k: obs_tensors(v, device) if isinstance(v, dict) else torch.as_tensor(np.asarray(v), device=device)
+            for k, v in obs.items()}
+
+
 def obs_to_tensordict(obs: dict, device: str | torch.device = "cpu") -> TensorDict:
     """A batch-of-one ``TensorDict`` from an observation dict (NumPy arrays, nested dicts)."""
-
-    def conv(v: Any) -> Any:
-        if isinstance(v, dict):
-            return {k: conv(x) for k, x in v.items()}
-        return torch.as_tensor(np.asarray(v)).unsqueeze(0)
-
-    return TensorDict(conv(obs), batch_size=[1], device=device)
+    return TensorDict(obs_tensors(obs, device), batch_size=[], device=device).unsqueeze(0)
 
 
 class TensorDictPolicyAgent:

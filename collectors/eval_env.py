@@ -43,6 +43,7 @@ from tensordict import TensorDict, TensorDictBase
 from torch import nn
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
+from v2xbench.agents.torchrl_policy import obs_tensors
 from v2xbench.envs.v2x_intersection.config import make_config
 from v2xbench.envs.v2x_intersection.episode import EpisodeTracker
 from v2xbench.envs.v2x_intersection.observations import ego_observation, ego_space, validate_control
@@ -94,12 +95,6 @@ def _zeros(space) -> dict | np.ndarray:
     if hasattr(space, "spaces"):
         return {k: _zeros(v) for k, v in space.spaces.items()}
     return np.zeros(space.shape, space.dtype)
-
-
-def _tensors(obs: dict, device) -> dict:
-    """(Nested) numpy observation -> (nested) tensors."""
-    return {k: _tensors(v, device) if isinstance(v, dict) else torch.as_tensor(v, device=device)
-            for k, v in obs.items()}
 
 
 class CopyAgentAction(nn.Module):
@@ -203,7 +198,7 @@ class EvalEnv(EnvBase):
 
     def _td(self, obs: dict, reward: float = 0.0, term: bool = False, trunc: bool = False,
             with_reward: bool = True) -> TensorDictBase:
-        d = _tensors(obs, self.device)
+        d = obs_tensors(obs, self.device)
         flag = lambda b: torch.tensor([bool(b)], device=self.device)  # noqa: E731
         d.update(done=flag(term or trunc), terminated=flag(term), truncated=flag(trunc))
         if with_reward:

@@ -245,10 +245,8 @@ def test_held_manoeuvre_offsets_are_finite():
 
 def test_route_track_lane_change_segments():
     town = get_town("Town03")
-    world = World(make_config(town="Town03", **EMPTY))
     route, _ = build_episode("ParkingExit", town, np.random.default_rng(0))
     track = RouteTrack(town, route)
     assert track.merges and track.merges[0][0] == 0.0
     a, b = track.merges[0]
     assert track.merging(a) == 0.0 and track.merging(b - 0.1) is None
-    del world

@@ -42,6 +42,11 @@ INVADER_MARGIN = 0.4  # m kept from oncoming vehicles that cut into the ego's la
 ABORT_MAX_OFFSET = 0.6  # m: beyond this shift a started pass is completed, not aborted
 
 
+def _ego_lane(win: PathWindow) -> int:
+    """Route lane id under the ego (station 0 of the path window)."""
+    return int(win.lanes[min(int(np.searchsorted(win.st, 0.0)), len(win.st) - 1)])
+
+
 @dataclass
 class Manoeuvre:
     """An active lateral offset (route arc lengths in m)."""
@@ -198,7 +203,7 @@ class LateralPlanner:
         return True
 
     def _obstacle(self, s_ego, v, win, objs, st, lat, cos_r, e_lat, e_long, speed) -> None:
-        lane = int(win.lanes[min(int(np.searchsorted(win.st, 0.0)), len(win.st) - 1)])
+        lane = _ego_lane(win)
         half_lane = 0.5 * float(self.track.town.index.width[lane])
         cl = self._cluster(v, half_lane, objs, st, lat, e_lat, e_long, speed)
         if cl is None:
@@ -254,7 +259,7 @@ class LateralPlanner:
             return
         # extend the cluster with standing objects found further along, while not yet returning
         if s_ego < man.s2:
-            lane = int(win.lanes[min(int(np.searchsorted(win.st, 0.0)), len(win.st) - 1)])
+            lane = _ego_lane(win)
             intr = self._intruding(
                 objs, lat, e_lat, speed, 0.5 * float(self.track.town.index.width[lane])
             )
@@ -309,7 +314,7 @@ class LateralPlanner:
         onc &= room < 0.0
         if not np.any(onc):
             return None
-        lane = int(win.lanes[min(int(np.searchsorted(win.st, 0.0)), len(win.st) - 1)])
+        lane = _ego_lane(win)
         right, _, _ = self._lane_room(lane)
         return float(max(np.min(room[onc]), right))
 
@@ -328,7 +333,7 @@ class LateralPlanner:
         ev &= (speed > v + 0.5) | (st > -30.0)
         if not np.any(ev):
             return False
-        lane = int(win.lanes[min(int(np.searchsorted(win.st, 0.0)), len(win.st) - 1)])
+        lane = _ego_lane(win)
         ln = self.track.town.lanes[lane]
         w = min(float(self.track.town.index.width[lane]), MAX_OFFSET)
         options = [o for o, nb in ((-w, ln.right), (w, ln.left)) if nb >= 0]

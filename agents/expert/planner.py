@@ -125,7 +125,6 @@ class Planner:
         p, hl = self.p, self.hl
         pos = np.asarray(pos, float)
         j, s_ego = self.track.localize(pos)
-        self._s_ego = s_ego
         ahead = float(np.clip(6.0 * v + 40.0, 60.0, 170.0))
         win0 = self.track.window(j, s_ego, ahead)
         d = objs.pos - pos
@@ -172,7 +171,8 @@ class Planner:
         # predicted conflicts along the nominal profile
         se, ve = rollout(v, env, cons, ROLL_DT, ROLL_STEPS, lon)
         n_base = len(cons)
-        for c in self._conflicts(v, fc, win, offs, se, ve, objs, st, e_long, cr, speed):
+        merge_wait = self.track.merging(s_ego)
+        for c in self._conflicts(v, fc, win, offs, se, ve, objs, st, e_long, cr, speed, merge_wait):
             cons.append(c)
             reasons.append("conflict")
         i0 = min(max(int((0.0 - env[0]) / 2.0), 0), len(env[1]) - 1)
@@ -192,8 +192,9 @@ class Planner:
         )
 
     # ------------------------------------------------------------------ conflicts
-    def _conflicts(self, v, fc, win, offs, se, ve, objs, st_now, e_long_now, cr_now, speed):
-        """Constraints from forecast hypotheses entering the corridor while the ego is there."""
+    def _conflicts(self, v, fc, win, offs, se, ve, objs, st_now, e_long_now, cr_now, speed, merge_wait):
+        """Constraints from forecast hypotheses entering the corridor while the ego is there
+        (``merge_wait``: :meth:`RouteTrack.merging` at the ego, None outside lane changes)."""
         if len(fc) == 0:
             return []
         p, hl, hw = self.p, self.hl, self.hw
@@ -219,7 +220,6 @@ class Planner:
         if not np.any(hit):
             return []
         out = []
-        merge_wait = self.track.merging(self._s_ego)
         hyp = idx[hit] // t
         first = np.flatnonzero(np.concatenate([[True], hyp[1:] != hyp[:-1]]))
         sel = np.flatnonzero(hit)[first]

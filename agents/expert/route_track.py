@@ -48,6 +48,9 @@ class JunctionEntry:
     turn: int
 
 
+MERGE_APPROACH_M = 15.0  # m before a lane-change segment from which the ego checks for a gap
+
+
 class RouteTrack:
     """Route geometry for the planner (see module docstring)."""
 
@@ -82,7 +85,7 @@ class RouteTrack:
         ``commit`` of it, the distance (m, >= 0) to the segment start, where it waits for a gap;
         None otherwise."""
         for a, b in self.merges:
-            if a - 15.0 <= s_ego < a + commit * (b - a):
+            if a - MERGE_APPROACH_M <= s_ego < a + commit * (b - a):
                 return max(a - s_ego, 0.0)
         return None
 

@@ -15,6 +15,7 @@ from v2xbench.agents.interface import AGENTS
 from v2xbench.envs.v2x_intersection import infractions as inf
 from v2xbench.envs.v2x_intersection.config import make_config
 from v2xbench.envs.v2x_intersection.episode import time_budget_steps
+from v2xbench.envs.v2x_intersection.geometry import world_to_local_2d
 from v2xbench.envs.v2x_intersection.observations import ego_observation
 from v2xbench.envs.v2x_intersection.routes import route_from_lanes
 from v2xbench.envs.v2x_intersection.scenarios import build_episode
@@ -137,6 +138,52 @@ def test_expert_brakes_for_crossing_pedestrian_earlier_than_ego_only(seed):
     hit_ego, brake_ego = _crossing(EgoOnlyOracle, seed)
     assert not hit_expert
     assert brake_expert <= brake_ego
+
+
+def _hazard_run(agent_cls, name: str, seed: int, town: str = "Town12") -> dict:
+    """Run V2X scenario ``name`` with an agent; returns the event counts by name."""
+    world = World(make_config(town=town))
+    route, scenarios = build_episode(name, get_town(town), np.random.default_rng(seed))
+    agent = start(world, agent_cls(), seed=seed, route=route, scenarios=scenarios)
+    sc = scenarios[0]
+    drive(world, agent, 600, until=lambda w: sc.passed)
+    return {inf.EVENT_NAMES[i]: int(n) for i, n in enumerate(world.monitor.counts) if n}
+
+
+@pytest.mark.parametrize("name", ["DynamicObjectCrossing", "ParkingCrossingPedestrian"])
+def test_v2x_matters_for_a_pedestrian_hidden_by_parked_vehicles(name):
+    """The benchmark's premise: the same planner hits the hidden pedestrian with the ego's own
+    view and avoids it with the RSU's objects (and the privileged expert avoids it too)."""
+    ego = _hazard_run(EgoOnlyOracle, name, 0)
+    v2x = _hazard_run(V2XOracle, name, 0)
+    expert = _hazard_run(Expert, name, 0)
+    assert ego.get("collision_pedestrian", 0) >= 1, ego
+    assert "collision_pedestrian" not in v2x, v2x
+    assert "collision_pedestrian" not in expert, expert
+
+
+def test_v2x_track_takes_precedence_over_remembered_object():
+    """A remembered (unseen) object moves at its last velocity; a fresh RSU track of the same
+    object replaces it in the V2X oracle's list."""
+    world = World(make_config(town="Town01"))
+    oracle = start(world, V2XOracle(), seed=0)
+    t = world.table
+    row = int(np.flatnonzero(t.active)[1])
+    world.ego_vis[:] = 0.0
+    world.ego_vis[row] = 1.0
+    oracle.seen()  # the ego sees it: remembered from now on
+    world.ego_vis[row] = 0.0
+    obs = ego_observation(world)
+    x, y = world_to_local_2d(t.pos[row], t.pos[0], float(t.yaw[0]))
+    rows = np.zeros_like(obs["v2x_objects"])
+    rows[0, :7] = [1, 0, x, y, 0.0, 4.5, 1.9]
+    rows[0, 8] = float(t.speed[row]) + 6.0  # the RSU's track is faster than the remembered one
+    objs = oracle.objects({**obs, "v2x_objects": rows})
+    near = np.linalg.norm(objs.pos - t.pos[row], axis=1) < 1.0
+    assert near.sum() == 1 and abs(objs.speed[near][0] - rows[0, 8]) < 1e-3
+    remembered = oracle.objects(None)  # without the RSU: the remembered object
+    k = np.linalg.norm(remembered.pos - t.pos[row], axis=1) < 1.0
+    assert k.sum() == 1 and abs(remembered.speed[k][0] - t.speed[row]) < 1e-3
 
 
 def test_waypoints_match_driven_trajectory_on_free_road():

@@ -104,25 +104,29 @@ class EgoOnlyOracle(Expert):
     def _on_start(self) -> None:
         self.memory.reset()
 
-    def seen(self) -> Objects:
-        """Objects the ego sees now plus remembered ones."""
+    def seen(self) -> tuple[Objects, Objects]:
+        """``(objects the ego sees now, remembered objects it no longer sees)``."""
         w = self.world
         t = w.table
         rows = np.flatnonzero(w.ego_vis >= VISIBLE_THRESHOLD)
         now = from_table(t, rows[rows > 0], emergency_rows(w))
-        return self.memory.update(now, w.tick * w.config.dt)
+        return self.memory.update_split(now, w.tick * w.config.dt)
 
     def objects(self, obs: dict | None) -> Objects:
-        return self.seen()
+        return Objects.concat(list(self.seen()))
 
 
 class V2XOracle(EgoOnlyOracle):
-    """The ego-only oracle plus the objects the RSU sent over the channel (``obs["v2x_objects"]``)."""
+    """The ego-only oracle plus the objects the RSU sent over the channel (``obs["v2x_objects"]``).
+
+    Precedence where two sources report the same object (within 2 m): what the ego sees now, then
+    what the RSU sent, then the ego's memory (a remembered object moves at its last velocity, so a
+    fresh RSU track of it is better)."""
 
     def objects(self, obs: dict | None) -> Objects:
-        own = self.seen()
+        now, remembered = self.seen()
         if obs is None or "v2x_objects" not in obs:
-            return own
+            return Objects.concat([now, remembered])
         t = self.world.table
         v2x = from_observation_rows(obs["v2x_objects"], t.pos[0], float(t.yaw[0]))
-        return dedupe(own, v2x)
+        return dedupe(dedupe(now, v2x), remembered)

@@ -170,15 +170,20 @@ class ObjectMemory:
     def update(self, seen: Objects, time_s: float) -> Objects:
         """Store ``seen`` (objects with ids) and return it plus remembered, unseen objects, moved
         along their last velocity."""
+        return Objects.concat(list(self.update_split(seen, time_s)))
+
+    def update_split(self, seen: Objects, time_s: float) -> tuple[Objects, Objects]:
+        """As :meth:`update`, returning ``(seen, remembered)`` apart (so that fresher sources can
+        take precedence over remembered objects)."""
         keep = ~np.isin(self._objs.ids, seen.ids) & (time_s - self._time <= self.horizon_s)
         old, t_old = self._objs.take(keep), self._time[keep]
         self._objs = Objects.concat([seen, old])
         self._time = np.concatenate([np.full(len(seen), time_s), t_old])
         if len(old) == 0:
-            return seen
+            return seen, old
         moved = old.take(np.arange(len(old)))
         moved.pos = old.pos + old.vel * (time_s - t_old)[:, None]
-        return Objects.concat([seen, moved])
+        return seen, moved
 
 
 def dedupe(primary: Objects, extra: Objects, radius: float = 2.0) -> Objects:

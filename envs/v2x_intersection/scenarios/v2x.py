@@ -21,6 +21,7 @@ from ..rsu import KIND_TRIGGER, deploy
 from ..signals import RED, YELLOW
 from ..town.model import DRIVING, MERGE, PARKING, Town
 from ..traffic import STOP_LINE_SETBACK
+from ..visibility import VISIBLE_THRESHOLD
 from .base import Scenario, Site
 from .placement import (
     clear_lanes,
@@ -193,7 +194,13 @@ class TimedScenario(Scenario):
     drops to the hazard's own time to it (see :meth:`due`).
 
     Held walkers stand still (speed 0, so nobody predicts them moving) and get their walking
-    speed when released (:meth:`hold_walker`, :meth:`release_walker`).
+    speed when released (:meth:`hold_walker`, :meth:`release_walker`). A crossing walker (or
+    rider) is timed to step into the ego's path (:attr:`path_half_width` from the lane centre)
+    :attr:`aim_delay_s` after the ego's front reaches the crossing, and, while the ego cannot see
+    it, adapts its pace to the ego's progress (:meth:`paced_speed`): an ego that did not see it
+    coming meets it, seen from its own sensors only at the last moment, whereas a driver told by
+    the roadside unit (which sees it all along) slows down in time. Walkers pause only for an
+    ego that (nearly) stands in their way (:meth:`walkers_yield`).
     """
 
     ego_v_max = 8.0  # m/s, ego cruise speed assumed by the arrival estimate
@@ -203,6 +210,21 @@ class TimedScenario(Scenario):
     max_wait_s = 4.0
     #: m: never start once the ego's centre is this close (its body covers the conflict point)
     occupied_m = 3.5
+    #: m: a crossing walker or rider is in the ego's way once it is this close to the centre
+    #: line of the ego's lane (half the ego's width plus a small margin)
+    path_half_width = 1.2
+    #: time the arrival to the ego's front bumper (walkers step into the car's path just as it
+    #: gets there, seen only at the last moment from the ego) rather than to its centre
+    aim_front = True
+    #: s: start this much earlier than the arrival estimates say
+    release_margin_s = 0.0
+    #: s: a walker aims to step into the ego's path this long after the ego's front gets there
+    #: (into the side of a car that did not brake; seen from the ego only at the last moment)
+    aim_delay_s = 0.25
+    #: fractions of its walking speed a released walker may slow to / speed up to while hidden
+    pace_range = (0.4, 1.6)
+    #: m/s: released walkers pause for an ego at most this fast that blocks their way
+    yield_speed = 1.0
 
     def setup(self, world, rows: np.ndarray) -> None:
         self._ego_wait = 0.0  # s the ego has been standing near the conflict
@@ -216,11 +238,17 @@ class TimedScenario(Scenario):
         s = self.conflict_s if s_target is None else s_target
         return eta(s - self.ego_s(world), float(world.table.speed[0]), v_max=self.ego_v_max)
 
-    def due(self, world, hazard_time: float, margin: float = 0.3) -> bool:
+    def time_to_path(self, lateral: float, speed: float) -> float:
+        """Time (s) a hazard ``lateral`` m from the ego lane's centre line, moving straight towards
+        it at ``speed`` m/s, needs to enter the ego's path (:attr:`path_half_width`)."""
+        return max(lateral - self.path_half_width, 0.0) / max(speed, 0.1)
+
+    def due(self, world, hazard_time: float) -> bool:
         """Whether a hazard needing ``hazard_time`` s to reach the conflict must start now (call
         once per tick while it waits): the ego's arrival estimate is down to ``hazard_time``, or
         the ego is within ``min_trigger_m`` of the conflict, or it has stood still near it for
         ``max_wait_s`` (so that a cautious ego never waits forever for a hazard waiting for it);
+        the arrival is the ego's front bumper's if :attr:`aim_front`, else its centre's;
         never while the ego waits at a red light before the conflict or covers the conflict
         point itself."""
         if self.ego_at_red(world):  # the ego waits for its light: so does the hazard
@@ -233,7 +261,12 @@ class TimedScenario(Scenario):
         self._ego_wait = self._ego_wait + world.config.dt if slow else 0.0
         if self._ego_wait > self.max_wait_s or d < self.min_trigger_m:
             return True
-        return self.ego_eta(world) <= hazard_time + margin
+        eta = self.ego_eta(world, self.conflict_s - self._front(world))
+        return eta + self.aim_delay_s <= hazard_time + self.release_margin_s
+
+    def _front(self, world) -> float:
+        """Distance (m) from the ego's centre to the point whose arrival is timed."""
+        return 0.5 * float(world.table.length[0]) if self.aim_front else 0.0
 
     def ego_at_red(self, world) -> bool:
         """Whether the ego faces a red or yellow light whose stop line lies before the conflict
@@ -260,19 +293,44 @@ class TimedScenario(Scenario):
         self._walking.add(int(row))
 
     def walkers_yield(self, world) -> None:
-        """Released walkers pause while the ego's body blocks their next metre (they cross in
-        front of a moving ego but do not walk into one standing on their path); call every tick."""
+        """Released walkers pause while a (nearly) standing ego's body blocks their next metre:
+        they walk on into a moving car's path (that is the hazard) but do not walk into a car
+        standing on their path; call every tick."""
         t = world.table
+        ego_standing = float(t.speed[0]) <= self.yield_speed
         for row in self._walking:
             left = t.cross_to[row] - t.pos[row]
             dist = float(np.hypot(*left))
             if not t.active[row] or t.path[row] >= 0 or dist < 0.05:
                 continue
-            ahead = t.pos[row] + left / dist * min(1.0, dist)
-            x, y = world_to_local_2d(ahead, t.pos[0], float(t.yaw[0]))
-            blocked = abs(x) < t.length[0] / 2 + 0.4 and abs(y) < t.width[0] / 2 + 0.4
+            blocked = False
+            if ego_standing:
+                ahead = t.pos[row] + left / dist * min(1.0, dist)
+                x, y = world_to_local_2d(ahead, t.pos[0], float(t.yaw[0]))
+                blocked = abs(x) < t.length[0] / 2 + 0.4 and abs(y) < t.width[0] / 2 + 0.4
             t.hold[row] = blocked
-            t.speed[row] = 0.0 if blocked else self._walk_speed[row]
+            t.speed[row] = 0.0 if blocked else self.paced_speed(world, row)
+
+    def paced_speed(self, world, row: int) -> float:
+        """Speed of released walker ``row`` this tick: while the ego cannot see it, it adapts its
+        pace (within :attr:`pace_range` of its walking speed) so that it steps into the ego's path
+        just as the ego's front gets there, whatever the ego did since the release (braked for a
+        junction, say); once seen it walks at its own speed."""
+        t = world.table
+        v = self._walk_speed[row]
+        if world.ego_vis[row] >= VISIBLE_THRESHOLD:
+            return v
+        r = world.route
+        h = float(r.headings[int(np.clip(np.searchsorted(r.s, self.conflict_s), 0, len(r.s) - 1))])
+        normal = np.array([-np.sin(h), np.cos(h)])
+        left = t.cross_to[row] - t.pos[row]
+        rate = abs(float(left @ normal)) / max(float(np.hypot(*left)), 1e-6)
+        to_path = abs(float((t.pos[row] - self.conflict_point) @ normal)) - self.path_half_width
+        if rate < 0.2 or to_path <= 0.0:
+            return v
+        eta = self.ego_eta(world, self.conflict_s - self._front(world)) + self.aim_delay_s
+        lo, hi = self.pace_range
+        return float(np.clip(to_path / rate / max(eta, 1e-3), lo * v, hi * v))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -280,9 +338,11 @@ class TimedScenario(Scenario):
 class DynamicObjectCrossing(TimedScenario):
     """A pedestrian runs across the ego's lane from behind a parked truck ("ghost probe").
 
-    The pedestrian waits on the kerb side of the truck, hidden from the ego, and is released when
-    the ego's time to the crossing point equals its own time to reach the ego's lane centre, so
-    the conflict really happens unless the ego slows down in time.
+    The pedestrian waits close in front of the truck's front, on its kerb half, hidden from the
+    ego but seen by the roadside unit, and is released so that it steps into the ego's path just
+    after the ego's front gets there: the conflict really happens unless the ego slows down in
+    time, which its own sensors (seeing the pedestrian only as it passes the truck's side) do not
+    allow at urban speed.
 
     Parameters: ``speed`` (m/s) of the pedestrian; ``side`` -1 from the right, +1 from the left.
     """
@@ -315,9 +375,11 @@ class DynamicObjectCrossing(TimedScenario):
             side * (w / 2 + truck[1] / 2 + 0.3),
             truck,
         )
-        # the pedestrian waits behind the truck's front corner, on the kerb side
-        self._start_lat = w / 2 + truck[1] + 1.0
-        start, _ = lane_point(town, lane, self.site.s_on_key - 1.2, side * self._start_lat)
+        # the pedestrian waits close in front of the truck's front, on its kerb half: the truck
+        # hides it from the approaching ego until it steps past the truck's side, while the
+        # roadside unit (past the crossing, looking back) sees it all the time
+        self._start_lat = w / 2 + 0.3 + truck[1] - 0.5
+        start, _ = lane_point(town, lane, self.site.s_on_key + 0.2, side * self._start_lat)
         end, _ = lane_point(town, lane, self.site.s_on_key + 0.5, -side * (w / 2 + 4.0))
         spawn_walker(
             world, self.rows[1], start, end, speed=float(self.params["speed"]), kind=PEDESTRIAN
@@ -328,7 +390,7 @@ class DynamicObjectCrossing(TimedScenario):
     def update(self, world) -> None:
         row = int(self.rows[1])
         if row not in self._walking and self.due(
-            world, self._start_lat / float(self.params["speed"])
+            world, self.time_to_path(self._start_lat, float(self.params["speed"]))
         ):
             self.release_walker(world, row)
         self.walkers_yield(world)
@@ -401,7 +463,7 @@ class ParkingCrossingPedestrian(TimedScenario):
     def update(self, world) -> None:
         row = int(self.rows[4])
         if row not in self._walking and self.due(
-            world, self._start_lat / float(self.params["speed"])
+            world, self.time_to_path(self._start_lat, float(self.params["speed"]))
         ):
             self.release_walker(world, row)
         self.walkers_yield(world)
@@ -489,8 +551,8 @@ class PedestrianCrossing(TimedScenario):
             speed = float(self.params["speed"]) + float(rng.uniform(0.0, 0.5))
             spawn_walker(world, self.rows[1 + k], start, end, speed=speed)
             self.hold_walker(world, self.rows[1 + k])
-            d_lane = np.linalg.norm(end - start) * lat0 / (lat0 + far)
-            self._times.append(d_lane / speed)
+            to_path = max(lat0 - self.path_half_width, 0.0) / (lat0 + far)  # of the diagonal
+            self._times.append(np.linalg.norm(end - start) * to_path / speed)
             self._delays.append(0.0 if k == 0 else float(rng.uniform(0.3, 1.5)))
         self.hazard_rows = [int(r) for r in self.rows[1 : 1 + n]]
         self._released_at = None

@@ -165,7 +165,9 @@ class _TurnCrossing(TimedScenario):
 
     def update(self, world) -> None:
         row = int(self.rows[1])
-        if row not in self._walking and self.due(world, self._lat0 / float(self.params["speed"])):
+        if row not in self._walking and self.due(
+            world, self.time_to_path(self._lat0, float(self.params["speed"]))
+        ):
             self.release_walker(world, row)
         self.walkers_yield(world)
 
@@ -264,6 +266,9 @@ class _PriorityHazard(TimedScenario):
     towns = ("Town01", "Town06", "Town02", "Town05")
     turn = RIGHT
     hazard_side: float | None = 1.0
+    aim_front = False  # the crossing car reaches the conflict point with the ego's centre
+    release_margin_s = 0.3
+    aim_delay_s = 0.0
 
     @classmethod
     def find_sites(cls, town):

@@ -204,6 +204,23 @@ def test_select_active_hand_cases():
     assert select_active(near_behind, ego, yaw, 75.0).tolist() == [0]
 
 
+def test_every_trigger_keeps_its_unit_and_is_preferred():
+    town = get_town("Town04")
+    route = route_from_lanes(town, [0, 20, 6, 28, 12])
+    near = route.points[[420, 440]] + np.array([0.0, -6.0])  # two hazards ~20 m apart
+    rsus = deploy(town, route, triggers=near)
+    units = np.flatnonzero(rsus.kind == KIND_TRIGGER)
+    assert len(units) == 2  # closer than MIN_SPACING to each other, both kept
+    # a scenario unit 30 m further than a street unit that faces the ego still serves it
+    pair = RSUSet(
+        np.array([[20.0, -9.0, RSU_HEIGHT, np.pi], [50.0, -9.0, RSU_HEIGHT, np.pi]]),
+        np.array([KIND_STRAIGHT, KIND_TRIGGER]),
+        np.array([0.0, 30.0]),
+    )
+    assert select_active(pair, np.zeros(2), 0.0, 75.0).tolist() == [1]
+    assert select_active(pair, np.zeros(2), 0.0, 45.0).tolist() == [0]  # out of range
+
+
 def test_select_active_falls_back_to_the_nearest():
     rsus = _units([(30.0, 0.0, 0.0), (-60.0, 0.0, 0.0)])  # neither faces the ego
     np.testing.assert_array_equal(select_active(rsus, np.zeros(2), 0.0, 75.0, slots=2), [0, -1])

@@ -3,9 +3,10 @@
 Candidates are placed (1) every ~``STRAIGHT_SPACING`` m along the route's non-junction parts,
 beside the road and looking back at the approaching ego; (2) at every junction the route crosses,
 on a corner offset from the centre, looking at the junction so all approaches are overlooked;
-(3) near each scenario trigger point. Units closer than ``MIN_SPACING`` m to an already kept unit
-are pruned (junction and trigger units are kept first). Each tick the nearest forward-facing unit
-(ahead of the ego and within range) is active.
+(3) near each scenario trigger point. Every scenario keeps its unit; junction and street units
+closer than ``MIN_SPACING`` m to an already kept unit are pruned (junction units are kept before
+street units). Each tick the nearest forward-facing unit (ahead of the ego and within range) is
+active, scenario units counting ``TRIGGER_PREFERENCE_M`` m nearer than they are.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ SIDE_OFFSET = 9.0  # m from the route centre line to the pole
 TRIGGER_AHEAD = 14.0  # m past a scenario's hazard point where its unit stands
 SNAP_M = 8.0  # m: poles move to the nearest sidewalk point within this distance
 KIND_STRAIGHT, KIND_JUNCTION, KIND_TRIGGER = 0, 1, 2
+TRIGGER_PREFERENCE_M = 40.0  # m: active-unit selection favours scenario units by this much
 
 
 @dataclass
@@ -94,8 +96,10 @@ def deploy(town: Town, route: Route, triggers: np.ndarray | None = None) -> RSUS
     cands = [_on_sidewalk(town, c) for c in cands]
     order = sorted(range(len(cands)), key=lambda i: (-cands[i][3], cands[i][4]))
     kept: list[int] = []
-    for i in order:
-        if all(np.hypot(cands[i][0] - cands[j][0], cands[i][1] - cands[j][1]) >= MIN_SPACING for j in kept):
+    for i in order:  # every scenario keeps its unit; the others keep their distance
+        if cands[i][3] == KIND_TRIGGER or all(
+            np.hypot(cands[i][0] - cands[j][0], cands[i][1] - cands[j][1]) >= MIN_SPACING for j in kept
+        ):
             kept.append(i)
     kept.sort(key=lambda i: cands[i][4])
     c = np.array([cands[i] for i in kept], float).reshape(-1, 5)
@@ -138,6 +142,8 @@ def select_active(rsus: RSUSet, ego_xy: np.ndarray, ego_yaw: float, max_range: f
 
     Forward-facing: the unit is ahead of the ego (positive longitudinal offset, allowing 10 m
     behind) and its optical axis points back toward the ego's side (angle to the ego < 100 deg).
+    Scenario units (``KIND_TRIGGER``) count as ``TRIGGER_PREFERENCE_M`` m nearer than they are,
+    so the unit watching the conflict ahead serves the ego rather than a nearer street unit.
     """
     if len(rsus) == 0:
         return np.full(slots, -1, np.int64)
@@ -147,7 +153,9 @@ def select_active(rsus: RSUSet, ego_xy: np.ndarray, ego_yaw: float, max_range: f
     to_ego = np.arctan2(-d[:, 1], -d[:, 0])
     facing = np.abs(wrap_angle(to_ego - rsus.pose[:, 3])) < np.deg2rad(100.0)
     ok = ahead & facing & (dist < max_range)
-    order = np.argsort(np.where(ok, dist, np.inf))
+    # a unit placed for a scenario's conflict point wins over nearer general-purpose units
+    key = dist - TRIGGER_PREFERENCE_M * (rsus.kind == KIND_TRIGGER)
+    order = np.argsort(np.where(ok, key, np.inf))
     out = np.where(ok[order][:slots], order[:slots], -1)
     if out[0] < 0:  # nothing forward-facing: fall back to the nearest unit
         out[0] = int(np.argmin(dist))

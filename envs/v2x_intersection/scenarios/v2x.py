@@ -210,6 +210,9 @@ class TimedScenario(Scenario):
     max_wait_s = 4.0
     #: m: never start once the ego's centre is this close (its body covers the conflict point)
     occupied_m = 3.5
+    #: m/s: an ego this slow within ``min_trigger_m`` (pulling away from a stop line next to the
+    #: hazard) does not release it: no surprise is possible there
+    slow_start_speed = 3.0
     #: m: a crossing walker or rider is in the ego's way once it is this close to the centre
     #: line of the ego's lane (half the ego's width plus a small margin)
     path_half_width = 1.2
@@ -259,8 +262,10 @@ class TimedScenario(Scenario):
             return False
         slow = float(world.table.speed[0]) < 0.3 and d < 40.0
         self._ego_wait = self._ego_wait + world.config.dt if slow else 0.0
-        if self._ego_wait > self.max_wait_s or d < self.min_trigger_m:
+        if self._ego_wait > self.max_wait_s:
             return True
+        if d < self.min_trigger_m:  # close: go now, unless the ego just pulls away beside it
+            return float(world.table.speed[0]) > self.slow_start_speed
         eta = self.ego_eta(world, self.conflict_s - self._front(world))
         return eta + self.aim_delay_s <= hazard_time + self.release_margin_s
 

@@ -28,7 +28,8 @@ from __future__ import annotations
 import numpy as np
 
 from .geometry import local_to_world_2d, wrap_angle
-from .raycast import Boxes, segments_blocked
+from .jit import HAVE_JIT, points_blocked_kernel
+from .raycast import DTYPE, Boxes, segments_blocked
 
 #: Sample heights as fractions of each box's height above its base.
 LEVELS = (0.15, 0.45, 0.75)
@@ -40,6 +41,7 @@ _XY = np.array([[0.0, 0.0], [1.0, 1.0], [-1.0, 1.0], [-1.0, -1.0], [1.0, -1.0]])
 K = len(LEVELS) * len(_XY)
 #: ``visible_mask`` threshold on the visible fraction: at least 2 of the 15 points.
 VISIBLE_THRESHOLD = 0.1
+_LO, _HI = DTYPE(1e-5), DTYPE(1.0 - 1e-5)  # segments_blocked's default end-point tolerance
 
 
 def sample_points(boxes: Boxes, idx: np.ndarray) -> np.ndarray:
@@ -106,7 +108,14 @@ def visible_fraction(
         bearing = np.arctan2(rel[:, 1], rel[:, 0])
         ok &= np.abs(wrap_angle(bearing - sensor_yaw)) <= 0.5 * hfov
     cand = np.flatnonzero(ok)
-    if len(cand):
+    if len(cand) and HAVE_JIT and chunk_elems is None:
+        extra = np.asarray(ignore, dtype=np.intp).reshape(-1)
+        reach = float(np.sqrt(np.max(rel2[cand]))) + 1.0
+        blocked = points_blocked_kernel(
+            sensor_pos, pts, cand, np.repeat(targets, K)[cand], extra, boxes.center, *boxes.trig(),
+            boxes.length, boxes.width, boxes.z0, boxes.height, reach, _LO, _HI)
+        ok[cand[blocked]] = False
+    elif len(cand):
         extra = np.asarray(ignore, dtype=np.intp).reshape(-1)
         own = np.repeat(targets, K)[cand]  # each point's target box never blocks it
         # Only boxes that reach into the disc swept by the segments can block one: drop the others

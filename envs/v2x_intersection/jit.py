@@ -1,0 +1,212 @@
+"""Optional numba kernels for the hottest per-tick loops (pure NumPy fallbacks exist for each).
+
+numba is an optional dependency (``pip install numba`` or the ``fast`` extra). When it is
+missing, or ``V2XBENCH_NO_JIT=1`` is set, :data:`HAVE_JIT` is ``False`` and callers take their
+NumPy path. Every kernel repeats the NumPy path's float operations in the same order and dtype
+(no fastmath, no fused multiply-add), so both paths give bit-identical results; the tests check
+that on random scenes.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+try:  # pragma: no cover - depends on the environment
+    if os.environ.get("V2XBENCH_NO_JIT", "") not in ("", "0"):
+        raise ImportError("disabled by V2XBENCH_NO_JIT")
+    import numba
+
+    HAVE_JIT = True
+except ImportError:  # pragma: no cover
+    numba = None
+    HAVE_JIT = False
+
+
+def _njit(fn):
+    """``numba.njit(cache=True)`` when numba is available, else the plain Python function."""
+    if not HAVE_JIT:
+        return fn
+    return numba.njit(cache=True, nogil=True, error_model="numpy")(fn)
+
+
+@_njit
+def _fmin(a, b):
+    """``np.fmin`` for scalars: the non-NaN operand when one is NaN."""
+    if a != a:
+        return b
+    if b != b:
+        return a
+    return a if a < b else b
+
+
+@_njit
+def _fmax(a, b):
+    """``np.fmax`` for scalars."""
+    if a != a:
+        return b
+    if b != b:
+        return a
+    return a if a > b else b
+
+
+@_njit
+def segments_blocked_kernel(o, d, c, s, bx, by, hl, hw, z0, z1, ig, lo, hi):  # pragma: no cover
+    """Whether each segment ``o + t d``, ``t in (lo, hi)``, crosses a box (see ``raycast``).
+
+    Args:
+        o: ``(r_o, 3)`` float32 starts relative to the reference point, ``r_o in {1, r}``.
+        d: ``(r, 3)`` float32 segment vectors.
+        c, s, bx, by, hl, hw, z0, z1: ``(N,)`` float32 box terms (``raycast._Prepared``).
+        ig: ``(r, K)`` int box indices ignored per segment (negative = none; ``K`` may be 0).
+        lo, hi: float32 end-point tolerances.
+
+    Returns:
+        ``(r,)`` bool.
+    """
+    r = d.shape[0]
+    n = c.shape[0]
+    kk = ig.shape[1]
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    out = np.zeros(r, np.bool_)
+    for i in range(r):
+        io = i if o.shape[0] > 1 else 0
+        ox, oy, oz = o[io, 0], o[io, 1], o[io, 2]
+        d0, d1 = d[i, 0], d[i, 1]
+        invz = one / d[i, 2]
+        for j in range(n):
+            skip = False
+            for q in range(kk):
+                if ig[i, q] == j:
+                    skip = True
+            if skip:
+                continue
+            lx = ox * c[j] + oy * s[j] - bx[j]
+            acc = zero
+            acc += d0 * c[j]
+            acc += d1 * s[j]
+            inv = one / acc
+            t1 = (-hl[j] - lx) * inv
+            t2 = (hl[j] - lx) * inv
+            t_in = _fmin(t1, t2)
+            t_out = _fmax(t1, t2)
+            ly = oy * c[j] - ox * s[j] - by[j]
+            acc = zero
+            acc += d0 * (-s[j])
+            acc += d1 * c[j]
+            inv = one / acc
+            t2 = (-hw[j] - ly) * inv
+            t3 = (hw[j] - ly) * inv
+            t_in = _fmax(t_in, _fmin(t2, t3))
+            t_out = _fmin(t_out, _fmax(t2, t3))
+            t2 = (z0[j] - oz) * invz
+            t3 = (z1[j] - oz) * invz
+            t_in = _fmax(t_in, _fmin(t2, t3))
+            t_out = _fmin(t_out, _fmax(t2, t3))
+            t_in = _fmax(t_in, zero)
+            if _fmax(t_in, lo) < _fmin(t_out, hi):
+                out[i] = True
+                break
+    return out
+
+
+@_njit
+def _box_blocks(ox, oy, oz, d0, d1, d2, c, s, bx, by, hl, hw, z0, z1, lo, hi):  # pragma: no cover
+    """One segment against one prepared box, in float32 (``raycast.segments_blocked``'s steps)."""
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    invz = one / d2
+    lx = ox * c + oy * s - bx
+    acc = zero
+    acc += d0 * c
+    acc += d1 * s
+    inv = one / acc
+    t1 = (-hl - lx) * inv
+    t2 = (hl - lx) * inv
+    t_in = _fmin(t1, t2)
+    t_out = _fmax(t1, t2)
+    ly = oy * c - ox * s - by
+    acc = zero
+    acc += d0 * (-s)
+    acc += d1 * c
+    inv = one / acc
+    t2 = (-hw - ly) * inv
+    t3 = (hw - ly) * inv
+    t_in = _fmax(t_in, _fmin(t2, t3))
+    t_out = _fmin(t_out, _fmax(t2, t3))
+    t2 = (z0 - oz) * invz
+    t3 = (z1 - oz) * invz
+    t_in = _fmax(t_in, _fmin(t2, t3))
+    t_out = _fmin(t_out, _fmax(t2, t3))
+    t_in = _fmax(t_in, zero)
+    return _fmax(t_in, lo) < _fmin(t_out, hi)
+
+
+@_njit
+def points_blocked_kernel(sensor, pts, cand, own, extra, center, cos_yaw, sin_yaw, length, width, z0, height,
+                          reach, lo, hi):  # pragma: no cover
+    """``visibility.visible_fraction``'s line-of-sight test from one sensor, all in one call.
+
+    Args:
+        sensor: ``(3,)`` float64 sensor position. pts: ``(P, 3)`` float64 sample points.
+        cand: ``(C,)`` indices of the points to test. own: ``(C,)`` box index of each tested
+            point's target (never blocks it). extra: ``(E,)`` boxes that never block (negative: none).
+        center, cos_yaw, sin_yaw, length, width, z0, height: the ``N`` boxes (float64).
+        reach: float64, farthest tested point distance + 1 m (boxes beyond cannot block).
+        lo, hi: float32 end-point tolerances.
+
+    Returns:
+        ``(C,)`` bool, True where blocked.
+    """
+    n = center.shape[0]
+    sx, sy = sensor[0], sensor[1]
+    keep = np.empty(n, np.int64)
+    k = 0
+    for j in range(n):
+        dx, dy = center[j, 0] - sx, center[j, 1] - sy
+        rad = 0.5 * np.sqrt(length[j] * length[j] + width[j] * width[j]) + 1e-3
+        if dx * dx + dy * dy < (reach + rad) * (reach + rad) * 1.000001:
+            ig = False
+            for q in range(extra.shape[0]):
+                if extra[q] == j:
+                    ig = True
+            if not ig:
+                keep[k] = j
+                k += 1
+    c32 = np.empty(k, np.float32)
+    s32 = np.empty(k, np.float32)
+    bx = np.empty(k, np.float32)
+    by = np.empty(k, np.float32)
+    hl = np.empty(k, np.float32)
+    hw = np.empty(k, np.float32)
+    za = np.empty(k, np.float32)
+    zb = np.empty(k, np.float32)
+    for q in range(k):
+        j = keep[q]
+        c, s = cos_yaw[j], sin_yaw[j]
+        r0, r1 = center[j, 0] - sx, center[j, 1] - sy
+        c32[q], s32[q] = np.float32(c), np.float32(s)
+        bx[q] = np.float32(c * r0 + s * r1)
+        by[q] = np.float32(-s * r0 + c * r1)
+        hl[q] = np.float32(0.5 * length[j])
+        hw[q] = np.float32(0.5 * width[j])
+        za[q] = np.float32(z0[j])
+        zb[q] = np.float32(z0[j] + height[j])
+    oz = np.float32(sensor[2])
+    zero = np.float32(0.0)
+    out = np.zeros(cand.shape[0], np.bool_)
+    for i in range(cand.shape[0]):
+        p = cand[i]
+        d0 = np.float32(pts[p, 0] - sx)
+        d1 = np.float32(pts[p, 1] - sy)
+        d2 = np.float32(pts[p, 2] - sensor[2])
+        for q in range(k):
+            if keep[q] == own[i]:
+                continue
+            if _box_blocks(zero, zero, oz, d0, d1, d2, c32[q], s32[q], bx[q], by[q], hl[q], hw[q], za[q], zb[q],
+                           lo, hi):
+                out[i] = True
+                break
+    return out

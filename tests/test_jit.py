@@ -1,0 +1,49 @@
+"""The numba kernels (``jit``) give bit-identical results to the NumPy paths they replace."""
+
+import numpy as np
+import pytest
+
+from v2xbench.envs.v2x_intersection import raycast, visibility
+from v2xbench.envs.v2x_intersection.jit import HAVE_JIT
+from v2xbench.envs.v2x_intersection.raycast import Boxes, segments_blocked
+from v2xbench.envs.v2x_intersection.visibility import visible_fraction
+
+pytestmark = pytest.mark.skipif(not HAVE_JIT, reason="numba not installed")
+
+
+def _scene(rng: np.random.Generator, n: int) -> Boxes:
+    return Boxes.from_arrays(rng.uniform(-40, 40, (n, 2)), rng.uniform(0.5, 10, n), rng.uniform(0.5, 3, n),
+                             rng.uniform(-np.pi, np.pi, n), rng.uniform(0.0, 4.0, n) * (rng.random(n) > 0.1))
+
+
+def _both(monkeypatch, fn):
+    a = fn()
+    with monkeypatch.context() as m:
+        m.setattr(raycast, "HAVE_JIT", False)
+        m.setattr(visibility, "HAVE_JIT", False)
+        b = fn()
+    return a, b
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_segments_blocked_matches_numpy(monkeypatch, seed):
+    rng = np.random.default_rng(seed)
+    boxes = _scene(rng, 60)
+    ends = np.concatenate([rng.uniform(-50, 50, (300, 2)), rng.uniform(0, 3, (300, 1))], 1)
+    ig = rng.integers(-1, 60, (300, 2))
+    for start in (np.array([1.0, -2.0, 1.8]), np.concatenate([ends[::-1, :2], np.full((300, 1), 2.0)], 1)):
+        a, b = _both(monkeypatch, lambda: segments_blocked(start, ends, boxes, ig))
+        np.testing.assert_array_equal(a, b)
+        assert a.any() and not a.all()
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_visible_fraction_matches_numpy(monkeypatch, seed):
+    rng = np.random.default_rng(seed)
+    boxes = _scene(rng, 80)
+    targets = rng.choice(80, 30, replace=False)
+    for kw in ({"ignore": np.array([0])}, {"max_range": 35.0, "sensor_yaw": 0.7, "hfov": 2.0}):
+        sensor = np.array([rng.uniform(-5, 5), rng.uniform(-5, 5), 1.8 if "ignore" in kw else 5.0])
+        a, b = _both(monkeypatch, lambda: visible_fraction(sensor, boxes, targets, **kw))
+        np.testing.assert_array_equal(a, b)
+        assert 0 < a.mean() < 1

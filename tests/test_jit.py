@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-
 from v2xbench.envs.v2x_intersection import raycast, visibility
 from v2xbench.envs.v2x_intersection.jit import HAVE_JIT
 from v2xbench.envs.v2x_intersection.raycast import Boxes, segments_blocked
@@ -32,7 +31,7 @@ def test_segments_blocked_matches_numpy(monkeypatch, seed):
     ends = np.concatenate([rng.uniform(-50, 50, (300, 2)), rng.uniform(0, 3, (300, 1))], 1)
     ig = rng.integers(-1, 60, (300, 2))
     for start in (np.array([1.0, -2.0, 1.8]), np.concatenate([ends[::-1, :2], np.full((300, 1), 2.0)], 1)):
-        a, b = _both(monkeypatch, lambda: segments_blocked(start, ends, boxes, ig))
+        a, b = _both(monkeypatch, lambda start=start: segments_blocked(start, ends, boxes, ig))
         np.testing.assert_array_equal(a, b)
         assert a.any() and not a.all()
 
@@ -44,6 +43,6 @@ def test_visible_fraction_matches_numpy(monkeypatch, seed):
     targets = rng.choice(80, 30, replace=False)
     for kw in ({"ignore": np.array([0])}, {"max_range": 35.0, "sensor_yaw": 0.7, "hfov": 2.0}):
         sensor = np.array([rng.uniform(-5, 5), rng.uniform(-5, 5), 1.8 if "ignore" in kw else 5.0])
-        a, b = _both(monkeypatch, lambda: visible_fraction(sensor, boxes, targets, **kw))
+        a, b = _both(monkeypatch, lambda sensor=sensor, kw=kw: visible_fraction(sensor, boxes, targets, **kw))
         np.testing.assert_array_equal(a, b)
         assert 0 < a.mean() < 1

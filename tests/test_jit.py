@@ -46,3 +46,23 @@ def test_visible_fraction_matches_numpy(monkeypatch, seed):
         a, b = _both(monkeypatch, lambda sensor=sensor, kw=kw: visible_fraction(sensor, boxes, targets, **kw))
         np.testing.assert_array_equal(a, b)
         assert 0 < a.mean() < 1
+
+
+def test_project_matches_numpy(monkeypatch):
+    from v2xbench.envs.v2x_intersection.town import get_town
+    from v2xbench.envs.v2x_intersection.town import model
+
+    ix = get_town("Town02").index
+    rng = np.random.default_rng(0)
+    xy = ix.points[rng.choice(len(ix.points), 50)] + rng.normal(0, 3, (50, 2))
+    pid = ix.point_ids(np.arange(0, len(ix.length), 2))
+    for kw in ({}, {"point_ids": pid}):
+        a = ix.project(xy, **kw)
+        with monkeypatch.context() as m:
+            m.setattr(model, "HAVE_JIT", False)
+            b = ix.project(xy, **kw)
+            c = ix.project_near(xy[0], pid)
+        for u, v in zip(a, b):
+            np.testing.assert_array_equal(u, v)
+        for u, v in zip(ix.project_near(xy[0], pid), c):
+            np.testing.assert_array_equal(u, v)

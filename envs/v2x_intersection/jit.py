@@ -210,3 +210,59 @@ def points_blocked_kernel(sensor, pts, cand, own, extra, center, cos_yaw, sin_ya
                 out[i] = True
                 break
     return out
+
+
+@_njit
+def project_kernel(xy, points, pid, owner, offset, n_points, gs, base):  # pragma: no cover
+    """``town.model.PolylineIndex.project`` (nearest vertex, then the two segments beside it).
+
+    Args:
+        xy: ``(Q, 2)`` float64 queries. points: ``(P, 2)`` polyline vertices. pid: ``(C,)``
+            candidate vertex ids. owner, offset, n_points, gs, base: the index's arrays.
+
+    Returns:
+        ``(polyline (Q,), s (Q,), dist (Q,))``.
+    """
+    nq = xy.shape[0]
+    npts = points.shape[0]
+    out_o = np.empty(nq, np.int64)
+    out_s = np.empty(nq, np.float64)
+    out_d = np.empty(nq, np.float64)
+    for qi in range(nq):
+        x, y = xy[qi, 0], xy[qi, 1]
+        best = np.inf
+        j = pid[0]
+        for c in range(pid.shape[0]):
+            p = pid[c]
+            dx = x - points[p, 0]
+            dy = y - points[p, 1]
+            d2 = dx * dx + dy * dy
+            if d2 < best:
+                best = d2
+                j = p
+        o = owner[j]
+        first = offset[o]
+        last = first + n_points[o] - 1
+        best_s = gs[j] - base[o]
+        dx = x - points[j, 0]
+        dy = y - points[j, 1]
+        best_d = np.sqrt(dx * dx + dy * dy)
+        for a, b in ((j, j + 1), (j - 1, j)):
+            ok = (a >= first) and (b <= last)
+            a = min(max(a, 0), npts - 1)
+            b = min(max(b, 0), npts - 1)
+            sx = points[b, 0] - points[a, 0]
+            sy = points[b, 1] - points[a, 1]
+            seg_len2 = max(sx * sx + sy * sy, 1e-12)
+            t = ((x - points[a, 0]) * sx + (y - points[a, 1]) * sy) / seg_len2
+            t = min(max(t, 0.0), 1.0)
+            qx = points[a, 0] + t * sx
+            qy = points[a, 1] + t * sy
+            ex, ey = x - qx, y - qy
+            d = np.sqrt(ex * ex + ey * ey)
+            s = gs[a] - base[o] + t * np.sqrt(seg_len2)
+            if ok and d < best_d:
+                best_d = d
+                best_s = s
+        out_o[qi], out_s[qi], out_d[qi] = o, best_s, best_d
+    return out_o, out_s, out_d

@@ -49,8 +49,7 @@ def test_visible_fraction_matches_numpy(monkeypatch, seed):
 
 
 def test_project_matches_numpy(monkeypatch):
-    from v2xbench.envs.v2x_intersection.town import get_town
-    from v2xbench.envs.v2x_intersection.town import model
+    from v2xbench.envs.v2x_intersection.town import get_town, model
 
     ix = get_town("Town02").index
     rng = np.random.default_rng(0)

@@ -266,3 +266,73 @@ def project_kernel(xy, points, pid, owner, offset, n_points, gs, base):  # pragm
                 best_s = s
         out_o[qi], out_s[qi], out_d[qi] = o, best_s, best_d
     return out_o, out_s, out_d
+
+
+@_njit
+def visible_fraction_kernel(sensor, center, cos_yaw, sin_yaw, length, width, z0, height, targets, extra,
+                            max_r2, use_fov, sensor_yaw, half_fov, levels, pattern, shrink,
+                            lo, hi):  # pragma: no cover
+    """``visibility.visible_fraction`` in one call (sample points, range, field of view, sight).
+
+    Args:
+        sensor: ``(3,)``. center ... height: the ``N`` boxes (float64; ``cos_yaw``/``sin_yaw`` from
+            NumPy). targets: ``(M,)`` box indices. extra: ``(E,)`` boxes that never block.
+        max_r2: squared range (m^2). use_fov, sensor_yaw, half_fov: horizontal field of view test.
+        levels: ``(L,)`` height fractions. pattern: ``(5, 2)`` unit offsets. shrink: ``0.5 * XY_SHRINK``.
+        lo, hi: float32 end-point tolerances.
+
+    Returns:
+        ``(M,)`` visible fraction.
+    """
+    m = targets.shape[0]
+    nl, nxy = levels.shape[0], pattern.shape[0]
+    kk = nl * nxy
+    pts = np.empty((m * kk, 3))
+    ok = np.zeros(m * kk, np.bool_)
+    own = np.empty(m * kk, np.int64)
+    sx, sy, sz = sensor[0], sensor[1], sensor[2]
+    two_pi = 2.0 * np.pi
+    reach2 = -1.0
+    for a in range(m):
+        b = targets[a]
+        h0 = shrink * length[b]
+        h1 = shrink * width[b]
+        c, s = cos_yaw[b], sin_yaw[b]
+        for li in range(nl):
+            z = z0[b] + levels[li] * height[b]
+            for q in range(nxy):
+                px = pattern[q, 0] * h0
+                py = pattern[q, 1] * h1
+                i = a * kk + li * nxy + q
+                x = (c * px - s * py) + center[b, 0]
+                y = (s * px + c * py) + center[b, 1]
+                pts[i, 0], pts[i, 1], pts[i, 2] = x, y, z
+                own[i] = b
+                r0, r1, r2 = x - sx, y - sy, z - sz
+                acc = 0.0
+                acc += r0 * r0
+                acc += r1 * r1
+                acc += r2 * r2
+                good = acc <= max_r2
+                if good and use_fov:
+                    w = (np.arctan2(r1, r0) - sensor_yaw + np.pi) % two_pi - np.pi
+                    good = abs(w) <= half_fov
+                if good:
+                    ok[i] = True
+                    if acc > reach2:
+                        reach2 = acc
+    cand = np.flatnonzero(ok)
+    if cand.shape[0]:
+        blocked = points_blocked_kernel(sensor, pts, cand, own[cand], extra, center, cos_yaw, sin_yaw, length,
+                                        width, z0, height, np.sqrt(reach2) + 1.0, lo, hi)
+        for q in range(cand.shape[0]):
+            if blocked[q]:
+                ok[cand[q]] = False
+    out = np.empty(m)
+    for a in range(m):
+        cnt = 0
+        for i in range(a * kk, (a + 1) * kk):
+            if ok[i]:
+                cnt += 1
+        out[a] = np.float64(cnt) / kk
+    return out

@@ -65,3 +65,22 @@ def test_project_matches_numpy(monkeypatch):
             np.testing.assert_array_equal(u, v)
         for u, v in zip(ix.project_near(xy[0], pid), c):
             np.testing.assert_array_equal(u, v)
+
+
+def test_leaders_matches_numpy(monkeypatch):
+    from v2xbench.envs.v2x_intersection import traffic
+    from v2xbench.envs.v2x_intersection.config import make_config
+    from v2xbench.envs.v2x_intersection.world import World
+
+    w = World(make_config(town="Town01", num_vehicles=40))
+    w.reset(seed=3)
+    t = w.table
+    t.yaw[:] += np.random.default_rng(0).normal(0, 0.3, len(t))
+    idx = np.flatnonzero(t.active)
+    a = traffic.leaders(t, idx)
+    with monkeypatch.context() as m:
+        m.setattr(traffic, "HAVE_JIT", False)
+        b = traffic.leaders(t, idx)
+    assert np.isfinite(a[0]).any()
+    for u, v in zip(a, b):
+        np.testing.assert_array_equal(u, v)

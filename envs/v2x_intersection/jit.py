@@ -336,3 +336,44 @@ def visible_fraction_kernel(sensor, center, cos_yaw, sin_yaw, length, width, z0,
                 cnt += 1
         out[a] = np.float64(cnt) / kk
     return out
+
+
+@_njit
+def leaders_kernel(idx, others, pos, yaw, length, width, speed, lookahead):  # pragma: no cover
+    """``traffic.leaders``: gap (m) and approach rate (m/s) to each follower's corridor leader.
+
+    Args:
+        idx: ``(M,)`` follower rows. others: ``(O,)`` active rows. pos ... speed: the actor table's
+            arrays. lookahead: search distance (m).
+
+    Returns:
+        ``(gap (M,), dv (M,))``.
+    """
+    m = idx.shape[0]
+    gap_out = np.empty(m)
+    dv_out = np.empty(m)
+    for a in range(m):
+        i = idx[a]
+        c, s = np.cos(yaw[i]), np.sin(yaw[i])
+        best = np.inf
+        bj = others[0]
+        bcos = np.cos(yaw[bj] - yaw[i])
+        for q in range(others.shape[0]):
+            o = others[q]
+            d0 = pos[o, 0] - pos[i, 0]
+            d1 = pos[o, 1] - pos[i, 1]
+            dx = c * d0 + s * d1
+            dy = -s * d0 + c * d1
+            cos_rel = np.cos(yaw[o] - yaw[i])
+            half = 0.5 * (width[i] + width[o]) + 0.4
+            reach = 0.5 * (length[i] + length[o])
+            ok = (dx > 0.0) and (dx < lookahead + reach) and (abs(dy) < half)
+            ok = ok and not ((cos_rel < -0.5) and (speed[o] > 1.0))
+            ok = ok and o != i
+            if ok and dx - reach < best:
+                best = dx - reach
+                bj = o
+                bcos = cos_rel
+        gap_out[a] = max(best, 0.0)
+        dv_out[a] = speed[i] - speed[bj] * max(bcos, 0.0) if best < np.inf else 0.0
+    return gap_out, dv_out

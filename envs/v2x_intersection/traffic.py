@@ -8,6 +8,7 @@ import numpy as np
 
 from .actors import DRIVER, EGO, RIDER, ActorTable
 from .dynamics import IDMParams, idm_accel
+from .jit import HAVE_JIT, leaders_kernel
 from .signals import RED, YELLOW
 from .town.model import PRIORITY, STOP, Town
 
@@ -29,6 +30,9 @@ def leaders(t: ActorTable, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         ``(gap (M,), dv (M,))`` for followers ``idx``; ``inf`` gap where the corridor is free.
     """
     others = np.flatnonzero(t.active)
+    if HAVE_JIT:
+        return leaders_kernel(np.asarray(idx, np.int64), others, t.pos, t.yaw, t.length, t.width, t.speed,
+                              LOOKAHEAD)
     d = t.pos[others][None, :, :] - t.pos[idx][:, None, :]
     c, s = np.cos(t.yaw[idx])[:, None], np.sin(t.yaw[idx])[:, None]
     dx = c * d[..., 0] + s * d[..., 1]

@@ -84,3 +84,22 @@ def test_leaders_matches_numpy(monkeypatch):
     assert np.isfinite(a[0]).any()
     for u, v in zip(a, b):
         np.testing.assert_array_equal(u, v)
+
+
+def test_lane_assign_matches_numpy():
+    from v2xbench.agents.expert.lanes import LaneMap
+    from v2xbench.envs.v2x_intersection.town import get_town
+
+    town = get_town("Town03")
+    fast = LaneMap(town)
+    slow = LaneMap(town)
+    slow._dense = None
+    rng = np.random.default_rng(1)
+    ix = town.index
+    k = rng.choice(len(ix.points), 300)
+    pos = ix.points[k] + rng.normal(0, 1.5, (300, 2))
+    yaw = ix.heading[k] + rng.normal(0, 0.5, 300)
+    a, b = fast.assign(pos, yaw), slow.assign(pos, yaw)
+    assert a[3][:, 1].any()
+    for u, v in zip(a, b):
+        np.testing.assert_array_equal(u, v)

@@ -103,3 +103,19 @@ def test_lane_assign_matches_numpy():
     assert a[3][:, 1].any()
     for u, v in zip(a, b):
         np.testing.assert_array_equal(u, v)
+
+
+def test_idm_matches_numpy(monkeypatch):
+    from v2xbench.envs.v2x_intersection import dynamics
+
+    rng = np.random.default_rng(2)
+    n = 500
+    v, v0 = rng.uniform(0, 20, n), rng.uniform(0, 15, n)
+    gap = np.where(rng.random(n) < 0.3, np.inf, rng.uniform(-1, 60, n))
+    dv = rng.normal(0, 4, n)
+    for p in (dynamics.IDMParams(), dynamics.IDMParams(accel=1.0, decel=2.0, time_headway=1.0, min_gap=1.5)):
+        a = dynamics.idm_accel(v, v0, gap, dv, p)
+        with monkeypatch.context() as m:
+            m.setattr(dynamics, "HAVE_JIT", False)
+            b = dynamics.idm_accel(v, v0, gap, dv, p)
+        np.testing.assert_array_equal(a, b)

@@ -10,6 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .jit import HAVE_JIT, idm_kernel
+
 
 @dataclass(frozen=True)
 class VehicleParams:
@@ -93,6 +95,11 @@ def idm_accel(v: np.ndarray, v0: np.ndarray, gap: np.ndarray, dv: np.ndarray, p:
         gap: bumper-to-bumper distance to the leader (m); ``inf`` for a free road.
         dv: approach rate ``v - v_leader`` (m/s).
     """
+    if HAVE_JIT and np.ndim(v) == 1 and np.ndim(gap) == 1:
+        n = len(v)
+        v, v0, gap, dv = (np.broadcast_to(np.asarray(x, np.float64), (n,)) for x in (v, v0, gap, dv))
+        return idm_kernel(v, v0, gap, dv, p.min_gap, p.time_headway, float(np.sqrt(p.accel * p.decel)), p.accel,
+                          p.delta, p.max_brake)
     v0 = np.maximum(v0, 0.1)
     s_star = p.min_gap + np.maximum(0.0, v * p.time_headway + v * dv / (2.0 * np.sqrt(p.accel * p.decel)))
     free = 1.0 - (v / v0) ** p.delta

@@ -61,12 +61,27 @@ def junction_clear(t: ActorTable, town: Town, jid: int, me: int) -> bool:
     if np.any(veh & inside):
         return False
     if j.control == PRIORITY and t.lane[me] in j.stop_lanes:  # minor road: wait for major traffic
-        major = np.setdiff1d(j.incoming, j.stop_lanes)
-        on_major = veh & np.isin(t.lane, major) & (t.speed > 0.5)
+        on_major = veh & _major_mask(town, jid)[t.lane] & (t.speed > 0.5)
         remaining = town.index.length[np.clip(t.lane, 0, None)] - t.s
         if np.any(on_major & (remaining < 30.0)):
             return False
     return True
+
+
+def _major_mask(town: Town, jid: int) -> np.ndarray:
+    """``(L + 1,)`` bool: lane is a major (no stop sign) approach of junction ``jid``; the extra
+    last entry (lane -1) is False. Cached on the town."""
+    cache = town.__dict__.get("_major_masks")
+    if cache is None:
+        cache = {}
+        object.__setattr__(town, "_major_masks", cache)
+    mask = cache.get(jid)
+    if mask is None:
+        j = town.junctions[jid]
+        mask = np.zeros(len(town.lanes) + 1, bool)
+        mask[np.setdiff1d(j.incoming, j.stop_lanes).astype(np.int64)] = True
+        cache[jid] = mask
+    return mask
 
 
 def step_followers(t: ActorTable, town: Town, lane_signal: np.ndarray, rng: np.random.Generator,

@@ -119,3 +119,28 @@ def test_idm_matches_numpy(monkeypatch):
             m.setattr(dynamics, "HAVE_JIT", False)
             b = dynamics.idm_accel(v, v0, gap, dv, p)
         np.testing.assert_array_equal(a, b)
+
+
+def test_window_project_matches_numpy(monkeypatch):
+    from v2xbench.agents.expert import route_track
+    from v2xbench.envs.v2x_intersection.route_files import (
+        build_episode_from_spec,
+        load_suite_cached,
+    )
+    from v2xbench.envs.v2x_intersection.town import get_town
+
+    spec = load_suite_cached("test50")[3]
+    route, _ = build_episode_from_spec(spec)
+    track = route_track.RouteTrack(get_town(spec.town), route)
+    win = track.window(30, float(route.s[30]), 120.0, offsets=lambda st: 0.5 * np.sin(st / 10.0))
+    rng = np.random.default_rng(4)
+    pts = win.xy[rng.integers(0, len(win.xy), 200)] + rng.normal(0, 3, (200, 2))
+    ang = rng.uniform(-np.pi, np.pi, 200)
+    dirn = np.stack([np.cos(ang), np.sin(ang)], -1)
+    for d in (None, dirn):
+        a = win.project(pts, d)
+        with monkeypatch.context() as m:
+            m.setattr(route_track, "HAVE_JIT", False)
+            b = win.project(pts, d)
+        for u, v in zip(a, b):
+            np.testing.assert_array_equal(u, v)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from v2xbench.envs.v2x_intersection.jit import HAVE_JIT, _njit
 
-__all__ = ["HAVE_JIT", "DenseGrid", "assign_kernel"]
+__all__ = ["HAVE_JIT", "DenseGrid", "assign_kernel", "window_project_kernel"]
 
 
 class DenseGrid:
@@ -86,3 +86,42 @@ def assign_kernel(pos, cos_yaw, sin_yaw, cell_m, x0, y0, start, count, flat, px,
                     if owner[flat[a0 + e]] == lid0:
                         cost[e] = np.inf
     return lane, s_out, lat_out
+
+
+@_njit
+def window_project_kernel(pts, dirn, has_dir, xy, st, cos, sin, offset, step):  # pragma: no cover
+    """:meth:`.route_track.PathWindow.project` (nearest subsampled path point, then the frame there).
+
+    Returns:
+        ``(st (N,), lat (N,), off (N,), cos_rel (N,), sin_rel (N,))``.
+    """
+    n = pts.shape[0]
+    m = (st.shape[0] + step - 1) // step
+    ox = np.empty(m)
+    oy = np.empty(m)
+    for q in range(m):
+        k = q * step
+        ox[q] = xy[k, 0] - offset[k] * -sin[k]
+        oy[q] = xy[k, 1] - offset[k] * cos[k]
+    o_st, o_lat, o_off = np.empty(n), np.empty(n), np.empty(n)
+    o_cr, o_sr = np.zeros(n), np.zeros(n)
+    for i in range(n):
+        best = np.inf
+        j = 0
+        for q in range(m):
+            dx = pts[i, 0] - ox[q]
+            dy = pts[i, 1] - oy[q]
+            d2 = dx * dx + dy * dy
+            if d2 < best:
+                best, j = d2, q
+        ex = pts[i, 0] - ox[j]
+        ey = pts[i, 1] - oy[j]
+        k = j * step
+        c, s = cos[k], sin[k]
+        o_st[i] = st[k] + c * ex + s * ey
+        o_lat[i] = c * ey - s * ex
+        o_off[i] = offset[k]
+        if has_dir:
+            o_cr[i] = c * dirn[i, 0] + s * dirn[i, 1]
+            o_sr[i] = c * dirn[i, 1] - s * dirn[i, 0]
+    return o_st, o_lat, o_off, o_cr, o_sr

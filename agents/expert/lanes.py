@@ -18,6 +18,8 @@ from v2xbench.envs.v2x_intersection.geometry import polyline_lengths
 from v2xbench.envs.v2x_intersection.town.model import CONNECTOR, PARKING, Town
 from v2xbench.envs.v2x_intersection.traffic import STOP_LINE_SETBACK
 
+from .assign_jit import HAVE_JIT, DenseGrid, assign_kernel
+
 CELL_M = 4.0  # m, hash grid cell
 ASSIGN_MAX_DIST = 2.8  # m, farthest an object may be from a lane centre to be on it
 ASSIGN_MAX_DYAW = 0.7  # rad, largest heading difference to a lane
@@ -68,6 +70,7 @@ class LaneMap:
         self._px, self._py = ix.points[:, 0].copy(), ix.points[:, 1].copy()
         self._pc, self._ps = np.cos(ix.heading), np.sin(ix.heading)
         self._empty = np.zeros(0, np.int64)
+        self._dense = DenseGrid(self._grid) if HAVE_JIT else None
 
     def assign(
         self, pos: np.ndarray, yaw: np.ndarray
@@ -87,6 +90,13 @@ class LaneMap:
         if k == 0:
             return lane, s_out, lat_out, lane >= 0
         ix = self.town.index
+        if self._dense is not None:
+            g = self._dense
+            lane, s_out, lat_out = assign_kernel(
+                np.asarray(pos, np.float64), np.cos(yaw), np.sin(yaw), CELL_M, g.x0, g.y0, g.start, g.count,
+                g.flat, self._px, self._py, self._pc, self._ps, ix.owner, ix.gs, ix.base, ix.length,
+                ASSIGN_MAX_DIST, float(np.cos(ASSIGN_MAX_DYAW)))
+            return lane, s_out, lat_out, lane >= 0
         keys = np.floor(pos / CELL_M).astype(np.int64)
         lists = [self._grid.get((int(a), int(b)), self._empty) for a, b in keys.tolist()]
         counts = np.array([len(x) for x in lists])

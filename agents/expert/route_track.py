@@ -20,6 +20,8 @@ from v2xbench.envs.v2x_intersection.town.model import (
 )
 from v2xbench.envs.v2x_intersection.traffic import STOP_LINE_SETBACK
 
+from .assign_jit import HAVE_JIT, window_project_kernel
+
 MAX_LAT_ACCEL = 2.2  # m/s^2 in curves
 SUBSAMPLE = 2  # path points used for projection (every 2 m)
 
@@ -195,6 +197,11 @@ class PathWindow:
             the path's lateral offset there (m), and the heading of each object relative to the
             path (cos, sin; zeros when ``dirn`` is None).
         """
+        if HAVE_JIT and len(self.st) and len(pts):
+            has = dirn is not None
+            return window_project_kernel(
+                np.asarray(pts, np.float64), np.asarray(dirn if has else pts, np.float64), has, self.xy, self.st,
+                self.cos, self.sin, self.offset, SUBSAMPLE)
         sub = slice(0, len(self.st), SUBSAMPLE)
         ox, oy = (
             self.xy[sub, 0] - self.offset[sub] * -self.sin[sub],

@@ -10,6 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .jit import HAVE_JIT, idm_kernel
+
 
 @dataclass(frozen=True)
 class VehicleParams:
@@ -93,6 +95,11 @@ def idm_accel(v: np.ndarray, v0: np.ndarray, gap: np.ndarray, dv: np.ndarray, p:
         gap: bumper-to-bumper distance to the leader (m); ``inf`` for a free road.
         dv: approach rate ``v - v_leader`` (m/s).
     """
+    if (HAVE_JIT and isinstance(v, np.ndarray) and v.ndim == 1 and isinstance(v0, np.ndarray)
+            and isinstance(gap, np.ndarray) and isinstance(dv, np.ndarray)
+            and v.shape == v0.shape == gap.shape == dv.shape and v.dtype == v0.dtype == gap.dtype == dv.dtype == np.float64):
+        return idm_kernel(v, v0, gap, dv, p.min_gap, p.time_headway, float(np.sqrt(p.accel * p.decel)), p.accel,
+                          p.delta, p.max_brake)
     v0 = np.maximum(v0, 0.1)
     s_star = p.min_gap + np.maximum(0.0, v * p.time_headway + v * dv / (2.0 * np.sqrt(p.accel * p.decel)))
     free = 1.0 - (v / v0) ** p.delta

@@ -216,7 +216,7 @@ class RouteRecord:
 def surrounding_mean_speed(table, radius: float = SURROUNDING_RADIUS_M) -> float:
     """Mean ``|speed|`` (m/s) of active NPC vehicles (car / large vehicle, behaviour ``DRIVER``)
     within ``radius`` m of the ego (row 0) of an ``ActorTable``; NaN when there is none."""
-    sel = table.active & np.isin(table.kind, (CAR, LARGE_VEHICLE)) & (table.behaviour == DRIVER)
+    sel = table.active & ((table.kind == CAR) | (table.kind == LARGE_VEHICLE)) & (table.behaviour == DRIVER)
     sel[0] = False
     sel &= np.linalg.norm(table.pos - table.pos[0], axis=1) < radius
     return float(np.abs(table.speed[sel]).mean()) if sel.any() else float("nan")

@@ -36,6 +36,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .jit import HAVE_JIT, segments_blocked_kernel
+
 #: Floating dtype of the ray-casting computation and of the returned ``t`` arrays.
 DTYPE = np.float32
 #: Default bound on the elements of one ``(rays, boxes)`` temporary array (cache-friendly).
@@ -142,6 +144,14 @@ class Boxes:
 
     def __len__(self) -> int:
         return self.center.shape[0]
+
+    def trig(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(cos(yaw), sin(yaw))``, each ``(N,)`` float64 (computed once per instance)."""
+        cs = self.__dict__.get("_trig")
+        if cs is None:
+            cs = (np.cos(self.yaw), np.sin(self.yaw))
+            object.__setattr__(self, "_trig", cs)
+        return cs
 
 
 class _Prepared:
@@ -423,6 +433,9 @@ def segments_blocked(
         return out
     o, d, p, same = _setup(starts, dirs, boxes)
     lo, hi = DTYPE(eps), DTYPE(1.0 - eps)
+    if HAVE_JIT and (per_row is None or per_row.dtype != bool):
+        ig = np.zeros((s, 0), np.intp) if per_row is None else np.ascontiguousarray(per_row, np.intp)
+        return segments_blocked_kernel(o, d, p.c, p.s, p.bx, p.by, p.hl, p.hw, p.z0, p.z1, ig, lo, hi)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         for sl in _chunks(s, n, chunk_elems):
             a, b = _kernel(o if same else o[sl], d[sl], p)

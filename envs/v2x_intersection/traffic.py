@@ -8,6 +8,7 @@ import numpy as np
 
 from .actors import DRIVER, EGO, RIDER, ActorTable
 from .dynamics import IDMParams, idm_accel
+from .jit import HAVE_JIT, leaders_kernel
 from .signals import RED, YELLOW
 from .town.model import PRIORITY, STOP, Town
 
@@ -29,6 +30,9 @@ def leaders(t: ActorTable, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         ``(gap (M,), dv (M,))`` for followers ``idx``; ``inf`` gap where the corridor is free.
     """
     others = np.flatnonzero(t.active)
+    if HAVE_JIT:
+        return leaders_kernel(np.asarray(idx, np.int64), others, t.pos, t.yaw, t.length, t.width, t.speed,
+                              LOOKAHEAD)
     d = t.pos[others][None, :, :] - t.pos[idx][:, None, :]
     c, s = np.cos(t.yaw[idx])[:, None], np.sin(t.yaw[idx])[:, None]
     dx = c * d[..., 0] + s * d[..., 1]
@@ -57,12 +61,27 @@ def junction_clear(t: ActorTable, town: Town, jid: int, me: int) -> bool:
     if np.any(veh & inside):
         return False
     if j.control == PRIORITY and t.lane[me] in j.stop_lanes:  # minor road: wait for major traffic
-        major = np.setdiff1d(j.incoming, j.stop_lanes)
-        on_major = veh & np.isin(t.lane, major) & (t.speed > 0.5)
+        on_major = veh & _major_mask(town, jid)[t.lane] & (t.speed > 0.5)
         remaining = town.index.length[np.clip(t.lane, 0, None)] - t.s
         if np.any(on_major & (remaining < 30.0)):
             return False
     return True
+
+
+def _major_mask(town: Town, jid: int) -> np.ndarray:
+    """``(L + 1,)`` bool: lane is a major (no stop sign) approach of junction ``jid``; the extra
+    last entry (lane -1) is False. Cached on the town."""
+    cache = town.__dict__.get("_major_masks")
+    if cache is None:
+        cache = {}
+        object.__setattr__(town, "_major_masks", cache)
+    mask = cache.get(jid)
+    if mask is None:
+        j = town.junctions[jid]
+        mask = np.zeros(len(town.lanes) + 1, bool)
+        mask[np.setdiff1d(j.incoming, j.stop_lanes).astype(np.int64)] = True
+        cache[jid] = mask
+    return mask
 
 
 def step_followers(t: ActorTable, town: Town, lane_signal: np.ndarray, rng: np.random.Generator,

@@ -28,7 +28,8 @@ from __future__ import annotations
 import numpy as np
 
 from .geometry import local_to_world_2d, wrap_angle
-from .raycast import Boxes, segments_blocked
+from .jit import HAVE_JIT, visible_fraction_kernel
+from .raycast import DTYPE, Boxes, segments_blocked
 
 #: Sample heights as fractions of each box's height above its base.
 LEVELS = (0.15, 0.45, 0.75)
@@ -38,8 +39,10 @@ XY_SHRINK = 0.7
 _XY = np.array([[0.0, 0.0], [1.0, 1.0], [-1.0, 1.0], [-1.0, -1.0], [1.0, -1.0]])
 #: Sample points per box.
 K = len(LEVELS) * len(_XY)
+_LEVELS = np.asarray(LEVELS)
 #: ``visible_mask`` threshold on the visible fraction: at least 2 of the 15 points.
 VISIBLE_THRESHOLD = 0.1
+_LO, _HI = DTYPE(1e-5), DTYPE(1.0 - 1e-5)  # segments_blocked's default end-point tolerance
 
 
 def sample_points(boxes: Boxes, idx: np.ndarray) -> np.ndarray:
@@ -98,6 +101,12 @@ def visible_fraction(
     m = len(targets)
     if m == 0:
         return np.zeros(0)
+    if HAVE_JIT and chunk_elems is None:
+        fov = hfov is not None and hfov < 2.0 * np.pi
+        return visible_fraction_kernel(
+            sensor_pos, boxes.center, *boxes.trig(), boxes.length, boxes.width, boxes.z0, boxes.height, targets,
+            np.asarray(ignore, dtype=np.intp).reshape(-1), float(max_range) ** 2, fov, float(sensor_yaw),
+            0.5 * hfov if fov else 0.0, _LEVELS, _XY, 0.5 * XY_SHRINK, _LO, _HI)
     pts = sample_points(boxes, targets).reshape(-1, 3)  # (M*K, 3)
     rel = pts - sensor_pos
     rel2 = np.einsum("ij,ij->i", rel, rel)

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..geometry import polyline_lengths
+from ..jit import HAVE_JIT, project_kernel
 
 # Lane kinds
 DRIVING, CONNECTOR, PARKING, RAMP = 0, 1, 2, 3
@@ -365,6 +366,8 @@ class PolylineIndex:
         first id, and the square keeps ``point_ids`` order). Otherwise it falls back to the full
         search.
         """
+        if HAVE_JIT:  # the full search costs less than the square's set-up
+            return self.project(xy, point_ids=point_ids)
         key = id(point_ids)
         cache = self.__dict__.setdefault("_near_cache", {})
         entry = cache.get(key)
@@ -403,6 +406,9 @@ class PolylineIndex:
             pid = np.arange(len(self.points))
         else:
             pid = self.point_ids(candidates)
+        if HAVE_JIT and len(pid):
+            return project_kernel(xy, self.points, np.asarray(pid, np.int64), self.owner, self.offset,
+                                  self.n_points, self.gs, self.base)
         d2 = ((xy[:, None, :] - self.points[pid][None]) ** 2).sum(-1)
         j = pid[np.argmin(d2, axis=1)]
         owner = self.owner[j]

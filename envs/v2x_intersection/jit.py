@@ -1,0 +1,396 @@
+"""Optional numba kernels for the hottest per-tick loops (pure NumPy fallbacks exist for each).
+
+numba is an optional dependency (``pip install numba`` or the ``fast`` extra). When it is
+missing, or ``V2XBENCH_NO_JIT=1`` is set, :data:`HAVE_JIT` is ``False`` and callers take their
+NumPy path. Every kernel repeats the NumPy path's float operations in the same order and dtype
+(no fastmath, no fused multiply-add), so both paths give bit-identical results; the tests check
+that on random scenes.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+try:  # pragma: no cover - depends on the environment
+    if os.environ.get("V2XBENCH_NO_JIT", "") not in ("", "0"):
+        raise ImportError("disabled by V2XBENCH_NO_JIT")
+    import numba
+
+    HAVE_JIT = True
+except ImportError:  # pragma: no cover
+    numba = None
+    HAVE_JIT = False
+
+
+def _njit(fn):
+    """``numba.njit(cache=True)`` when numba is available, else the plain Python function."""
+    if not HAVE_JIT:
+        return fn
+    return numba.njit(cache=True, nogil=True, error_model="numpy")(fn)
+
+
+@_njit
+def _fmin(a, b):
+    """``np.fmin`` for scalars: the non-NaN operand when one is NaN."""
+    if a != a:
+        return b
+    if b != b:
+        return a
+    return a if a < b else b
+
+
+@_njit
+def _fmax(a, b):
+    """``np.fmax`` for scalars."""
+    if a != a:
+        return b
+    if b != b:
+        return a
+    return a if a > b else b
+
+
+@_njit
+def segments_blocked_kernel(o, d, c, s, bx, by, hl, hw, z0, z1, ig, lo, hi):  # pragma: no cover
+    """Whether each segment ``o + t d``, ``t in (lo, hi)``, crosses a box (see ``raycast``).
+
+    Args:
+        o: ``(r_o, 3)`` float32 starts relative to the reference point, ``r_o in {1, r}``.
+        d: ``(r, 3)`` float32 segment vectors.
+        c, s, bx, by, hl, hw, z0, z1: ``(N,)`` float32 box terms (``raycast._Prepared``).
+        ig: ``(r, K)`` int box indices ignored per segment (negative = none; ``K`` may be 0).
+        lo, hi: float32 end-point tolerances.
+
+    Returns:
+        ``(r,)`` bool.
+    """
+    r = d.shape[0]
+    n = c.shape[0]
+    kk = ig.shape[1]
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    out = np.zeros(r, np.bool_)
+    for i in range(r):
+        io = i if o.shape[0] > 1 else 0
+        ox, oy, oz = o[io, 0], o[io, 1], o[io, 2]
+        d0, d1 = d[i, 0], d[i, 1]
+        invz = one / d[i, 2]
+        for j in range(n):
+            skip = False
+            for q in range(kk):
+                if ig[i, q] == j:
+                    skip = True
+            if skip:
+                continue
+            lx = ox * c[j] + oy * s[j] - bx[j]
+            acc = zero
+            acc += d0 * c[j]
+            acc += d1 * s[j]
+            inv = one / acc
+            t1 = (-hl[j] - lx) * inv
+            t2 = (hl[j] - lx) * inv
+            t_in = _fmin(t1, t2)
+            t_out = _fmax(t1, t2)
+            ly = oy * c[j] - ox * s[j] - by[j]
+            acc = zero
+            acc += d0 * (-s[j])
+            acc += d1 * c[j]
+            inv = one / acc
+            t2 = (-hw[j] - ly) * inv
+            t3 = (hw[j] - ly) * inv
+            t_in = _fmax(t_in, _fmin(t2, t3))
+            t_out = _fmin(t_out, _fmax(t2, t3))
+            t2 = (z0[j] - oz) * invz
+            t3 = (z1[j] - oz) * invz
+            t_in = _fmax(t_in, _fmin(t2, t3))
+            t_out = _fmin(t_out, _fmax(t2, t3))
+            t_in = _fmax(t_in, zero)
+            if _fmax(t_in, lo) < _fmin(t_out, hi):
+                out[i] = True
+                break
+    return out
+
+
+@_njit
+def _box_blocks(ox, oy, oz, d0, d1, d2, c, s, bx, by, hl, hw, z0, z1, lo, hi):  # pragma: no cover
+    """One segment against one prepared box, in float32 (``raycast.segments_blocked``'s steps)."""
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    invz = one / d2
+    lx = ox * c + oy * s - bx
+    acc = zero
+    acc += d0 * c
+    acc += d1 * s
+    inv = one / acc
+    t1 = (-hl - lx) * inv
+    t2 = (hl - lx) * inv
+    t_in = _fmin(t1, t2)
+    t_out = _fmax(t1, t2)
+    ly = oy * c - ox * s - by
+    acc = zero
+    acc += d0 * (-s)
+    acc += d1 * c
+    inv = one / acc
+    t2 = (-hw - ly) * inv
+    t3 = (hw - ly) * inv
+    t_in = _fmax(t_in, _fmin(t2, t3))
+    t_out = _fmin(t_out, _fmax(t2, t3))
+    t2 = (z0 - oz) * invz
+    t3 = (z1 - oz) * invz
+    t_in = _fmax(t_in, _fmin(t2, t3))
+    t_out = _fmin(t_out, _fmax(t2, t3))
+    t_in = _fmax(t_in, zero)
+    return _fmax(t_in, lo) < _fmin(t_out, hi)
+
+
+@_njit
+def points_blocked_kernel(sensor, pts, cand, own, extra, center, cos_yaw, sin_yaw, length, width, z0, height,
+                          reach, lo, hi):  # pragma: no cover
+    """``visibility.visible_fraction``'s line-of-sight test from one sensor, all in one call.
+
+    Args:
+        sensor: ``(3,)`` float64 sensor position. pts: ``(P, 3)`` float64 sample points.
+        cand: ``(C,)`` indices of the points to test. own: ``(C,)`` box index of each tested
+            point's target (never blocks it). extra: ``(E,)`` boxes that never block (negative: none).
+        center, cos_yaw, sin_yaw, length, width, z0, height: the ``N`` boxes (float64).
+        reach: float64, farthest tested point distance + 1 m (boxes beyond cannot block).
+        lo, hi: float32 end-point tolerances.
+
+    Returns:
+        ``(C,)`` bool, True where blocked.
+    """
+    n = center.shape[0]
+    sx, sy = sensor[0], sensor[1]
+    keep = np.empty(n, np.int64)
+    k = 0
+    for j in range(n):
+        dx, dy = center[j, 0] - sx, center[j, 1] - sy
+        rad = 0.5 * np.sqrt(length[j] * length[j] + width[j] * width[j]) + 1e-3
+        if dx * dx + dy * dy < (reach + rad) * (reach + rad) * 1.000001:
+            ig = False
+            for q in range(extra.shape[0]):
+                if extra[q] == j:
+                    ig = True
+            if not ig:
+                keep[k] = j
+                k += 1
+    c32 = np.empty(k, np.float32)
+    s32 = np.empty(k, np.float32)
+    bx = np.empty(k, np.float32)
+    by = np.empty(k, np.float32)
+    hl = np.empty(k, np.float32)
+    hw = np.empty(k, np.float32)
+    za = np.empty(k, np.float32)
+    zb = np.empty(k, np.float32)
+    for q in range(k):
+        j = keep[q]
+        c, s = cos_yaw[j], sin_yaw[j]
+        r0, r1 = center[j, 0] - sx, center[j, 1] - sy
+        c32[q], s32[q] = np.float32(c), np.float32(s)
+        bx[q] = np.float32(c * r0 + s * r1)
+        by[q] = np.float32(-s * r0 + c * r1)
+        hl[q] = np.float32(0.5 * length[j])
+        hw[q] = np.float32(0.5 * width[j])
+        za[q] = np.float32(z0[j])
+        zb[q] = np.float32(z0[j] + height[j])
+    oz = np.float32(sensor[2])
+    zero = np.float32(0.0)
+    out = np.zeros(cand.shape[0], np.bool_)
+    for i in range(cand.shape[0]):
+        p = cand[i]
+        d0 = np.float32(pts[p, 0] - sx)
+        d1 = np.float32(pts[p, 1] - sy)
+        d2 = np.float32(pts[p, 2] - sensor[2])
+        for q in range(k):
+            if keep[q] == own[i]:
+                continue
+            if _box_blocks(zero, zero, oz, d0, d1, d2, c32[q], s32[q], bx[q], by[q], hl[q], hw[q], za[q], zb[q],
+                           lo, hi):
+                out[i] = True
+                break
+    return out
+
+
+@_njit
+def project_kernel(xy, points, pid, owner, offset, n_points, gs, base):  # pragma: no cover
+    """``town.model.PolylineIndex.project`` (nearest vertex, then the two segments beside it).
+
+    Args:
+        xy: ``(Q, 2)`` float64 queries. points: ``(P, 2)`` polyline vertices. pid: ``(C,)``
+            candidate vertex ids. owner, offset, n_points, gs, base: the index's arrays.
+
+    Returns:
+        ``(polyline (Q,), s (Q,), dist (Q,))``.
+    """
+    nq = xy.shape[0]
+    npts = points.shape[0]
+    out_o = np.empty(nq, np.int64)
+    out_s = np.empty(nq, np.float64)
+    out_d = np.empty(nq, np.float64)
+    for qi in range(nq):
+        x, y = xy[qi, 0], xy[qi, 1]
+        best = np.inf
+        j = pid[0]
+        for c in range(pid.shape[0]):
+            p = pid[c]
+            dx = x - points[p, 0]
+            dy = y - points[p, 1]
+            d2 = dx * dx + dy * dy
+            if d2 < best:
+                best = d2
+                j = p
+        o = owner[j]
+        first = offset[o]
+        last = first + n_points[o] - 1
+        best_s = gs[j] - base[o]
+        dx = x - points[j, 0]
+        dy = y - points[j, 1]
+        best_d = np.sqrt(dx * dx + dy * dy)
+        for a, b in ((j, j + 1), (j - 1, j)):
+            ok = (a >= first) and (b <= last)
+            a = min(max(a, 0), npts - 1)
+            b = min(max(b, 0), npts - 1)
+            sx = points[b, 0] - points[a, 0]
+            sy = points[b, 1] - points[a, 1]
+            seg_len2 = max(sx * sx + sy * sy, 1e-12)
+            t = ((x - points[a, 0]) * sx + (y - points[a, 1]) * sy) / seg_len2
+            t = min(max(t, 0.0), 1.0)
+            qx = points[a, 0] + t * sx
+            qy = points[a, 1] + t * sy
+            ex, ey = x - qx, y - qy
+            d = np.sqrt(ex * ex + ey * ey)
+            s = gs[a] - base[o] + t * np.sqrt(seg_len2)
+            if ok and d < best_d:
+                best_d = d
+                best_s = s
+        out_o[qi], out_s[qi], out_d[qi] = o, best_s, best_d
+    return out_o, out_s, out_d
+
+
+@_njit
+def visible_fraction_kernel(sensor, center, cos_yaw, sin_yaw, length, width, z0, height, targets, extra,
+                            max_r2, use_fov, sensor_yaw, half_fov, levels, pattern, shrink,
+                            lo, hi):  # pragma: no cover
+    """``visibility.visible_fraction`` in one call (sample points, range, field of view, sight).
+
+    Args:
+        sensor: ``(3,)``. center ... height: the ``N`` boxes (float64; ``cos_yaw``/``sin_yaw`` from
+            NumPy). targets: ``(M,)`` box indices. extra: ``(E,)`` boxes that never block.
+        max_r2: squared range (m^2). use_fov, sensor_yaw, half_fov: horizontal field of view test.
+        levels: ``(L,)`` height fractions. pattern: ``(5, 2)`` unit offsets. shrink: ``0.5 * XY_SHRINK``.
+        lo, hi: float32 end-point tolerances.
+
+    Returns:
+        ``(M,)`` visible fraction.
+    """
+    m = targets.shape[0]
+    nl, nxy = levels.shape[0], pattern.shape[0]
+    kk = nl * nxy
+    pts = np.empty((m * kk, 3))
+    ok = np.zeros(m * kk, np.bool_)
+    own = np.empty(m * kk, np.int64)
+    sx, sy, sz = sensor[0], sensor[1], sensor[2]
+    two_pi = 2.0 * np.pi
+    reach2 = -1.0
+    for a in range(m):
+        b = targets[a]
+        h0 = shrink * length[b]
+        h1 = shrink * width[b]
+        c, s = cos_yaw[b], sin_yaw[b]
+        for li in range(nl):
+            z = z0[b] + levels[li] * height[b]
+            for q in range(nxy):
+                px = pattern[q, 0] * h0
+                py = pattern[q, 1] * h1
+                i = a * kk + li * nxy + q
+                x = (c * px - s * py) + center[b, 0]
+                y = (s * px + c * py) + center[b, 1]
+                pts[i, 0], pts[i, 1], pts[i, 2] = x, y, z
+                own[i] = b
+                r0, r1, r2 = x - sx, y - sy, z - sz
+                acc = 0.0
+                acc += r0 * r0
+                acc += r1 * r1
+                acc += r2 * r2
+                good = acc <= max_r2
+                if good and use_fov:
+                    w = (np.arctan2(r1, r0) - sensor_yaw + np.pi) % two_pi - np.pi
+                    good = abs(w) <= half_fov
+                if good:
+                    ok[i] = True
+                    if acc > reach2:
+                        reach2 = acc
+    cand = np.flatnonzero(ok)
+    if cand.shape[0]:
+        blocked = points_blocked_kernel(sensor, pts, cand, own[cand], extra, center, cos_yaw, sin_yaw, length,
+                                        width, z0, height, np.sqrt(reach2) + 1.0, lo, hi)
+        for q in range(cand.shape[0]):
+            if blocked[q]:
+                ok[cand[q]] = False
+    out = np.empty(m)
+    for a in range(m):
+        cnt = 0
+        for i in range(a * kk, (a + 1) * kk):
+            if ok[i]:
+                cnt += 1
+        out[a] = np.float64(cnt) / kk
+    return out
+
+
+@_njit
+def leaders_kernel(idx, others, pos, yaw, length, width, speed, lookahead):  # pragma: no cover
+    """``traffic.leaders``: gap (m) and approach rate (m/s) to each follower's corridor leader.
+
+    Args:
+        idx: ``(M,)`` follower rows. others: ``(O,)`` active rows. pos ... speed: the actor table's
+            arrays. lookahead: search distance (m).
+
+    Returns:
+        ``(gap (M,), dv (M,))``.
+    """
+    m = idx.shape[0]
+    gap_out = np.empty(m)
+    dv_out = np.empty(m)
+    for a in range(m):
+        i = idx[a]
+        c, s = np.cos(yaw[i]), np.sin(yaw[i])
+        best = np.inf
+        bj = others[0]
+        bcos = np.cos(yaw[bj] - yaw[i])
+        for q in range(others.shape[0]):
+            o = others[q]
+            d0 = pos[o, 0] - pos[i, 0]
+            d1 = pos[o, 1] - pos[i, 1]
+            dx = c * d0 + s * d1
+            dy = -s * d0 + c * d1
+            cos_rel = np.cos(yaw[o] - yaw[i])
+            half = 0.5 * (width[i] + width[o]) + 0.4
+            reach = 0.5 * (length[i] + length[o])
+            ok = (dx > 0.0) and (dx < lookahead + reach) and (abs(dy) < half)
+            ok = ok and not ((cos_rel < -0.5) and (speed[o] > 1.0))
+            ok = ok and o != i
+            if ok and dx - reach < best:
+                best = dx - reach
+                bj = o
+                bcos = cos_rel
+        gap_out[a] = max(best, 0.0)
+        dv_out[a] = speed[i] - speed[bj] * max(bcos, 0.0) if best < np.inf else 0.0
+    return gap_out, dv_out
+
+
+@_njit
+def idm_kernel(v, v0, gap, dv, min_gap, headway, sqrt_ab, a_max, delta, max_brake):  # pragma: no cover
+    """``dynamics.idm_accel`` element by element (``sqrt_ab = np.sqrt(accel * decel)``)."""
+    out = np.empty(v.shape[0])
+    for i in range(v.shape[0]):
+        w0 = max(v0[i], 0.1)
+        s_star = min_gap + max(0.0, v[i] * headway + v[i] * dv[i] / (2.0 * sqrt_ab))
+        free = 1.0 - np.power(v[i] / w0, delta)
+        if np.isfinite(gap[i]):
+            r = s_star / max(gap[i], 0.1)
+            inter = r * r
+        else:
+            inter = 0.0
+        out[i] = min(max(a_max * (free - inter), -max_brake), a_max)
+    return out

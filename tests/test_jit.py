@@ -1,0 +1,146 @@
+"""The numba kernels (``jit``) give bit-identical results to the NumPy paths they replace."""
+
+import numpy as np
+import pytest
+from v2xbench.envs.v2x_intersection import raycast, visibility
+from v2xbench.envs.v2x_intersection.jit import HAVE_JIT
+from v2xbench.envs.v2x_intersection.raycast import Boxes, segments_blocked
+from v2xbench.envs.v2x_intersection.visibility import visible_fraction
+
+pytestmark = pytest.mark.skipif(not HAVE_JIT, reason="numba not installed")
+
+
+def _scene(rng: np.random.Generator, n: int) -> Boxes:
+    return Boxes.from_arrays(rng.uniform(-40, 40, (n, 2)), rng.uniform(0.5, 10, n), rng.uniform(0.5, 3, n),
+                             rng.uniform(-np.pi, np.pi, n), rng.uniform(0.0, 4.0, n) * (rng.random(n) > 0.1))
+
+
+def _both(monkeypatch, fn):
+    a = fn()
+    with monkeypatch.context() as m:
+        m.setattr(raycast, "HAVE_JIT", False)
+        m.setattr(visibility, "HAVE_JIT", False)
+        b = fn()
+    return a, b
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_segments_blocked_matches_numpy(monkeypatch, seed):
+    rng = np.random.default_rng(seed)
+    boxes = _scene(rng, 60)
+    ends = np.concatenate([rng.uniform(-50, 50, (300, 2)), rng.uniform(0, 3, (300, 1))], 1)
+    ig = rng.integers(-1, 60, (300, 2))
+    for start in (np.array([1.0, -2.0, 1.8]), np.concatenate([ends[::-1, :2], np.full((300, 1), 2.0)], 1)):
+        a, b = _both(monkeypatch, lambda start=start: segments_blocked(start, ends, boxes, ig))
+        np.testing.assert_array_equal(a, b)
+        assert a.any() and not a.all()
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_visible_fraction_matches_numpy(monkeypatch, seed):
+    rng = np.random.default_rng(seed)
+    boxes = _scene(rng, 80)
+    targets = rng.choice(80, 30, replace=False)
+    for kw in ({"ignore": np.array([0])}, {"max_range": 35.0, "sensor_yaw": 0.7, "hfov": 2.0}):
+        sensor = np.array([rng.uniform(-5, 5), rng.uniform(-5, 5), 1.8 if "ignore" in kw else 5.0])
+        a, b = _both(monkeypatch, lambda sensor=sensor, kw=kw: visible_fraction(sensor, boxes, targets, **kw))
+        np.testing.assert_array_equal(a, b)
+        assert 0 < a.mean() < 1
+
+
+def test_project_matches_numpy(monkeypatch):
+    from v2xbench.envs.v2x_intersection.town import get_town, model
+
+    ix = get_town("Town02").index
+    rng = np.random.default_rng(0)
+    xy = ix.points[rng.choice(len(ix.points), 50)] + rng.normal(0, 3, (50, 2))
+    pid = ix.point_ids(np.arange(0, len(ix.length), 2))
+    for kw in ({}, {"point_ids": pid}):
+        a = ix.project(xy, **kw)
+        with monkeypatch.context() as m:
+            m.setattr(model, "HAVE_JIT", False)
+            b = ix.project(xy, **kw)
+            c = ix.project_near(xy[0], pid)
+        for u, v in zip(a, b):
+            np.testing.assert_array_equal(u, v)
+        for u, v in zip(ix.project_near(xy[0], pid), c):
+            np.testing.assert_array_equal(u, v)
+
+
+def test_leaders_matches_numpy(monkeypatch):
+    from v2xbench.envs.v2x_intersection import traffic
+    from v2xbench.envs.v2x_intersection.config import make_config
+    from v2xbench.envs.v2x_intersection.world import World
+
+    w = World(make_config(town="Town01", num_vehicles=40))
+    w.reset(seed=3)
+    t = w.table
+    t.yaw[:] += np.random.default_rng(0).normal(0, 0.3, len(t))
+    idx = np.flatnonzero(t.active)
+    a = traffic.leaders(t, idx)
+    with monkeypatch.context() as m:
+        m.setattr(traffic, "HAVE_JIT", False)
+        b = traffic.leaders(t, idx)
+    assert np.isfinite(a[0]).any()
+    for u, v in zip(a, b):
+        np.testing.assert_array_equal(u, v)
+
+
+def test_lane_assign_matches_numpy():
+    from v2xbench.agents.expert.lanes import LaneMap
+    from v2xbench.envs.v2x_intersection.town import get_town
+
+    town = get_town("Town03")
+    fast = LaneMap(town)
+    slow = LaneMap(town)
+    slow._dense = None
+    rng = np.random.default_rng(1)
+    ix = town.index
+    k = rng.choice(len(ix.points), 300)
+    pos = ix.points[k] + rng.normal(0, 1.5, (300, 2))
+    yaw = ix.heading[k] + rng.normal(0, 0.5, 300)
+    a, b = fast.assign(pos, yaw), slow.assign(pos, yaw)
+    assert a[3][:, 1].any()
+    for u, v in zip(a, b):
+        np.testing.assert_array_equal(u, v)
+
+
+def test_idm_matches_numpy(monkeypatch):
+    from v2xbench.envs.v2x_intersection import dynamics
+
+    rng = np.random.default_rng(2)
+    n = 500
+    v, v0 = rng.uniform(0, 20, n), rng.uniform(0, 15, n)
+    gap = np.where(rng.random(n) < 0.3, np.inf, rng.uniform(-1, 60, n))
+    dv = rng.normal(0, 4, n)
+    for p in (dynamics.IDMParams(), dynamics.IDMParams(accel=1.0, decel=2.0, time_headway=1.0, min_gap=1.5)):
+        a = dynamics.idm_accel(v, v0, gap, dv, p)
+        with monkeypatch.context() as m:
+            m.setattr(dynamics, "HAVE_JIT", False)
+            b = dynamics.idm_accel(v, v0, gap, dv, p)
+        np.testing.assert_array_equal(a, b)
+
+
+def test_window_project_matches_numpy(monkeypatch):
+    from v2xbench.agents.expert import route_track
+    from v2xbench.envs.v2x_intersection.route_files import (
+        build_episode_from_spec,
+        load_suite_cached,
+    )
+    from v2xbench.envs.v2x_intersection.town import get_town
+
+    spec = load_suite_cached("test50")[3]
+    route, _ = build_episode_from_spec(spec)
+    track = route_track.RouteTrack(get_town(spec.town), route)
+    win = track.window(30, float(route.s[30]), 120.0, offsets=lambda st: 0.5 * np.sin(st / 10.0))
+    rng = np.random.default_rng(4)
+    pts = win.xy[rng.integers(0, len(win.xy), 200)] + rng.normal(0, 3, (200, 2))
+    ang = rng.uniform(-np.pi, np.pi, 200)
+    dirn = np.stack([np.cos(ang), np.sin(ang)], -1)
+    for d in (None, dirn):
+        a = win.project(pts, d)
+        with monkeypatch.context() as m:
+            m.setattr(route_track, "HAVE_JIT", False)
+            b = win.project(pts, d)
+        for u, v in zip(a, b):
+            np.testing.assert_array_equal(u, v)

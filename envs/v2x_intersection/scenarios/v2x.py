@@ -319,8 +319,8 @@ class TimedScenario(Scenario):
     def paced_speed(self, world, row: int) -> float:
         """Speed of released walker ``row`` this tick: while the ego cannot see it, it adapts its
         pace (within :attr:`pace_range` of its walking speed) so that it steps into the ego's path
-        just as the ego's front gets there, whatever the ego did since the release (braked for a
-        junction, say); once seen it walks at its own speed."""
+        :attr:`aim_delay_s` after the ego's front gets there, whatever the ego did since the
+        release (braked for a junction, say); once seen it walks at its own speed."""
         t = world.table
         v = self._walk_speed[row]
         if world.ego_vis[row] >= VISIBLE_THRESHOLD:

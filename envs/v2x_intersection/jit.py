@@ -1,7 +1,7 @@
 """Optional numba kernels for the hottest per-tick loops (pure NumPy fallbacks exist for each).
 
-numba is an optional dependency (``pip install numba`` or the ``fast`` extra). When it is
-missing, or ``V2XBENCH_NO_JIT=1`` is set, :data:`HAVE_JIT` is ``False`` and callers take their
+numba is installed with the package but optional at run time: when it is missing, or
+``V2XBENCH_NO_JIT=1`` is set, :data:`HAVE_JIT` is ``False`` and callers take their
 NumPy path. Every kernel repeats the NumPy path's float operations in the same order and dtype
 (no fastmath, no fused multiply-add), so both paths give bit-identical results; the tests check
 that on random scenes.

@@ -66,7 +66,7 @@ def step_walkers(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, 
         left = t.cross_to[crossing] - t.pos[crossing]
         dist = np.linalg.norm(left, axis=1)
         u = seg / np.maximum(np.linalg.norm(seg, axis=1, keepdims=True), 1e-9)
-        blocked = _ego_in_the_way(t, t.pos[crossing] + u * PED_LOOKAHEAD) & (t.scenario[crossing] < 0)
+        blocked = ego_in_the_way(t, t.pos[crossing] + u * PED_LOOKAHEAD) & (t.scenario[crossing] < 0)
         step = np.where(blocked, 0.0, t.speed[crossing] * dt)
         t.pos[crossing] += u * np.minimum(step, dist)[:, None]
         t.yaw[crossing] = np.arctan2(u[:, 1], u[:, 0])
@@ -116,15 +116,15 @@ PED_LOOKAHEAD = 1.0  # m: a crossing walker waits while this point ahead of it i
 EGO_MARGIN = 0.3  # m added around the ego's box for that test
 
 
-def _ego_in_the_way(t: ActorTable, points: np.ndarray) -> np.ndarray:
-    """``(M,)`` whether each of ``points`` ``(M, 2)`` lies inside the ego's box (plus a margin).
+def ego_in_the_way(t: ActorTable, points: np.ndarray, margin: float = EGO_MARGIN) -> np.ndarray:
+    """``(M,)`` whether each of ``points`` ``(M, 2)`` lies inside the ego's box plus ``margin`` m.
 
     Only the ego is tested: walkers do not walk into the car being evaluated, while among
     background actors a wait rule could deadlock (car waits for walker waits for car)."""
     if len(t.active) == 0 or not t.active[0] or t.kind[0] not in VEHICLE_CLASSES:
         return np.zeros(len(points), bool)
     local = world_to_local_2d(points, t.pos[0], float(t.yaw[0]))
-    return (np.abs(local[:, 0]) < t.length[0] / 2 + EGO_MARGIN) & (np.abs(local[:, 1]) < t.width[0] / 2 + EGO_MARGIN)
+    return (np.abs(local[:, 0]) < t.length[0] / 2 + margin) & (np.abs(local[:, 1]) < t.width[0] / 2 + margin)
 
 
 def _start_crossing(t: ActorTable, i: int, a: np.ndarray, b: np.ndarray) -> None:

@@ -40,6 +40,8 @@ from .jit import HAVE_JIT, segments_blocked_kernel
 
 #: Floating dtype of the ray-casting computation and of the returned ``t`` arrays.
 DTYPE = np.float32
+#: Default end-point tolerance of :func:`segments_blocked` (fraction of the segment length).
+END_EPS = 1e-5
 #: Default bound on the elements of one ``(rays, boxes)`` temporary array (cache-friendly).
 CHUNK_ELEMS = 1 << 15
 #: Hard upper bound on ``chunk_elems``.
@@ -398,7 +400,7 @@ def segments_blocked(
     ends: np.ndarray,
     boxes: Boxes,
     ignore=None,
-    eps: float = 1e-5,
+    eps: float = END_EPS,
     chunk_elems: int | None = None,
 ) -> np.ndarray:
     """Whether any (non-ignored) box intersects the open segment between ``start`` and ``end``.

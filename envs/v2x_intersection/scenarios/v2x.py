@@ -16,6 +16,7 @@ import numpy as np
 from ..actors import DRIVER
 from ..classes import CAR, LARGE_VEHICLE, PEDESTRIAN
 from ..geometry import world_to_local_2d
+from ..pedestrians import ego_in_the_way
 from ..raycast import Boxes, segments_blocked
 from ..rsu import KIND_TRIGGER, deploy
 from ..signals import RED, YELLOW
@@ -38,6 +39,7 @@ from .registry import register_scenario
 #: m, half width of a junction crosswalk (its centre is this far before the lane end)
 CROSSWALK_HALF = 2.0
 PARKING_LANE_WIDTH = 2.5  # m
+WALKER_EGO_MARGIN = 0.4  # m around the ego's box in which a scenario walker stops for it
 EGO_EYE_Z = 1.8  # m, ego sensor height (as ``world.EGO_SENSOR_Z``)
 
 
@@ -308,11 +310,8 @@ class TimedScenario(Scenario):
             dist = float(np.hypot(*left))
             if not t.active[row] or t.path[row] >= 0 or dist < 0.05:
                 continue
-            blocked = False
-            if ego_standing:
-                ahead = t.pos[row] + left / dist * min(1.0, dist)
-                x, y = world_to_local_2d(ahead, t.pos[0], float(t.yaw[0]))
-                blocked = abs(x) < t.length[0] / 2 + 0.4 and abs(y) < t.width[0] / 2 + 0.4
+            ahead = t.pos[row] + left / dist * min(1.0, dist)
+            blocked = ego_standing and bool(ego_in_the_way(t, ahead[None], WALKER_EGO_MARGIN)[0])
             t.hold[row] = blocked
             t.speed[row] = 0.0 if blocked else self.paced_speed(world, row)
 

@@ -9,7 +9,13 @@ from v2xbench.envs.v2x_intersection.config import make_config
 from v2xbench.envs.v2x_intersection.geometry import box_corners_2d
 from v2xbench.envs.v2x_intersection.signals import GREEN, RED
 from v2xbench.envs.v2x_intersection.town.model import CONNECTOR, DRIVING, PARKING, SIGNAL, STOP
-from v2xbench.envs.v2x_intersection.traffic import STOP_LINE_SETBACK, leaders, place_on_lane
+from v2xbench.envs.v2x_intersection.traffic import (
+    BLOCKED_RESPAWN_S,
+    STOP_LINE_SETBACK,
+    STUCK_RESPAWN_S,
+    leaders,
+    place_on_lane,
+)
 from v2xbench.envs.v2x_intersection.world import World
 
 BRAKE = np.array([0.0, 0.0, 1.0])  # the ego stands still at its route start
@@ -207,19 +213,57 @@ def test_npc_halts_at_a_stop_sign_then_goes():
     assert int(t.lane[1]) in town.lanes[lane].successors
 
 
+def test_npc_blocked_by_a_static_obstacle_is_respawned_soon():
+    """NPCs do not drive around obstacles: one queued behind a standing box (a scenario's cone,
+    debris, broken-down car) is respawned after BLOCKED_RESPAWN_S, not STUCK_RESPAWN_S."""
+    from v2xbench.envs.v2x_intersection.classes import TRAFFIC_CONE
+    from v2xbench.envs.v2x_intersection.scenarios.placement import spawn_static
+
+    w = World(
+        make_config(town="Town01", num_vehicles=2, num_parked=0, num_pedestrians=0, num_bicycles=0)
+    )
+    w.reset(seed=0)
+    t, town = w.table, w.town
+    lane = next(  # a single-lane carriageway: no neighbour lane to change into
+        ln.id
+        for ln in town.lanes
+        if ln.kind == DRIVING
+        and ln.length > 60.0
+        and ln.left < 0
+        and ln.right < 0
+        and np.linalg.norm(ln.points - t.pos[0], axis=1).min() > 60.0
+    )
+    place_on_lane(t, town, 1, lane, 5.0)
+    row = 2  # the second NPC becomes a cone in the first one's lane
+    p, h = town.index.pose_at(np.array([lane]), np.array([40.0]))
+    spawn_static(w, row, TRAFFIC_CONE, p[0], float(h[0]), (0.4, 0.4, 0.7))
+    waited, jumped_at = 0.0, None
+    for k in range(150):  # 15 s, well under STUCK_RESPAWN_S
+        before = t.pos[1].copy()
+        w.step(BRAKE)
+        if np.linalg.norm(t.pos[1] - before) > 5.0:
+            jumped_at = k
+            break
+        waited += w.config.dt * (t.speed[1] < 0.1)
+    assert BLOCKED_RESPAWN_S < 15.0 < STUCK_RESPAWN_S
+    assert jumped_at is not None, "the NPC stayed queued behind the cone"
+    assert waited == pytest.approx(BLOCKED_RESPAWN_S, abs=0.3)  # it stopped first, then left
+
+
 def test_leaders_hand_case():
     t = ActorTable.empty(4)
     t.active[:] = True
     t.length[:], t.width[:] = 4.0, 2.0
     t.pos[:] = [[0.0, 0.0], [20.0, 0.5], [10.0, 8.0], [-10.0, 0.0]]  # ahead, beside, behind
     t.speed[:] = [10.0, 4.0, 0.0, 0.0]
-    gap, dv = leaders(t, np.array([0, 3]))
+    gap, dv, who = leaders(t, np.array([0, 3]))
+    assert who.tolist() == [1, 0]
     assert gap[0] == pytest.approx(16.0)  # 20 m centre distance - 4 m of half lengths
     assert dv[0] == pytest.approx(6.0)
     assert gap[1] == pytest.approx(6.0)  # actor 3 sees the ego 10 m ahead
     t.yaw[1] = np.pi  # head-on and moving: another lane, ignored
-    gap, _ = leaders(t, np.array([0]))
-    assert np.isinf(gap[0])
+    gap, _, who = leaders(t, np.array([0]))
+    assert np.isinf(gap[0]) and who[0] == -1
 
 
 # ------------------------------------------------------------------------------ pedestrians

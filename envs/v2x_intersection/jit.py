@@ -347,11 +347,12 @@ def leaders_kernel(idx, others, pos, yaw, length, width, speed, lookahead):  # p
             arrays. lookahead: search distance (m).
 
     Returns:
-        ``(gap (M,), dv (M,))``.
+        ``(gap (M,), dv (M,), leader row (M,), -1 where none)``.
     """
     m = idx.shape[0]
     gap_out = np.empty(m)
     dv_out = np.empty(m)
+    who_out = np.full(m, -1, np.int64)
     for a in range(m):
         i = idx[a]
         c, s = np.cos(yaw[i]), np.sin(yaw[i])
@@ -376,7 +377,9 @@ def leaders_kernel(idx, others, pos, yaw, length, width, speed, lookahead):  # p
                 bcos = cos_rel
         gap_out[a] = max(best, 0.0)
         dv_out[a] = speed[i] - speed[bj] * max(bcos, 0.0) if best < np.inf else 0.0
-    return gap_out, dv_out
+        if best < np.inf:
+            who_out[a] = bj
+    return gap_out, dv_out, who_out
 
 
 @_njit

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .actors import DRIVER, EGO, RIDER, ActorTable
+from .actors import DRIVER, EGO, PARKED, RIDER, STATIC, ActorTable
 from .dynamics import IDMParams, idm_accel
 from .jit import HAVE_JIT, leaders_kernel
 from .signals import RED, YELLOW
@@ -16,18 +16,23 @@ LOOKAHEAD = 50.0  # m, leader search distance
 STOP_LINE_SETBACK = 4.5  # m, stop line before the lane end (crosswalk + margin)
 LANE_CHANGE_RATE = 1.2  # m/s lateral speed during a lane change
 STUCK_RESPAWN_S = 40.0  # s stopped (not at a red light) before an NPC is respawned elsewhere
+#: s an NPC waits behind a parked or static actor before it is respawned elsewhere: NPCs do not
+#: drive around obstacles, and one queued at a scenario's obstacle would block the ego behind it
+#: (CARLA's background activity likewise clears the lanes of an active scenario)
+BLOCKED_RESPAWN_S = 5.0
 IDM = IDMParams()
 IDM_BIKE = IDMParams(accel=1.0, decel=2.0, time_headway=1.0, min_gap=1.5)
 
 
-def leaders(t: ActorTable, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Gap (m) and approach rate (m/s) to the nearest actor in each follower's driving corridor.
+def leaders(t: ActorTable, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Gap (m), approach rate (m/s) and row of the nearest actor in each follower's driving corridor.
 
     The corridor is the strip ahead of the follower along its heading, as wide as both actors
     (+0.4 m); head-on actors moving faster than 1 m/s are ignored (they are in another lane).
 
     Returns:
-        ``(gap (M,), dv (M,))`` for followers ``idx``; ``inf`` gap where the corridor is free.
+        ``(gap (M,), dv (M,), leader (M,))`` for followers ``idx``; ``inf`` gap and leader ``-1``
+        where the corridor is free.
     """
     others = np.flatnonzero(t.active)
     if HAVE_JIT:
@@ -47,7 +52,8 @@ def leaders(t: ActorTable, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     j = np.argmin(gap, axis=1)
     g = gap[np.arange(len(idx)), j]
     dv = t.speed[idx] - t.speed[others[j]] * np.maximum(cos_rel[np.arange(len(idx)), j], 0.0)
-    return np.maximum(g, 0.0), np.where(np.isfinite(g), dv, 0.0)
+    found = np.isfinite(g)
+    return np.maximum(g, 0.0), np.where(found, dv, 0.0), np.where(found, others[j], -1)
 
 
 def junction_clear(t: ActorTable, town: Town, jid: int, me: int) -> bool:
@@ -108,7 +114,7 @@ def step_followers(t: ActorTable, town: Town, lane_signal: np.ndarray, rng: np.r
     bike = t.behaviour[idx] == RIDER
     limit = ix.speed_limit[lane]
     v0 = np.where(bike, np.minimum(t.v0[idx], limit), t.v0[idx] * limit)
-    gap, dv = leaders(t, idx)
+    gap, dv, ahead = leaders(t, idx)
     v = t.speed[idx]
     acc = np.where(bike, idm_accel(v, v0, gap, dv, IDM_BIKE), idm_accel(v, v0, gap, dv, IDM))
 
@@ -159,7 +165,9 @@ def step_followers(t: ActorTable, town: Town, lane_signal: np.ndarray, rng: np.r
             s[k] -= ix.length[lane[k]]
             lane[k] = nxt
             t.stopped_at_sign[i] = False
-    stuck = idx[(t.wait[idx] > STUCK_RESPAWN_S) & waiting & (sig != RED) & (t.scenario[idx] < 0)]
+    behind_obstacle = (ahead >= 0) & np.isin(t.behaviour[np.maximum(ahead, 0)], (PARKED, STATIC))
+    limit_s = np.where(behind_obstacle, BLOCKED_RESPAWN_S, STUCK_RESPAWN_S)
+    stuck = idx[(t.wait[idx] > limit_s) & waiting & (sig != RED) & (t.scenario[idx] < 0)]
     respawn.extend(stuck.tolist())
 
     _lane_changes(t, town, idx, lane, s, gap, dv, bike, rng, dt)

@@ -16,6 +16,7 @@ from v2xbench.envs.v2x_intersection.infractions import (
     RED_LIGHT,
     REPEAT_COLLISION_S,
     ROUTE_DEVIATION,
+    SCENARIO_TIMEOUT,
     STOP_SIGN,
     EventMonitor,
 )
@@ -226,6 +227,43 @@ def test_red_light_when_crossing_the_stop_line(state, expected):
     if expected:
         assert red[0][3] == float(lane)
     assert mon.counts[RED_LIGHT] == expected
+
+
+def test_scenario_clock_stops_while_a_red_light_holds_the_ego():
+    from types import SimpleNamespace
+
+    from v2xbench.envs.v2x_intersection.scenarios.base import Scenario, Site
+
+    class Waiting(Scenario):
+        name = "Waiting"
+        trigger_distance = 1e3  # triggers at once
+        timeout_s = 2.0
+
+        def spawn(self, world) -> None:
+            pass
+
+    town = get_town("Town01")
+    lane, route = _approach(town, SIGNAL)
+    sc = Waiting(route, Site((lane,), 0, 0.0), route.length - 5.0)
+    mon = EventMonitor(town, route, 0.1)
+    world = SimpleNamespace(monitor=mon, route=route, config=SimpleNamespace(dt=0.1), tick=0)
+    t = table(1)
+    line = town.index.length[lane] - STOP_LINE_SETBACK
+    signal = np.full(len(town.lanes), NO_SIGNAL)
+
+    def stand(state: int, ticks: int) -> None:
+        signal[lane] = state
+        for _ in range(ticks):
+            _drive(mon, town, t, lane, [line - 3.0], 0.0, signal)
+            sc.tick(world)
+            world.tick += 1
+
+    stand(RED, 50)  # 5 s at a red light: the scenario clock does not run
+    assert mon.held_by_red and sc.triggered and not sc.passed
+    assert sc.elapsed_s < 0.2 and mon.counts[SCENARIO_TIMEOUT] == 0
+    stand(GREEN, 25)  # 2.5 s standing at green: out of time
+    assert not mon.held_by_red
+    assert sc.timed_out and mon.counts[SCENARIO_TIMEOUT] == 1
 
 
 @pytest.mark.parametrize("stop_first, expected", [(False, 1), (True, 0)])

@@ -61,8 +61,9 @@ def _active(world, rows) -> np.ndarray:
 def check_flow(
     world, memo, entry_m: float = 10.0, radius: float = 2.5, window_s: float = 8.0
 ) -> bool:
-    """Every flow sends a vehicle through its conflict point within ``window_s`` of the ego
-    arriving ``entry_m`` before the lane where the conflict is (the junction, merge or lane
+    """Every flow sends a vehicle through its conflict point within ``window_s`` (or the time its
+    largest spacing takes, if longer: parallel-lane flows share one carriageway's spacing) of the
+    ego arriving ``entry_m`` before the lane where the conflict is (the junction, merge or lane
     change it must negotiate)."""
     sc = world.scenarios[0]
     t = world.table
@@ -76,6 +77,7 @@ def check_flow(
     if sc.ego_s(world) < memo["entry_s"]:
         return False
     memo.setdefault("arrival", world.tick)
+    window_s = max([window_s] + [f.spacing[1] / f.speed for f in sc.flows])
     if world.tick - memo["arrival"] > window_s / world.config.dt:
         return False
     for k, f in enumerate(sc.flows):

@@ -28,6 +28,7 @@ ROUTE_DEVIATION_M = 30.0  # m
 BLOCKED_S = 180.0  # s without moving (no red light ahead) ends the route
 STOP_SPEED = 0.5  # m/s: below this near the line counts as having stopped at a stop sign
 STOP_CHECK_M = 6.0  # m before the stop line where the stop must happen
+HELD_SPEED = 1.0  # m/s: slower than this in a lane ending at a red light, the ego is held by it
 
 
 class EventMonitor:
@@ -48,6 +49,7 @@ class EventMonitor:
         self.outside_m = 0.0
         self.driven_m = 0.0
         self.still_s = 0.0
+        self.held_by_red = False  # the ego stands (< 1 m/s) in a lane that ends at a red light
         self._last_hit: dict[int, int] = {}
         self._lane = int(route.lane_ids[0])
         self._s_on_lane = 0.0
@@ -133,6 +135,7 @@ class EventMonitor:
         # blocked
         self.still_s = self.still_s + self.dt if v < 0.1 else 0.0
         red_ahead = ix.stop_at_end[lane] and lane_signal[lane] == RED
+        self.held_by_red = bool(red_ahead and v < HELD_SPEED)
         if self.still_s >= BLOCKED_S and not red_ahead:
             self.emit(BLOCKED, tick, -1, self.still_s)
             self.still_s = 0.0

@@ -5,7 +5,9 @@ A scenario is placed at a route arc length ``trigger_s`` (m). At reset it spawns
 calls :meth:`Scenario.tick`, which fires :meth:`on_trigger` once when the ego comes within
 ``trigger_distance`` of the trigger point, then :meth:`update`. The ego *passes* the scenario
 when its route progress reaches ``end_s``; if it has not passed ``timeout_s`` seconds after the
-trigger, a ``SCENARIO_TIMEOUT`` event is emitted (CARLA's scenario timeout, IS factor 0.7).
+trigger, a ``SCENARIO_TIMEOUT`` event is emitted (CARLA's scenario timeout, IS factor 0.7). The
+scenario clock stops while a red light holds the ego (``InfractionMonitor.held_by_red``): waiting
+at a red light is obeying the rules, not failing to get through.
 
 Subclasses set the class attributes, implement :meth:`find_sites` (where on a town it fits),
 :meth:`spawn` and optionally :meth:`on_trigger` / :meth:`update`, and are registered with
@@ -65,6 +67,7 @@ class Scenario:
         self.hazard_rows: list[int] = []
         self.triggered = False
         self.trigger_tick = -1
+        self.elapsed_s = 0.0  # s since the trigger, not counting red-light waits
         self.passed = False
         self.timed_out = False
 
@@ -104,7 +107,8 @@ class Scenario:
             self.update(world)
             if not self.passed and s >= self.end_s:
                 self.passed = True
-            elapsed = (world.tick - self.trigger_tick) * world.config.dt
-            if not self.passed and not self.timed_out and elapsed > self.timeout_s:
+            if not world.monitor.held_by_red:
+                self.elapsed_s += world.config.dt
+            if not self.passed and not self.timed_out and self.elapsed_s > self.timeout_s:
                 self.timed_out = True
-                world.monitor.emit(SCENARIO_TIMEOUT, world.tick, -1, float(elapsed))
+                world.monitor.emit(SCENARIO_TIMEOUT, world.tick, -1, float(self.elapsed_s))

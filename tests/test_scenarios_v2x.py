@@ -146,3 +146,33 @@ def test_fits_training_and_test_towns(name):
     assert cls.v2x
     assert cls.find_sites(get_town("Town12")), "no site on the held-out test town"
     assert cls.find_sites(get_town(cls.towns[0] if cls.towns else "Town01"))
+
+
+@pytest.mark.parametrize("name", ["DynamicObjectCrossing", "ParkingCrossingPedestrian"])
+def test_crossing_walker_ends_on_the_far_sidewalk(name):
+    """The walker's crossing ends off every driving lane, also on multi-lane roads (a fixed
+    offset left test50_039's pedestrian standing in a lane the route used later)."""
+    from v2xbench.envs.v2x_intersection.config import make_config
+    from v2xbench.envs.v2x_intersection.infractions import _driving_point_ids
+    from v2xbench.envs.v2x_intersection.route_files import load_suite_cached
+    from v2xbench.envs.v2x_intersection.scenarios import build_episode
+    from v2xbench.envs.v2x_intersection.world import World
+
+    town = get_town("Town12")
+    world = World(make_config(town="Town12", **SMALL))
+    episodes = [build_episode(name, town, np.random.default_rng(seed)) for seed in range(3)]
+    if name == "DynamicObjectCrossing":
+        episodes.append(
+            (None, [s for s in load_suite_cached("test50")[39].scenarios if s.type == name])
+        )
+    pts = _driving_point_ids(town)
+    for k, (route, scs) in enumerate(episodes):
+        if route is None:
+            world.reset(seed=0, spec=load_suite_cached("test50")[39])
+            sc = next(s for s in world.scenarios if s.name == name)
+        else:
+            world.reset(seed=k, route=route, scenarios=scs)
+            sc = world.scenarios[0]
+        end = world.table.cross_to[sc.hazard_rows[0]]
+        lane, _, dist = town.index.project_near(end[None], pts)
+        assert dist[0] > town.index.width[lane[0]] / 2 + 0.5, (k, end, int(lane[0]))

@@ -57,11 +57,12 @@ def carriageway_edge(town: Town, lane: int, side: float) -> float:
             edge += town.lanes[k].width
             k = town.lanes[k].right
         return edge
-    k = ln.left
+    k, leftmost = ln.left, ln
     while k >= 0:
         edge += town.lanes[k].width
-        k = town.lanes[k].left
-    k = ln.opposite
+        leftmost = town.lanes[k]
+        k = leftmost.left
+    k = leftmost.opposite  # the opposite lanes border the leftmost same-direction lane
     while k >= 0:
         edge += town.lanes[k].width
         k = town.lanes[k].right
@@ -384,7 +385,11 @@ class DynamicObjectCrossing(TimedScenario):
         # roadside unit (past the crossing, looking back) sees it all the time
         self._start_lat = w / 2 + 0.3 + truck[1] - 0.5
         start, _ = lane_point(town, lane, self.site.s_on_key + 0.2, side * self._start_lat)
-        end, _ = lane_point(town, lane, self.site.s_on_key + 0.5, -side * (w / 2 + 4.0))
+        # ... to the far sidewalk (past every lane: on a wider road a fixed offset left it
+        # standing in a lane the route may use later)
+        end, _ = lane_point(
+            town, lane, self.site.s_on_key + 0.5, -side * (kerb_offset(town, lane, -side) + 1.0)
+        )
         spawn_walker(
             world, self.rows[1], start, end, speed=float(self.params["speed"]), kind=PEDESTRIAN
         )
@@ -459,7 +464,7 @@ class ParkingCrossingPedestrian(TimedScenario):
         # the pedestrian waits on the sidewalk beside the van's front, facing the gap
         self._start_lat = kerb_offset(town, lane, -1.0) + 0.8
         start, _ = lane_point(town, lane, s_c - 0.25, -self._start_lat)
-        end, _ = lane_point(town, lane, s_c + 0.4, w / 2 + 3.0)
+        end, _ = lane_point(town, lane, s_c + 0.4, kerb_offset(town, lane, 1.0) + 1.0)
         spawn_walker(world, self.rows[4], start, end, speed=float(self.params["speed"]))
         self.hold_walker(world, self.rows[4])
         self.hazard_rows = [int(self.rows[4])]

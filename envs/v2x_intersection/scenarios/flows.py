@@ -275,9 +275,11 @@ class Flow:
 class FlowScenario(Scenario):
     """Base of the actor-flow scenarios: ``site.extra`` holds ``(path, conflict_s_on_path)`` per
     flow; rows are shared out between the flows. Parameters: ``speed`` (m/s) of the flow,
-    ``spacing_min`` / ``spacing_max`` (m) between its vehicles. Crossing and merging flows are
-    dense on average but their spacings reach ~6-7 s, so that a gap a careful driver accepts comes
-    every few vehicles (with tighter flows the rule expert waited out the scenario timeout)."""
+    ``spacing_min`` / ``spacing_max`` (m) between its vehicles, per carriageway (flows in
+    parallel lanes of one approach share them, see :meth:`spacing`). Crossing and merging flows
+    are dense on average but their spacings reach ~6-7 s, so that a gap a careful driver accepts
+    comes every few vehicles (with tighter flows the rule expert waited out the scenario
+    timeout)."""
 
     family = "flow"
     max_actors = 16

@@ -6,7 +6,7 @@ calls :meth:`Scenario.tick`, which fires :meth:`on_trigger` once when the ego co
 ``trigger_distance`` of the trigger point, then :meth:`update`. The ego *passes* the scenario
 when its route progress reaches ``end_s``; if it has not passed ``timeout_s`` seconds after the
 trigger, a ``SCENARIO_TIMEOUT`` event is emitted (CARLA's scenario timeout, IS factor 0.7). The
-scenario clock stops while a red light holds the ego (``InfractionMonitor.held_by_red``): waiting
+scenario clock stops while a red light holds the ego (``EventMonitor.held_by_red``): waiting
 at a red light is obeying the rules, not failing to get through.
 
 Subclasses set the class attributes, implement :meth:`find_sites` (where on a town it fits),

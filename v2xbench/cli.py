@@ -308,7 +308,7 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument("--out", default="data/v2x")
     co.add_argument("--workers", type=int, default=1, help="episode worker processes")
     co.add_argument("--scale", default="default", choices=("tiny", "default", "paper"),
-                    help="tiny: 3 routes x 150 ticks; default: every route once; paper: 2 seeds per route (~120K frames)")
+                    help="tiny: 3 routes x 150 ticks; default: every route once; paper: 2 seeds per route (~105K frames)")
     co.add_argument("--seeds", type=int, default=None, help="seed indices per route (overrides the scale)")
     co.add_argument("--max-routes", type=int, default=None, help="only the first N routes")
     co.add_argument("--max-ticks", type=int, default=None, help="cap per episode (ticks)")

@@ -12,8 +12,9 @@ expert, perturbation seed), so a resumed collection has the same content as an u
 The settings are stored in ``manifest.json`` and must match on resume.
 
 Scales (``SCALES``): ``tiny`` (3 routes x 1 seed, 150 ticks each: a smoke test), ``default``
-(every route of the suite once: about 60K frames for ``train``) and ``paper`` (2 seeds per route:
-120 train episodes, about 120K frames and 117K QA pairs, near the paper's 140K frames / 88K QA;
+(every route of the suite once: 52.7K frames and 50.9K QA pairs for ``train``, measured) and
+``paper`` (2 seeds per route: 120 episodes, about 105K frames and 100K QA pairs, near the paper's
+140K frames / 88K QA;
 our routes are longer than the paper's ~500 runs of ~28 s). Measured sizes and times: README.
 """
 

@@ -362,3 +362,25 @@ def test_all_own_scenarios_fit_the_test_town():
         assert cls.family and not cls.v2x and cls.towns
         pick_site(cls, get_town("Town12"), np.random.default_rng(0))  # raises if it does not fit
         pick_site(cls, get_town(cls.towns[0]), np.random.default_rng(0))
+
+
+def test_scenario_ending_at_the_route_end_is_passed_when_the_route_completes():
+    """test50_030 ends right after its AccidentTwoWays: the scenario counts as passed on the tick
+    the route is completed (its end used to lie beyond the completing progress, and the world
+    updates progress after the scenarios' tick)."""
+    from v2xbench.envs.v2x_intersection.route_files import load_suite_cached
+
+    spec = load_suite_cached("test50")[30]
+    world = World(
+        make_config(town=spec.town, num_vehicles=0, num_parked=0, num_pedestrians=0, num_bicycles=0)
+    )
+    world.reset(seed=0, spec=spec)
+    sc = next(s for s in world.scenarios if s.name == "AccidentTwoWays")
+    r, t = world.route, world.table
+    assert sc.end_s == pytest.approx(r.s[-3])  # its end is where the route counts as complete
+    for k in range(0, len(r.points), 3):  # the ego is carried along the route
+        t.pos[0], t.yaw[0], t.speed[0] = r.points[k], r.headings[k], 0.0
+        world.step(np.array([0.0, 0.0, 1.0]))
+        if world.is_route_complete():
+            break
+    assert world.is_route_complete() and sc.triggered and sc.passed and not sc.timed_out

@@ -284,6 +284,8 @@ class World:
         contacts = self.collisions.ego_contacts(t)
         moved = float(np.linalg.norm(t.pos[0] - old))
         self.last_events = self.monitor.update(self.tick + 1, t, contacts, self.lane_signal, moved)
+        for sc in self.scenarios:  # the progress just moved: a route's last scenario may be passed
+            sc.check_passed(self)
         # 7. perception
         self.tick += 1
         self._perceive()

@@ -62,7 +62,8 @@ class Scenario:
         ts = max(conflict_s - self.trigger_distance, 0.0)
         self.trigger_s = ts
         self.trigger_point = route.points[int(np.clip(np.searchsorted(route.s, ts), 0, len(route.points) - 1))].copy()
-        self.end_s = min(conflict_s + 15.0, route.length - 1.0)
+        # at most the progress that completes the route (``World.is_route_complete``)
+        self.end_s = min(conflict_s + 15.0, float(route.s[max(len(route.s) - 3, 0)]))
         self.rows = np.zeros(0, np.int64)
         self.hazard_rows: list[int] = []
         self.triggered = False
@@ -97,6 +98,13 @@ class Scenario:
         """Ego route progress (m)."""
         return float(world.route.s[world.monitor.progress])
 
+    def check_passed(self, world) -> None:
+        """Mark the scenario passed once the ego's route progress reaches ``end_s``. The world calls
+        this again after its progress update, so that a scenario whose ``end_s`` is the route's end
+        counts as passed on the tick the route is completed."""
+        if self.triggered and not self.passed and self.ego_s(world) >= self.end_s:
+            self.passed = True
+
     def tick(self, world) -> None:
         """Trigger, behaviour, pass / timeout bookkeeping (called by ``World.step``)."""
         s = self.ego_s(world)
@@ -105,8 +113,7 @@ class Scenario:
             self.on_trigger(world)
         if self.triggered:
             self.update(world)
-            if not self.passed and s >= self.end_s:
-                self.passed = True
+            self.check_passed(world)
             if not world.monitor.held_by_red:
                 self.elapsed_s += world.config.dt
             if not self.passed and not self.timed_out and self.elapsed_s > self.timeout_s:

@@ -300,6 +300,15 @@ class TimedScenario(Scenario):
         world.table.speed[row] = self._walk_speed.get(int(row), 1.4)
         self._walking.add(int(row))
 
+    def step_one_walker(self, world, row: int, lateral: float) -> None:
+        """The ``update`` of a scenario with one crossing walker ``row`` that waits ``lateral`` m
+        from the ego lane's centre line: release it once :meth:`due`, then let it yield."""
+        if row not in self._walking and self.due(
+            world, self.time_to_path(lateral, float(self.params["speed"]))
+        ):
+            self.release_walker(world, row)
+        self.walkers_yield(world)
+
     def walkers_yield(self, world) -> None:
         """Released walkers pause while a (nearly) standing ego's body blocks their next metre:
         they walk on into a moving car's path (that is the hazard) but do not walk into a car
@@ -397,12 +406,7 @@ class DynamicObjectCrossing(TimedScenario):
         self.hazard_rows = [int(self.rows[1])]
 
     def update(self, world) -> None:
-        row = int(self.rows[1])
-        if row not in self._walking and self.due(
-            world, self.time_to_path(self._start_lat, float(self.params["speed"]))
-        ):
-            self.release_walker(world, row)
-        self.walkers_yield(world)
+        self.step_one_walker(world, int(self.rows[1]), self._start_lat)
 
 
 @register_scenario
@@ -470,12 +474,7 @@ class ParkingCrossingPedestrian(TimedScenario):
         self.hazard_rows = [int(self.rows[4])]
 
     def update(self, world) -> None:
-        row = int(self.rows[4])
-        if row not in self._walking and self.due(
-            world, self.time_to_path(self._start_lat, float(self.params["speed"]))
-        ):
-            self.release_walker(world, row)
-        self.walkers_yield(world)
+        self.step_one_walker(world, int(self.rows[4]), self._start_lat)
 
 
 @register_scenario

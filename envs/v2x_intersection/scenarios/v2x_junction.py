@@ -164,12 +164,7 @@ class _TurnCrossing(TimedScenario):
         self.hazard_rows = [int(self.rows[1])]
 
     def update(self, world) -> None:
-        row = int(self.rows[1])
-        if row not in self._walking and self.due(
-            world, self.time_to_path(self._lat0, float(self.params["speed"]))
-        ):
-            self.release_walker(world, row)
-        self.walkers_yield(world)
+        self.step_one_walker(world, int(self.rows[1]), self._lat0)
 
 
 @register_scenario

@@ -9,6 +9,7 @@ import numpy as np
 from .actors import DRIVER, EGO, PARKED, RIDER, STATIC, ActorTable
 from .dynamics import IDMParams, idm_accel
 from .jit import HAVE_JIT, leaders_kernel
+from .jit_traffic import followers_kernel, pose_kernel
 from .signals import RED, YELLOW
 from .town.model import PRIORITY, STOP, Town
 
@@ -22,6 +23,13 @@ STUCK_RESPAWN_S = 40.0  # s stopped (not at a red light) before an NPC is respaw
 BLOCKED_RESPAWN_S = 5.0
 IDM = IDMParams()
 IDM_BIKE = IDMParams(accel=1.0, decel=2.0, time_headway=1.0, min_gap=1.5)
+
+
+def _idm_tuple(p: IDMParams) -> tuple[float, ...]:
+    return (p.min_gap, p.time_headway, float(np.sqrt(p.accel * p.decel)), p.accel, p.delta, p.max_brake, p.decel)
+
+
+_IDM_TUPLE, _IDM_BIKE_TUPLE = _idm_tuple(IDM), _idm_tuple(IDM_BIKE)
 
 
 def leaders(t: ActorTable, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -112,6 +120,44 @@ def step_followers(t: ActorTable, town: Town, lane_signal: np.ndarray, rng: np.r
         return idx
     lane = t.lane[idx]
     bike = t.behaviour[idx] == RIDER
+    if HAVE_JIT:
+        a = _town_arrays(town)
+        gap, dv, s, v_new, stuck = followers_kernel(
+            idx, t.active, t.hold, t.behaviour, t.pos, t.yaw, t.length, t.width, t.speed, t.lane, t.s, t.v0,
+            t.stopped_at_sign, t.ignore_rules, t.wait, t.accel, t.scenario, lane_signal, ix.speed_limit,
+            ix.length, ix.stop_at_end, ix.junction_ahead, a["stop_lane"], a["major"], a["center"], a["radius"],
+            a["control"], _IDM_TUPLE, _IDM_BIKE_TUPLE, LOOKAHEAD, STOP_LINE_SETBACK, dt, BLOCKED_RESPAWN_S,
+            STUCK_RESPAWN_S)
+    else:
+        gap, dv, s, v_new, stuck = _follow(t, town, lane_signal, dt, idx, lane, bike)
+    respawn = _lane_transitions(t, town, idx, lane, s, rng, plans)
+    respawn.extend(idx[stuck].tolist())
+
+    _lane_changes(t, town, idx, lane, s, gap, dv, bike, rng, dt)
+    t.lane[idx] = lane
+    t.s[idx] = s
+    if HAVE_JIT:
+        pose_kernel(idx, lane, s, bike, v_new, t.lat, t.pos, t.yaw, ix.width, LANE_CHANGE_RATE, dt, ix.points,
+                    ix.heading, ix.offset, ix.n_points, ix.gs, ix.base, ix.length)
+        return np.unique(np.array(respawn, np.int64))
+    # lateral offset: riders keep to the right edge; lane changes decay to the centre
+    lat = t.lat[idx]
+    edge = -(ix.width[lane] / 2.0 - 0.6)
+    lat = np.where(bike, edge, np.sign(lat) * np.maximum(np.abs(lat) - LANE_CHANGE_RATE * dt, 0.0))
+    dlat = lat - t.lat[idx]
+    t.lat[idx] = lat
+    p, h = ix.pose_at(lane, s)
+    normal = np.stack([-np.sin(h), np.cos(h)], -1)
+    t.pos[idx] = p + lat[:, None] * normal
+    t.yaw[idx] = h + np.where(bike, 0.0, np.arctan2(dlat / dt, np.maximum(v_new, 1.0)))
+    return np.unique(np.array(respawn, np.int64))
+
+
+def _follow(t: ActorTable, town: Town, lane_signal: np.ndarray, dt: float, idx: np.ndarray, lane: np.ndarray,
+            bike: np.ndarray) -> tuple[np.ndarray, ...]:
+    """IDM behind the corridor leader and before stop lines (NumPy path of ``followers_kernel``):
+    sets speed, accel, wait and stop-sign arrivals; returns ``(gap, dv, s_new, v_new, stuck)``."""
+    ix = town.index
     limit = ix.speed_limit[lane]
     v0 = np.where(bike, np.minimum(t.v0[idx], limit), t.v0[idx] * limit)
     gap, dv, ahead = leaders(t, idx)
@@ -145,8 +191,17 @@ def step_followers(t: ActorTable, town: Town, lane_signal: np.ndarray, rng: np.r
     s = t.s[idx] + v_new * dt
     waiting = (v_new < 0.1) & ~must_stop | (v_new < 0.1) & (sig == -1)
     t.wait[idx] = np.where(v_new < 0.1, t.wait[idx] + dt, 0.0)
+    behind_obstacle = (ahead >= 0) & np.isin(t.behaviour[np.maximum(ahead, 0)], (PARKED, STATIC))
+    limit_s = np.where(behind_obstacle, BLOCKED_RESPAWN_S, STUCK_RESPAWN_S)
+    stuck = (t.wait[idx] > limit_s) & waiting & (sig != RED) & (t.scenario[idx] < 0)
+    return gap, dv, s, v_new, stuck
 
-    # lane transitions (random successor); dead ends -> respawn
+
+def _lane_transitions(t: ActorTable, town: Town, idx: np.ndarray, lane: np.ndarray, s: np.ndarray,
+                      rng: np.random.Generator, plans: list[list[int]] | None) -> list[int]:
+    """Move followers past a lane's end onto a successor (their plan's next lane, else a random
+    one), in place on ``lane``/``s``; returns the rows at a dead end (to respawn)."""
+    ix = town.index
     respawn = []
     over = np.flatnonzero(s > ix.length[lane])
     for k in over:
@@ -165,25 +220,26 @@ def step_followers(t: ActorTable, town: Town, lane_signal: np.ndarray, rng: np.r
             s[k] -= ix.length[lane[k]]
             lane[k] = nxt
             t.stopped_at_sign[i] = False
-    behind_obstacle = (ahead >= 0) & np.isin(t.behaviour[np.maximum(ahead, 0)], (PARKED, STATIC))
-    limit_s = np.where(behind_obstacle, BLOCKED_RESPAWN_S, STUCK_RESPAWN_S)
-    stuck = idx[(t.wait[idx] > limit_s) & waiting & (sig != RED) & (t.scenario[idx] < 0)]
-    respawn.extend(stuck.tolist())
+    return respawn
 
-    _lane_changes(t, town, idx, lane, s, gap, dv, bike, rng, dt)
-    t.lane[idx] = lane
-    t.s[idx] = s
-    # lateral offset: riders keep to the right edge; lane changes decay to the centre
-    lat = t.lat[idx]
-    edge = -(ix.width[lane] / 2.0 - 0.6)
-    lat = np.where(bike, edge, np.sign(lat) * np.maximum(np.abs(lat) - LANE_CHANGE_RATE * dt, 0.0))
-    dlat = lat - t.lat[idx]
-    t.lat[idx] = lat
-    p, h = ix.pose_at(lane, s)
-    normal = np.stack([-np.sin(h), np.cos(h)], -1)
-    t.pos[idx] = p + lat[:, None] * normal
-    t.yaw[idx] = h + np.where(bike, 0.0, np.arctan2(dlat / dt, np.maximum(v_new, 1.0)))
-    return np.unique(np.array(respawn, np.int64))
+
+def _town_arrays(town: Town) -> dict[str, np.ndarray]:
+    """Junction tables for the kernels, cached on the town: ``stop_lane (L,)`` (the lane has a stop
+    sign at its junction ahead), ``major (J, L + 1)`` (``_major_mask`` rows), and the junctions'
+    ``center``, ``radius``, ``control``."""
+    a = town.__dict__.get("_traffic_arrays")
+    if a is None:
+        ix = town.index
+        stop_lane = np.array([j >= 0 and k in town.junctions[j].stop_lanes
+                              for k, j in enumerate(ix.junction_ahead)], bool)
+        nj = len(town.junctions)
+        a = {"stop_lane": stop_lane,
+             "major": np.stack([_major_mask(town, j) for j in range(nj)]) if nj else np.zeros((1, len(town.lanes) + 1), bool),
+             "center": np.array([j.center for j in town.junctions], np.float64).reshape(-1, 2),
+             "radius": np.array([j.radius for j in town.junctions], np.float64),
+             "control": np.array([j.control for j in town.junctions], np.int64)}
+        object.__setattr__(town, "_traffic_arrays", a)
+    return a
 
 
 def _lane_changes(t, town, idx, lane, s, gap, dv, bike, rng, dt) -> None:

@@ -1,0 +1,196 @@
+"""numba kernels for the NPC tick (``traffic.step_followers``): car-following, stop lines,
+junction yielding, and the final pose update.
+
+Like :mod:`.jit`, each kernel repeats the NumPy path's float operations in the same order and
+dtype, so both paths give bit-identical results (``tests/test_jit.py``). What draws random
+numbers (lane transitions at a lane's end, lane changes) stays in Python, so the world's one
+generator is drawn in the same order with or without numba.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .jit import _njit, idm_kernel, leaders_kernel
+
+# behaviour codes (actors.py) and junction controls (town/model.py), as plain ints for the kernels
+_EGO, _DRIVER, _PARKED, _RIDER, _STATIC = 0, 1, 2, 4, 5
+_STOP, _PRIORITY = 1, 2
+_RED, _YELLOW, _NO_SIGNAL = 2, 1, -1
+
+
+@_njit
+def _np_max(a, b):
+    """``np.maximum`` for scalars (NaN and signed-zero semantics included)."""
+    return a if (a >= b or a != a) else b
+
+
+@_njit
+def _np_min(a, b):
+    """``np.minimum`` for scalars."""
+    return a if (a <= b or a != a) else b
+
+
+@_njit
+def junction_clear_kernel(active, hold, behaviour, pos, speed, lane, s, lane_length, jcenter, jradius, jcontrol,
+                          stop_lane, major, jid, me):  # pragma: no cover
+    """``traffic.junction_clear``: no vehicle inside junction ``jid`` (and none arriving on a
+    major approach within 30 m when ``me`` waits on a minor road of a priority junction)."""
+    n = active.shape[0]
+    cx, cy = jcenter[jid, 0], jcenter[jid, 1]
+    r = jradius[jid] + 1.0
+    for i in range(n):
+        b = behaviour[i]
+        if i == me or not active[i] or hold[i] or not (b == _EGO or b == _DRIVER or b == _RIDER):
+            continue
+        dx = pos[i, 0] - cx
+        dy = pos[i, 1] - cy
+        if np.sqrt(dx * dx + dy * dy) < r:
+            return False
+    if jcontrol[jid] == _PRIORITY and stop_lane[lane[me]]:
+        nl = lane_length.shape[0]
+        for i in range(n):
+            b = behaviour[i]
+            if i == me or not active[i] or hold[i] or not (b == _EGO or b == _DRIVER or b == _RIDER):
+                continue
+            li = lane[i]
+            if not major[jid, li if li >= 0 else nl] or not speed[i] > 0.5:
+                continue
+            if lane_length[li if li >= 0 else 0] - s[i] < 30.0:
+                return False
+    return True
+
+
+@_njit
+def followers_kernel(idx, active, hold, behaviour, pos, yaw, length, width, speed, lane_arr, s_arr, v0_arr,
+                     stopped_at_sign, ignore_rules, wait, accel, scenario, lane_signal, speed_limit, lane_length,
+                     stop_at_end, junction_ahead, stop_lane, major, jcenter, jradius, jcontrol, idm_car, idm_bike,
+                     lookahead, setback, dt, blocked_s, stuck_s):  # pragma: no cover
+    """The car-following part of ``traffic.step_followers`` for followers ``idx``, in place on
+    ``stopped_at_sign``, ``wait``, ``accel`` and ``speed``.
+
+    ``idm_car`` / ``idm_bike``: ``(min_gap, time_headway, sqrt(accel * decel), accel, delta,
+    max_brake, decel)``.
+
+    Returns:
+        ``(gap, dv, s_new, v_new, stuck)`` per follower: leader gap and approach rate, arc length
+        after the move (before lane transitions), new speed, and whether it waited too long.
+    """
+    m = idx.shape[0]
+    others = np.flatnonzero(active)
+    gap, dv, ahead = leaders_kernel(idx, others, pos, yaw, length, width, speed, lookahead)
+    lane = np.empty(m, np.int64)
+    bike = np.empty(m, np.bool_)
+    v = np.empty(m)
+    v0 = np.empty(m)
+    for k in range(m):
+        i = idx[k]
+        lane[k] = lane_arr[i]
+        bike[k] = behaviour[i] == _RIDER
+        v[k] = speed[i]
+        lim = speed_limit[lane[k]]
+        v0[k] = _np_min(v0_arr[i], lim) if bike[k] else v0_arr[i] * lim
+    c = idm_car
+    b = idm_bike
+    acc_car = idm_kernel(v, v0, gap, dv, c[0], c[1], c[2], c[3], c[4], c[5])
+    acc_bike = idm_kernel(v, v0, gap, dv, b[0], b[1], b[2], b[3], b[4], b[5])
+    to_line = np.empty(m)
+    must_stop = np.zeros(m, np.bool_)
+    sign_lane = np.zeros(m, np.bool_)
+    sig = np.empty(m, np.int64)
+    for k in range(m):
+        i = idx[k]
+        ln = lane[k]
+        to_line[k] = lane_length[ln] - s_arr[i] - setback - 0.5 * length[i]
+        sig[k] = lane_signal[ln]
+        near = stop_at_end[ln] and to_line[k] > -1.0 and to_line[k] < lookahead
+        must_stop[k] = near and (sig[k] == _RED or (sig[k] == _YELLOW and to_line[k] > v[k] * v[k] / (2 * c[6])))
+        sign_lane[k] = near and sig[k] == _NO_SIGNAL
+        if sign_lane[k] and to_line[k] < c[0] + 1.0 and v[k] < 0.3:  # arrived (IDM halts min_gap short)
+            stopped_at_sign[i] = True
+    for k in range(m):
+        if not sign_lane[k]:
+            continue
+        i = idx[k]
+        j = junction_ahead[lane[k]]
+        control = jcontrol[j]
+        needs_stop = control == _STOP or stop_lane[lane[k]]
+        if needs_stop and not stopped_at_sign[i]:
+            must_stop[k] = True
+        elif (needs_stop or control == _PRIORITY) and to_line[k] < 8.0 and not junction_clear_kernel(
+                active, hold, behaviour, pos, speed, lane_arr, s_arr, lane_length, jcenter, jradius, jcontrol,
+                stop_lane, major, j, i):
+            must_stop[k] = True
+    for k in range(m):
+        must_stop[k] = must_stop[k] and not ignore_rules[idx[k]]
+    line_gap = np.empty(m)
+    for k in range(m):
+        line_gap[k] = _np_max(to_line[k], 0.0)
+    acc_line = idm_kernel(v, v0, line_gap, v, c[0], c[1], c[2], c[3], c[4], c[5])
+    s_new = np.empty(m)
+    v_new = np.empty(m)
+    stuck = np.zeros(m, np.bool_)
+    for k in range(m):
+        i = idx[k]
+        acc = acc_bike[k] if bike[k] else acc_car[k]
+        if must_stop[k]:
+            acc = _np_min(acc, acc_line[k])
+        vn = _np_max(v[k] + acc * dt, 0.0)
+        v_new[k] = vn
+        accel[i] = (vn - v[k]) / dt
+        speed[i] = vn
+        s_new[k] = s_arr[i] + vn * dt
+        waiting = (vn < 0.1 and not must_stop[k]) or (vn < 0.1 and sig[k] == _NO_SIGNAL)
+        wait[i] = wait[i] + dt if vn < 0.1 else 0.0
+        behind_obstacle = ahead[k] >= 0 and (behaviour[ahead[k]] == _PARKED or behaviour[ahead[k]] == _STATIC)
+        limit = blocked_s if behind_obstacle else stuck_s
+        stuck[k] = wait[i] > limit and waiting and sig[k] != _RED and scenario[i] < 0
+    return gap, dv, s_new, v_new, stuck
+
+
+@_njit
+def pose_kernel(idx, lane, s, bike, v_new, lat_arr, pos, yaw, lane_width, lane_change_rate, dt, points, heading,
+                offset, n_points, gs, base, length):  # pragma: no cover
+    """The end of ``traffic.step_followers``: lateral offset (riders keep right, lane changes decay
+    to the centre), then position and heading on the lane, in place on ``lat_arr``, ``pos``,
+    ``yaw``."""
+    m = idx.shape[0]
+    p, h = pose_at_kernel(lane, s, points, heading, offset, n_points, gs, base, length)
+    for k in range(m):
+        i = idx[k]
+        old = lat_arr[i]
+        if bike[k]:
+            lat = -(lane_width[lane[k]] / 2.0 - 0.6)
+        else:
+            a = abs(old) - lane_change_rate * dt
+            sign = 1.0 if old > 0.0 else (-1.0 if old < 0.0 else (0.0 if old == 0.0 else old))  # np.sign
+            lat = sign * _np_max(a, 0.0)
+        dlat = lat - old
+        lat_arr[i] = lat
+        nx, ny = -np.sin(h[k]), np.cos(h[k])
+        pos[i, 0] = p[k, 0] + lat * nx
+        pos[i, 1] = p[k, 1] + lat * ny
+        yaw[i] = h[k] + (0.0 if bike[k] else np.arctan2(dlat / dt, _np_max(v_new[k], 1.0)))
+
+
+@_njit
+def pose_at_kernel(idx, s, points, heading, offset, n_points, gs, base, length):  # pragma: no cover
+    """``town.model.PolylineIndex.pose_at``: positions ``(N, 2)`` and headings ``(N,)``."""
+    m = idx.shape[0]
+    p = np.empty((m, 2))
+    h = np.empty(m)
+    for k in range(m):
+        ln = idx[k]
+        sk = s[k] if s[k] > 0.0 else 0.0  # np.clip
+        sk = sk if sk < length[ln] else length[ln]
+        g = base[ln] + sk
+        first = offset[ln]
+        last = first + n_points[ln] - 1
+        i = np.searchsorted(gs, g, side="right") - 1
+        i = _np_min(_np_max(i, first), last - 1)
+        s0, s1 = gs[i], gs[i + 1]
+        t = (g - s0) / _np_max(s1 - s0, 1e-9) if s1 > s0 else 0.0
+        p[k, 0] = points[i, 0] * (1.0 - t) + points[i + 1, 0] * t
+        p[k, 1] = points[i, 1] * (1.0 - t) + points[i + 1, 1] * t
+        h[k] = heading[i]
+    return p, h

@@ -157,13 +157,15 @@ def test_world_tick_kernels_match_numpy(monkeypatch, town):
     """Two worlds from one seed and one action sequence, one on the NumPy paths of the tick
     (traffic, pedestrians, monitor, observations), one on the kernels: identical actor tables,
     events and observations every tick (signed zeros included: the bytes are compared)."""
-    from v2xbench.envs.v2x_intersection import traffic
+    from v2xbench.envs.v2x_intersection import rsu, traffic
+    from v2xbench.envs.v2x_intersection import world as world_module
     from v2xbench.envs.v2x_intersection.config import make_config
     from v2xbench.envs.v2x_intersection.observations import ego_observation
+    from v2xbench.envs.v2x_intersection.town import model
     from v2xbench.envs.v2x_intersection.world import World
 
-    modules = (traffic,)
-    worlds = [World(make_config(town=town, num_vehicles=40, num_pedestrians=20)) for _ in range(2)]
+    modules = (traffic, world_module, rsu, model)
+    worlds = [World(make_config(town=town, num_vehicles=40, num_pedestrians=20, rsu_slots=2)) for _ in range(2)]
     for w in worlds:
         w.reset(seed=3)
     rng = np.random.default_rng(0)
@@ -181,3 +183,19 @@ def test_world_tick_kernels_match_numpy(monkeypatch, town):
         assert out[0][0] == out[1][0], f"tick {k}: actor tables differ"
         assert out[0][1] == out[1][1] and out[0][2] == out[1][2], f"tick {k}: events/observations differ"
     assert worlds[1].table.wait.max() > 0.0  # someone queued: the stop rules ran
+
+
+def test_pose_at_matches_numpy(monkeypatch):
+    from v2xbench.envs.v2x_intersection.town import get_town, model
+
+    ix = get_town("Town03").index
+    rng = np.random.default_rng(1)
+    lanes = rng.integers(0, len(ix.length), 200)
+    s = rng.uniform(-5.0, 1.1, 200) * ix.length[lanes]
+    s[:3] = (-0.0, 0.0, np.nan)
+    a = ix.pose_at(lanes, s)
+    with monkeypatch.context() as m:
+        m.setattr(model, "HAVE_JIT", False)
+        b = ix.pose_at(lanes, s)
+    for x, y in zip(a, b):
+        assert x.tobytes() == y.tobytes()

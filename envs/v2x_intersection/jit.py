@@ -397,3 +397,38 @@ def idm_kernel(v, v0, gap, dv, min_gap, headway, sqrt_ab, a_max, delta, max_brak
             inter = 0.0
         out[i] = min(max(a_max * (free - inter), -max_brake), a_max)
     return out
+
+
+@_njit
+def _np_max(a, b):
+    """``np.maximum`` for scalars (NaN and signed-zero semantics included)."""
+    return a if (a >= b or a != a) else b
+
+
+@_njit
+def _np_min(a, b):
+    """``np.minimum`` for scalars."""
+    return a if (a <= b or a != a) else b
+
+
+@_njit
+def pose_at_kernel(idx, s, points, heading, offset, n_points, gs, base, length):  # pragma: no cover
+    """``town.model.PolylineIndex.pose_at``: positions ``(N, 2)`` and headings ``(N,)``."""
+    m = idx.shape[0]
+    p = np.empty((m, 2))
+    h = np.empty(m)
+    for k in range(m):
+        ln = idx[k]
+        sk = s[k] if (s[k] > 0.0 or s[k] != s[k]) else 0.0  # np.clip, NaN kept
+        sk = sk if (sk < length[ln] or sk != sk) else length[ln]
+        g = base[ln] + sk
+        first = offset[ln]
+        last = first + n_points[ln] - 1
+        i = np.searchsorted(gs, g, side="right") - 1
+        i = _np_min(_np_max(i, first), last - 1)
+        s0, s1 = gs[i], gs[i + 1]
+        t = (g - s0) / _np_max(s1 - s0, 1e-9) if s1 > s0 else 0.0
+        p[k, 0] = points[i, 0] * (1.0 - t) + points[i + 1, 0] * t
+        p[k, 1] = points[i, 1] * (1.0 - t) + points[i + 1, 1] * t
+        h[k] = heading[i]
+    return p, h

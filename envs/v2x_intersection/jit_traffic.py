@@ -11,24 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .jit import _njit, idm_kernel, leaders_kernel
+from .jit import _njit, _np_max, _np_min, idm_kernel, leaders_kernel, pose_at_kernel
 
 # behaviour codes (actors.py) and junction controls (town/model.py), as plain ints for the kernels
 _EGO, _DRIVER, _PARKED, _RIDER, _STATIC = 0, 1, 2, 4, 5
 _STOP, _PRIORITY = 1, 2
 _RED, _YELLOW, _NO_SIGNAL = 2, 1, -1
-
-
-@_njit
-def _np_max(a, b):
-    """``np.maximum`` for scalars (NaN and signed-zero semantics included)."""
-    return a if (a >= b or a != a) else b
-
-
-@_njit
-def _np_min(a, b):
-    """``np.minimum`` for scalars."""
-    return a if (a <= b or a != a) else b
 
 
 @_njit
@@ -171,26 +159,3 @@ def pose_kernel(idx, lane, s, bike, v_new, lat_arr, pos, yaw, lane_width, lane_c
         pos[i, 0] = p[k, 0] + lat * nx
         pos[i, 1] = p[k, 1] + lat * ny
         yaw[i] = h[k] + (0.0 if bike[k] else np.arctan2(dlat / dt, _np_max(v_new[k], 1.0)))
-
-
-@_njit
-def pose_at_kernel(idx, s, points, heading, offset, n_points, gs, base, length):  # pragma: no cover
-    """``town.model.PolylineIndex.pose_at``: positions ``(N, 2)`` and headings ``(N,)``."""
-    m = idx.shape[0]
-    p = np.empty((m, 2))
-    h = np.empty(m)
-    for k in range(m):
-        ln = idx[k]
-        sk = s[k] if s[k] > 0.0 else 0.0  # np.clip
-        sk = sk if sk < length[ln] else length[ln]
-        g = base[ln] + sk
-        first = offset[ln]
-        last = first + n_points[ln] - 1
-        i = np.searchsorted(gs, g, side="right") - 1
-        i = _np_min(_np_max(i, first), last - 1)
-        s0, s1 = gs[i], gs[i + 1]
-        t = (g - s0) / _np_max(s1 - s0, 1e-9) if s1 > s0 else 0.0
-        p[k, 0] = points[i, 0] * (1.0 - t) + points[i + 1, 0] * t
-        p[k, 1] = points[i, 1] * (1.0 - t) + points[i + 1, 1] * t
-        h[k] = heading[i]
-    return p, h

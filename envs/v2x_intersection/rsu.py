@@ -16,6 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .geometry import pose_matrix, wrap_angle
+from .jit import HAVE_JIT
+from .jit_perception import select_active_kernel
 from .routes import Route
 from .town.model import Town
 
@@ -147,6 +149,10 @@ def select_active(rsus: RSUSet, ego_xy: np.ndarray, ego_yaw: float, max_range: f
     """
     if len(rsus) == 0:
         return np.full(slots, -1, np.int64)
+    if HAVE_JIT:
+        return select_active_kernel(rsus.pose, (rsus.kind == KIND_TRIGGER).astype(np.float64), float(ego_xy[0]),
+                                    float(ego_xy[1]), float(ego_yaw), float(max_range), int(slots),
+                                    float(TRIGGER_PREFERENCE_M), float(np.deg2rad(100.0)))
     d = rsus.pose[:, :2] - ego_xy
     dist = np.linalg.norm(d, axis=1)
     ahead = d @ np.array([np.cos(ego_yaw), np.sin(ego_yaw)]) > -10.0

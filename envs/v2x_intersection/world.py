@@ -33,6 +33,8 @@ from .config import EnvConfig
 from .dynamics import VehicleParams, bicycle_step
 from .geometry import world_to_local_2d
 from .infractions import EventMonitor
+from .jit import HAVE_JIT
+from .jit_perception import object_rows_kernel
 from .pedestrians import SidewalkNetwork, step_walkers
 from .physics import CollisionWorld
 from .raycast import Boxes
@@ -363,6 +365,9 @@ def object_rows(t: ActorTable, idx: np.ndarray, origin: np.ndarray, yaw: float) 
     ``origin (2,)`` / ``yaw``, sorted by distance."""
     if len(idx) == 0:
         return np.zeros((0, 10), np.float32)
+    if HAVE_JIT:
+        return object_rows_kernel(np.asarray(idx, np.int64), t.pos, t.yaw, t.speed, t.kind, t.length, t.width,
+                                  t.height, t.actor_id, float(origin[0]), float(origin[1]), float(yaw))
     local = world_to_local_2d(t.pos[idx], origin, yaw)
     order = np.argsort(np.linalg.norm(local, axis=1))
     idx, local = idx[order], local[order]

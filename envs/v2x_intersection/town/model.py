@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..geometry import polyline_lengths
-from ..jit import HAVE_JIT, project_kernel
+from ..jit import HAVE_JIT, pose_at_kernel, project_kernel
 
 # Lane kinds
 DRIVING, CONNECTOR, PARKING, RAMP = 0, 1, 2, 3
@@ -333,6 +333,11 @@ class PolylineIndex:
     def pose_at(self, idx: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Positions ``(N, 2)`` and headings ``(N,)`` at arc length ``s`` (m) on polylines ``idx``."""
         idx = np.asarray(idx)
+        if HAVE_JIT and idx.ndim == 1 and idx.dtype.kind == "i":
+            s = np.asarray(s, dtype=np.float64)
+            if s.shape == idx.shape:
+                return pose_at_kernel(idx.astype(np.int64, copy=False), s, self.points, self.heading, self.offset,
+                                      self.n_points, self.gs, self.base, self.length)
         s = np.clip(np.asarray(s, dtype=np.float64), 0.0, self.length[idx])
         g = self.base[idx] + s
         first = self.offset[idx]

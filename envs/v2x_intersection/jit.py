@@ -364,13 +364,16 @@ def leaders_kernel(idx, others, pos, yaw, length, width, speed, lookahead):  # p
             d0 = pos[o, 0] - pos[i, 0]
             d1 = pos[o, 1] - pos[i, 1]
             dx = c * d0 + s * d1
+            if not dx > 0.0:  # cheap test first: most actors are behind
+                continue
             dy = -s * d0 + c * d1
-            cos_rel = np.cos(yaw[o] - yaw[i])
             half = 0.5 * (width[i] + width[o]) + 0.4
             reach = 0.5 * (length[i] + length[o])
-            ok = (dx > 0.0) and (dx < lookahead + reach) and (abs(dy) < half)
-            ok = ok and not ((cos_rel < -0.5) and (speed[o] > 1.0))
-            ok = ok and o != i
+            ok = (dx < lookahead + reach) and (abs(dy) < half) and o != i
+            if not ok:
+                continue
+            cos_rel = np.cos(yaw[o] - yaw[i])
+            ok = not ((cos_rel < -0.5) and (speed[o] > 1.0))
             if ok and dx - reach < best:
                 best = dx - reach
                 bj = o

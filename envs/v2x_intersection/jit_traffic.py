@@ -1,9 +1,11 @@
-"""numba kernels for the NPC tick (``traffic.step_followers``): car-following, stop lines,
-junction yielding, and the final pose update.
+"""numba kernels for the NPC tick: car-following, stop lines, junction yielding and the pose
+update of vehicles and bicycles (``traffic.step_followers``), and pedestrians walking their
+sidewalks or crossings (``pedestrians.step_walkers``).
 
 Like :mod:`.jit`, each kernel repeats the NumPy path's float operations in the same order and
 dtype, so both paths give bit-identical results (``tests/test_jit.py``). What draws random
-numbers (lane transitions at a lane's end, lane changes) stays in Python, so the world's one
+numbers (lane transitions at a lane's end, lane changes, a walker's choice at a sidewalk's end,
+jaywalking) stays in Python, so the world's one
 generator is drawn in the same order with or without numba.
 """
 
@@ -159,3 +161,77 @@ def pose_kernel(idx, lane, s, bike, v_new, lat_arr, pos, yaw, lane_width, lane_c
         pos[i, 0] = p[k, 0] + lat * nx
         pos[i, 1] = p[k, 1] + lat * ny
         yaw[i] = h[k] + (0.0 if bike[k] else np.arctan2(dlat / dt, _np_max(v_new[k], 1.0)))
+
+
+@_njit
+def crossing_kernel(crossing, pos, yaw, speed, cross_from, cross_to, scenario, ego_ok, ego_x, ego_y, ego_yaw,
+                    ego_hl, ego_hw, lookahead, dt):  # pragma: no cover
+    """Walkers ``crossing`` move along their crossing segment (``pedestrians.step_walkers``); a
+    background walker waits while the point ``lookahead`` m ahead of it is inside the ego's box
+    (half extents ``ego_hl``/``ego_hw``, margin included; ``ego_ok``: the ego is a vehicle).
+    In place on ``pos``, ``yaw`` and ``speed`` (scenario walkers stop at the end).
+
+    Returns:
+        ``(M,)`` bool: background walkers that reached the end of their crossing.
+    """
+    m = crossing.shape[0]
+    done = np.zeros(m, np.bool_)
+    c, s = np.cos(ego_yaw), np.sin(ego_yaw)
+    for k in range(m):
+        i = crossing[k]
+        g0 = cross_to[i, 0] - cross_from[i, 0]
+        g1 = cross_to[i, 1] - cross_from[i, 1]
+        l0 = cross_to[i, 0] - pos[i, 0]
+        l1 = cross_to[i, 1] - pos[i, 1]
+        dist = np.sqrt(l0 * l0 + l1 * l1)
+        norm = _np_max(np.sqrt(g0 * g0 + g1 * g1), 1e-9)
+        u0 = g0 / norm
+        u1 = g1 / norm
+        blocked = False
+        if ego_ok and scenario[i] < 0:
+            d0 = (pos[i, 0] + u0 * lookahead) - ego_x
+            d1 = (pos[i, 1] + u1 * lookahead) - ego_y
+            blocked = abs(c * d0 + s * d1) < ego_hl and abs(-s * d0 + c * d1) < ego_hw
+        step = 0.0 if blocked else speed[i] * dt
+        move = _np_min(step, dist)
+        pos[i, 0] += u0 * move
+        pos[i, 1] += u1 * move
+        yaw[i] = np.arctan2(u1, u0)
+        if dist <= step:
+            if scenario[i] < 0:
+                done[k] = True
+            else:
+                speed[i] = 0.0
+    return done
+
+
+@_njit
+def walking_kernel(walking, path, path_s, path_dir, speed, lat, pos, yaw, dt, points, heading, offset, n_points, gs,
+                   base, length):  # pragma: no cover
+    """Walkers ``walking`` advance along their sidewalk polyline (``pedestrians.step_walkers``),
+    in place on ``path_s``, ``pos`` and ``yaw``.
+
+    Returns:
+        ``(M,)`` bool: the walker reached an end of its sidewalk (its arc length was clipped).
+    """
+    m = walking.shape[0]
+    at_end = np.zeros(m, np.bool_)
+    sw = np.empty(m, np.int64)
+    s = np.empty(m)
+    for k in range(m):
+        i = walking[k]
+        sw[k] = path[i]
+        v = path_s[i] + path_dir[i] * speed[i] * dt
+        top = length[sw[k]]
+        at_end[k] = v < 0.0 or v > top
+        v = v if (v > 0.0 or v != v) else 0.0  # np.clip
+        v = v if (v < top or v != v) else top
+        s[k] = v
+        path_s[i] = v
+    p, h = pose_at_kernel(sw, s, points, heading, offset, n_points, gs, base, length)
+    for k in range(m):
+        i = walking[k]
+        pos[i, 0] = p[k, 0] + lat[i] * -np.sin(h[k])
+        pos[i, 1] = p[k, 1] + lat[i] * np.cos(h[k])
+        yaw[i] = h[k] if path_dir[i] > 0 else h[k] + np.pi
+    return at_end

@@ -13,6 +13,8 @@ import numpy as np
 from .actors import WALKER, ActorTable
 from .classes import VEHICLE_CLASSES
 from .geometry import world_to_local_2d
+from .jit import HAVE_JIT
+from .jit_traffic import crossing_kernel, walking_kernel
 from .town.model import PolylineIndex, Town
 
 
@@ -62,16 +64,23 @@ def step_walkers(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, 
     # crossing pedestrians move on their segment (background walkers wait while the ego stands
     # in their way; scenario walkers are scripted hazards and walk on)
     if len(crossing):
-        seg = t.cross_to[crossing] - t.cross_from[crossing]
-        left = t.cross_to[crossing] - t.pos[crossing]
-        dist = np.linalg.norm(left, axis=1)
-        u = seg / np.maximum(np.linalg.norm(seg, axis=1, keepdims=True), 1e-9)
-        blocked = ego_in_the_way(t, t.pos[crossing] + u * PED_LOOKAHEAD) & (t.scenario[crossing] < 0)
-        step = np.where(blocked, 0.0, t.speed[crossing] * dt)
-        t.pos[crossing] += u * np.minimum(step, dist)[:, None]
-        t.yaw[crossing] = np.arctan2(u[:, 1], u[:, 0])
-        done = crossing[(dist <= step) & (t.scenario[crossing] < 0)]  # scenario walkers stop at the end
-        t.speed[crossing[(dist <= step) & (t.scenario[crossing] >= 0)]] = 0.0
+        if HAVE_JIT:
+            ego_ok = bool(len(t.active) and t.active[0] and t.kind[0] in VEHICLE_CLASSES)
+            done = crossing[crossing_kernel(
+                crossing, t.pos, t.yaw, t.speed, t.cross_from, t.cross_to, t.scenario, ego_ok, float(t.pos[0, 0]),
+                float(t.pos[0, 1]), float(t.yaw[0]), float(t.length[0] / 2 + EGO_MARGIN),
+                float(t.width[0] / 2 + EGO_MARGIN), PED_LOOKAHEAD, dt)]
+        else:
+            seg = t.cross_to[crossing] - t.cross_from[crossing]
+            left = t.cross_to[crossing] - t.pos[crossing]
+            dist = np.linalg.norm(left, axis=1)
+            u = seg / np.maximum(np.linalg.norm(seg, axis=1, keepdims=True), 1e-9)
+            blocked = ego_in_the_way(t, t.pos[crossing] + u * PED_LOOKAHEAD) & (t.scenario[crossing] < 0)
+            step = np.where(blocked, 0.0, t.speed[crossing] * dt)
+            t.pos[crossing] += u * np.minimum(step, dist)[:, None]
+            t.yaw[crossing] = np.arctan2(u[:, 1], u[:, 0])
+            done = crossing[(dist <= step) & (t.scenario[crossing] < 0)]  # scenario walkers stop at the end
+            t.speed[crossing[(dist <= step) & (t.scenario[crossing] >= 0)]] = 0.0
         if len(done):
             sw, s, _ = net.index.project(t.pos[done])
             t.path[done], t.path_s[done] = sw, s
@@ -82,15 +91,19 @@ def step_walkers(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, 
     if len(walking) == 0:
         return
     ix = net.index
-    s = t.path_s[walking] + t.path_dir[walking] * t.speed[walking] * dt
-    length = ix.length[t.path[walking]]
-    at_end = (s < 0.0) | (s > length)
-    s = np.clip(s, 0.0, length)
-    t.path_s[walking] = s
-    p, h = ix.pose_at(t.path[walking], s)
-    normal = np.stack([-np.sin(h), np.cos(h)], -1)
-    t.pos[walking] = p + t.lat[walking][:, None] * normal
-    t.yaw[walking] = np.where(t.path_dir[walking] > 0, h, h + np.pi)
+    if HAVE_JIT:
+        at_end = walking_kernel(walking, t.path, t.path_s, t.path_dir, t.speed, t.lat, t.pos, t.yaw, dt, ix.points,
+                                ix.heading, ix.offset, ix.n_points, ix.gs, ix.base, ix.length)
+    else:
+        s = t.path_s[walking] + t.path_dir[walking] * t.speed[walking] * dt
+        length = ix.length[t.path[walking]]
+        at_end = (s < 0.0) | (s > length)
+        s = np.clip(s, 0.0, length)
+        t.path_s[walking] = s
+        p, h = ix.pose_at(t.path[walking], s)
+        normal = np.stack([-np.sin(h), np.cos(h)], -1)
+        t.pos[walking] = p + t.lat[walking][:, None] * normal
+        t.yaw[walking] = np.where(t.path_dir[walking] > 0, h, h + np.pi)
     for k in np.flatnonzero(at_end):  # end of the sidewalk: cross, or turn around
         i = walking[k]
         c = net.crossing_near(t.pos[i])

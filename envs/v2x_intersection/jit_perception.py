@@ -85,3 +85,28 @@ def select_active_kernel(pose, trigger, ex, ey, eyaw, max_range, slots, preferen
     if out[0] < 0:
         out[0] = np.argmin(dist)
     return out
+
+
+@_njit
+def rsu_to_ego_kernel(rows, x, y, yaw, ex, ey, eyaw):  # pragma: no cover
+    """Object rows received from the RSU at ``(x, y, yaw)`` re-expressed in the ego frame
+    (``observations._v2x``): positions, headings and velocities; a new float32 array."""
+    m = rows.shape[0]
+    out = rows.copy()
+    c, s = np.cos(yaw), np.sin(yaw)
+    ce, se = np.cos(eyaw), np.sin(eyaw)
+    cr, sr = np.cos(yaw - eyaw), np.sin(yaw - eyaw)
+    two_pi = 2.0 * np.pi
+    for k in range(m):
+        p0 = np.float64(rows[k, 1])
+        p1 = np.float64(rows[k, 2])
+        d0 = (c * p0 - s * p1 + x) - ex
+        d1 = (s * p0 + c * p1 + y) - ey
+        out[k, 1] = ce * d0 + se * d1
+        out[k, 2] = -se * d0 + ce * d1
+        out[k, 3] = (np.float64(rows[k, 3]) + yaw - eyaw + np.pi) % two_pi - np.pi
+        vx = np.float64(rows[k, 7])
+        vy = np.float64(rows[k, 8])
+        out[k, 7] = cr * vx - sr * vy
+        out[k, 8] = sr * vx + cr * vy
+    return out

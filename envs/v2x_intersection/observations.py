@@ -39,6 +39,8 @@ from .geometry import (
     world_to_local_2d,
     wrap_angle,
 )
+from .jit import HAVE_JIT
+from .jit_perception import rsu_to_ego_kernel
 from .rsu import RSU_PITCH
 from .traffic import STOP_LINE_SETBACK
 
@@ -218,7 +220,9 @@ def _v2x(world, ego_xy: np.ndarray, ego_yaw: float) -> tuple[np.ndarray, np.ndar
     sender, sent_tick, payload = world.inbox
     rows = unpack_objects(payload, len(payload) - len(payload) % NUM_OBJECT_FIELDS)
     x, y, _, yaw = world.rsus.pose[sender]
-    if len(rows):
+    if len(rows) and HAVE_JIT:
+        rows = rsu_to_ego_kernel(rows, float(x), float(y), float(yaw), float(ego_xy[0]), float(ego_xy[1]), ego_yaw)
+    elif len(rows):
         xy = local_to_world_2d(rows[:, 1:3].astype(np.float64), np.array([x, y]), yaw)
         rows = rows.copy()
         rows[:, 1:3] = world_to_local_2d(xy, ego_xy, ego_yaw)

@@ -11,6 +11,7 @@ import numpy as np
 
 from .actors import ActorTable
 from .classes import BICYCLE, CAR, LARGE_VEHICLE, PEDESTRIAN
+from .geometry import row_norms
 from .routes import Route
 from .signals import RED
 from .town.model import CONNECTOR, PARKING, Town
@@ -92,11 +93,11 @@ class EventMonitor:
         # route progress: furthest route point within 3 m ahead in a window
         r = self.route
         hi = min(self.progress + 40, len(r.points))
-        d = np.linalg.norm(r.points[self.progress:hi] - ego, axis=1)
+        d = row_norms(r.points[self.progress:hi] - ego)
         close = np.flatnonzero(d < 3.0)
         if len(close):
             self.progress += int(close[-1])
-        dev = float(np.min(np.linalg.norm(r.points[max(self.progress - 20, 0): self.progress + 40] - ego, axis=1)))
+        dev = float(np.min(row_norms(r.points[max(self.progress - 20, 0): self.progress + 40] - ego)))
         if dev > ROUTE_DEVIATION_M and not self.counts[ROUTE_DEVIATION]:
             self.emit(ROUTE_DEVIATION, tick, -1, dev)
         # lane-relative checks: nearest lane among drivable lanes

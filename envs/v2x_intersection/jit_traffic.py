@@ -235,3 +235,16 @@ def walking_kernel(walking, path, path_s, path_dir, speed, lat, pos, yaw, dt, po
         pos[i, 1] = p[k, 1] + lat[i] * np.cos(h[k])
         yaw[i] = h[k] if path_dir[i] > 0 else h[k] + np.pi
     return at_end
+
+
+@_njit
+def lane_states_kernel(t, lanes, group, period, green, yellow, n_groups, offset, num_lanes):  # pragma: no cover
+    """``signals.SignalPlan.lane_states``: ``(num_lanes,)`` signal state per lane at time ``t``."""
+    out = np.full(num_lanes, _NO_SIGNAL, np.int64)
+    for k in range(lanes.shape[0]):
+        tm = (t + offset[k]) % _np_max(period[k] * n_groups[k], 1e-9)
+        phase = np.int64(np.floor(tm / period[k]))
+        within = tm - phase * period[k]
+        state = 0 if within < green[k] else (_YELLOW if within < green[k] + yellow[k] else _RED)
+        out[lanes[k]] = state if phase == group[k] else _RED
+    return out

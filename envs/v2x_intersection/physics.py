@@ -12,6 +12,7 @@ import numpy as np
 import pymunk
 
 from .actors import ActorTable
+from .geometry import row_norms
 
 
 class CollisionWorld:
@@ -47,7 +48,7 @@ class CollisionWorld:
 
     def ego_contacts(self, table: ActorTable, static_radius: float = 60.0) -> np.ndarray:
         """Indices of actors (>= 1) and statics (encoded ``-1 - k``) in contact with the ego."""
-        near = np.linalg.norm(table.pos - table.pos[0], axis=1) < self._radius + self._radius[0] + 0.5
+        near = row_norms(table.pos - table.pos[0]) < self._radius + self._radius[0] + 0.5
         near &= table.active
         for i in np.flatnonzero(near):
             b = self.bodies[i]

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .jit import HAVE_JIT
+from .jit_traffic import lane_states_kernel
 from .town.model import SIGNAL, Town
 
 NO_SIGNAL, GREEN, YELLOW, RED = -1, 0, 1, 2
@@ -59,6 +61,9 @@ class SignalPlan:
 
     def lane_states(self, t: float) -> np.ndarray:
         """``(num_lanes,)`` state per lane id (``NO_SIGNAL`` where uncontrolled)."""
+        if HAVE_JIT:
+            return lane_states_kernel(float(t), self.lanes, self.group, self._period, self._green, self._yellow,
+                                      self._n_groups, self._offset, self.num_lanes)
         out = np.full(self.num_lanes, NO_SIGNAL, np.int64)
         out[self.lanes] = self.states(t)
         return out

@@ -8,6 +8,7 @@ import numpy as np
 
 from .actors import DRIVER, EGO, PARKED, RIDER, STATIC, ActorTable
 from .dynamics import IDMParams, idm_accel
+from .geometry import row_norms
 from .jit import HAVE_JIT, leaders_kernel
 from .jit_traffic import followers_kernel, pose_kernel
 from .signals import RED, YELLOW
@@ -71,7 +72,7 @@ def junction_clear(t: ActorTable, town: Town, jid: int, me: int) -> bool:
     b = t.behaviour
     veh = t.active & ~t.hold & ((b == EGO) | (b == DRIVER) | (b == RIDER))  # held: scenario props
     veh[me] = False
-    inside = np.linalg.norm(t.pos - j.center, axis=1) < j.radius + 1.0
+    inside = row_norms(t.pos - j.center) < j.radius + 1.0
     if np.any(veh & inside):
         return False
     if j.control == PRIORITY and t.lane[me] in j.stop_lanes:  # minor road: wait for major traffic
@@ -264,7 +265,7 @@ def _lane_changes(t, town, idx, lane, s, gap, dv, bike, rng, dt) -> None:
 
 def occupied(t: ActorTable, xy: np.ndarray, radius: float) -> bool:
     """Whether any active actor is within ``radius`` m of ``xy``."""
-    return bool(np.any(t.active & (np.linalg.norm(t.pos - xy, axis=1) < radius)))
+    return bool(np.any(t.active & (row_norms(t.pos - xy) < radius)))
 
 
 def place_on_lane(t: ActorTable, town: Town, i: int, lane: int, s: float) -> None:

@@ -31,7 +31,7 @@ from .classes import (
 )
 from .config import EnvConfig
 from .dynamics import VehicleParams, bicycle_step
-from .geometry import world_to_local_2d
+from .geometry import row_norms, world_to_local_2d
 from .infractions import EventMonitor
 from .jit import HAVE_JIT
 from .jit_perception import object_rows_kernel
@@ -318,7 +318,7 @@ class World:
         targets = targets[targets > 0]
         self.ego_vis = np.zeros(n)
         ego_sensor = np.array([t.pos[0, 0], t.pos[0, 1], EGO_SENSOR_Z])
-        near = targets[np.linalg.norm(t.pos[targets] - t.pos[0], axis=1) < cfg.ego_range]
+        near = targets[row_norms(t.pos[targets] - t.pos[0]) < cfg.ego_range]
         if len(near):
             self.ego_vis[near] = visible_fraction(ego_sensor, boxes, near, ignore=np.array([0]),
                                                   max_range=cfg.ego_range)
@@ -331,7 +331,7 @@ class World:
             if u < 0:
                 continue
             x, y, z, yaw = self.rsus.pose[u]
-            near = targets[np.linalg.norm(t.pos[targets] - (x, y), axis=1) < cfg.rsu_range]
+            near = targets[row_norms(t.pos[targets] - (x, y)) < cfg.rsu_range]
             if len(near):
                 self.rsu_vis[k, near] = visible_fraction(np.array([x, y, z]), boxes, near, max_range=cfg.rsu_range,
                                                          sensor_yaw=yaw, hfov=RSU_HFOV)

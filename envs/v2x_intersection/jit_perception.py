@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .jit import _njit
+from .jit import _njit, visible_fraction_kernel
 
 
 @_njit
@@ -110,3 +110,69 @@ def rsu_to_ego_kernel(rows, x, y, yaw, ex, ey, eyaw):  # pragma: no cover
         out[k, 7] = cr * vx - sr * vy
         out[k, 8] = sr * vx + cr * vy
     return out
+
+
+@_njit
+def perceive_kernel(pos, length, width, yaw, height, active, static_boxes, static_heights, static_cos, static_sin,
+                    ego_z, ego_r2, ego_range, rsu_pose, rsu_r2, rsu_range, half_fov, levels, pattern, shrink, lo,
+                    hi):  # pragma: no cover
+    """``world.World._perceive`` after the RSU selection: visible fraction of every active actor
+    (rows >= 1) from the ego's sensor and from each selected RSU (``rsu_pose (slots, 4)``, NaN
+    rows for empty slots), against all actors and static boxes as occluders.
+
+    Returns:
+        ``(ego_vis (N,), rsu_vis (slots, N))``.
+    """
+    n = pos.shape[0]
+    ns = static_boxes.shape[0]
+    center = np.empty((n + ns, 2))
+    cos_yaw = np.empty(n + ns)
+    sin_yaw = np.empty(n + ns)
+    blen = np.empty(n + ns)
+    bwid = np.empty(n + ns)
+    bh = np.empty(n + ns)
+    for i in range(n):
+        center[i, 0], center[i, 1] = pos[i, 0], pos[i, 1]
+        cos_yaw[i], sin_yaw[i] = np.cos(yaw[i]), np.sin(yaw[i])
+        blen[i], bwid[i] = length[i], width[i]
+        bh[i] = height[i] if active[i] else 0.0
+    for k in range(ns):
+        center[n + k, 0], center[n + k, 1] = static_boxes[k, 0], static_boxes[k, 1]
+        cos_yaw[n + k], sin_yaw[n + k] = static_cos[k], static_sin[k]
+        blen[n + k], bwid[n + k] = static_boxes[k, 2], static_boxes[k, 3]
+        bh[n + k] = static_heights[k]
+    z0 = np.zeros(n + ns)
+    ego_vis = np.zeros(n)
+    slots = rsu_pose.shape[0]
+    rsu_vis = np.zeros((slots, n))
+    sensor = np.empty(3)
+    for q in range(slots + 1):
+        if q == 0:
+            sx, sy, sz, syaw, rng, r2, fov, extra = pos[0, 0], pos[0, 1], ego_z, 0.0, ego_range, ego_r2, False, \
+                np.zeros(1, np.int64)
+        else:
+            if rsu_pose[q - 1, 0] != rsu_pose[q - 1, 0]:
+                continue
+            sx, sy, sz, syaw = rsu_pose[q - 1, 0], rsu_pose[q - 1, 1], rsu_pose[q - 1, 2], rsu_pose[q - 1, 3]
+            rng, r2, fov, extra = rsu_range, rsu_r2, True, np.zeros(0, np.int64)
+        cnt = 0
+        near = np.empty(n, np.int64)
+        for i in range(1, n):
+            if not active[i]:
+                continue
+            dx = pos[i, 0] - sx
+            dy = pos[i, 1] - sy
+            if np.sqrt(dx * dx + dy * dy) < rng:
+                near[cnt] = i
+                cnt += 1
+        if cnt == 0:
+            continue
+        sensor[0], sensor[1], sensor[2] = sx, sy, sz
+        vis = visible_fraction_kernel(sensor, center, cos_yaw, sin_yaw, blen, bwid, z0, bh, near[:cnt], extra, r2,
+                                      fov, syaw, half_fov if fov else 0.0, levels, pattern, shrink, lo, hi)
+        for a in range(cnt):
+            if q == 0:
+                ego_vis[near[a]] = vis[a]
+            else:
+                rsu_vis[q - 1, near[a]] = vis[a]
+    return ego_vis, rsu_vis

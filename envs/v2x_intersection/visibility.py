@@ -43,6 +43,8 @@ _LEVELS = np.asarray(LEVELS)
 #: ``visible_mask`` threshold on the visible fraction: at least 2 of the 15 points.
 VISIBLE_THRESHOLD = 0.1
 _LO, _HI = DTYPE(END_EPS), DTYPE(1.0 - END_EPS)  # segments_blocked's default end-point tolerance
+#: the sample pattern's arguments of ``visible_fraction_kernel`` (levels, pattern, shrink, lo, hi)
+VISIBILITY_SAMPLING = (_LEVELS, _XY, 0.5 * XY_SHRINK, _LO, _HI)
 
 
 def sample_points(boxes: Boxes, idx: np.ndarray) -> np.ndarray:

@@ -34,7 +34,7 @@ from .dynamics import VehicleParams, bicycle_step
 from .geometry import row_norms, world_to_local_2d
 from .infractions import EventMonitor
 from .jit import HAVE_JIT
-from .jit_perception import object_rows_kernel
+from .jit_perception import object_rows_kernel, perceive_kernel
 from .pedestrians import SidewalkNetwork, step_walkers
 from .physics import CollisionWorld
 from .raycast import Boxes
@@ -44,7 +44,7 @@ from .signals import SignalPlan
 from .town import get_town
 from .town.model import DRIVING, RAMP
 from .traffic import free_lane_spot, place_on_lane, step_followers
-from .visibility import VISIBLE_THRESHOLD, visible_fraction
+from .visibility import VISIBILITY_SAMPLING, VISIBLE_THRESHOLD, visible_fraction
 
 EGO_SENSOR_Z = 1.8  # m, ego camera height (occlusion is judged from here)
 EGO_LENGTH, EGO_WIDTH, EGO_HEIGHT = 4.7, 1.9, 1.5  # m
@@ -85,6 +85,7 @@ class World:
         self.static_boxes = statics  # (S, 5) x, y, length, width, yaw
         self.static_heights = heights
         self.static_kinds = kinds
+        self._static_trig = (np.cos(statics[:, 4]), np.sin(statics[:, 4]))  # for the perception kernel
 
     # ------------------------------------------------------------------ setup
     def _static_boxes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -312,6 +313,16 @@ class World:
         """Visible fraction of every actor from the ego and from each active RSU."""
         cfg, t = self.config, self.table
         self.active_rsu = select_active(self.rsus, t.pos[0], float(t.yaw[0]), cfg.rsu_range, cfg.rsu_slots)
+        if HAVE_JIT:
+            pose = np.full((cfg.rsu_slots, 4), np.nan)
+            for k, u in enumerate(self.active_rsu):
+                if u >= 0:
+                    pose[k] = self.rsus.pose[u]
+            self.ego_vis, self.rsu_vis = perceive_kernel(
+                t.pos, t.length, t.width, t.yaw, t.height, t.active, self.static_boxes, self.static_heights,
+                *self._static_trig, EGO_SENSOR_Z, float(cfg.ego_range) ** 2, float(cfg.ego_range), pose,
+                float(cfg.rsu_range) ** 2, float(cfg.rsu_range), 0.5 * RSU_HFOV, *VISIBILITY_SAMPLING)
+            return
         boxes = self.occluders()
         n = len(t)
         targets = np.flatnonzero(t.active)

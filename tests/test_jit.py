@@ -157,14 +157,21 @@ def test_world_tick_kernels_match_numpy(monkeypatch, town):
     """Two worlds from one seed and one action sequence, one on the NumPy paths of the tick
     (traffic, pedestrians, monitor, observations), one on the kernels: identical actor tables,
     events and observations every tick (signed zeros included: the bytes are compared)."""
-    from v2xbench.envs.v2x_intersection import observations, pedestrians, rsu, signals, traffic
+    from v2xbench.envs.v2x_intersection import (
+        infractions,
+        observations,
+        pedestrians,
+        rsu,
+        signals,
+        traffic,
+    )
     from v2xbench.envs.v2x_intersection import world as world_module
     from v2xbench.envs.v2x_intersection.config import make_config
     from v2xbench.envs.v2x_intersection.observations import ego_observation
     from v2xbench.envs.v2x_intersection.town import model
     from v2xbench.envs.v2x_intersection.world import World
 
-    modules = (traffic, pedestrians, world_module, rsu, model, observations, signals)
+    modules = (traffic, pedestrians, world_module, rsu, model, observations, signals, infractions)
     worlds = [World(make_config(town=town, num_vehicles=40, num_pedestrians=30, jaywalk_prob=0.05, rsu_slots=2)) for _ in range(2)]
     for w in worlds:
         w.reset(seed=3)

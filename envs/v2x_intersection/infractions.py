@@ -12,6 +12,8 @@ import numpy as np
 from .actors import ActorTable
 from .classes import BICYCLE, CAR, LARGE_VEHICLE, PEDESTRIAN
 from .geometry import row_norms
+from .jit import HAVE_JIT
+from .jit_perception import route_monitor_kernel
 from .routes import Route
 from .signals import RED
 from .town.model import CONNECTOR, PARKING, Town
@@ -92,17 +94,24 @@ class EventMonitor:
             self.emit(code, tick, int(t.actor_id[c]))
         # route progress: furthest route point within 3 m ahead in a window
         r = self.route
-        hi = min(self.progress + 40, len(r.points))
-        d = row_norms(r.points[self.progress:hi] - ego)
-        close = np.flatnonzero(d < 3.0)
-        if len(close):
-            self.progress += int(close[-1])
-        dev = float(np.min(row_norms(r.points[max(self.progress - 20, 0): self.progress + 40] - ego)))
+        ix = self.town.index
+        if HAVE_JIT:
+            self.progress, dev, lane, s, dist, heading = route_monitor_kernel(
+                r.points, self.progress, float(ego[0]), float(ego[1]), ix.points, self._driving_pts, ix.owner,
+                ix.offset, ix.n_points, ix.gs, ix.base, ix.heading, ix.length)
+        else:
+            hi = min(self.progress + 40, len(r.points))
+            d = row_norms(r.points[self.progress:hi] - ego)
+            close = np.flatnonzero(d < 3.0)
+            if len(close):
+                self.progress += int(close[-1])
+            dev = float(np.min(row_norms(r.points[max(self.progress - 20, 0): self.progress + 40] - ego)))
+            # lane-relative checks: nearest lane among drivable lanes
+            lane, s, dist = ix.project_near(ego, self._driving_pts)
+            lane, s, dist = int(lane[0]), float(s[0]), float(dist[0])
+            heading = float(ix.pose_at(np.array([lane]), np.array([s]))[1][0])
         if dev > ROUTE_DEVIATION_M and not self.counts[ROUTE_DEVIATION]:
             self.emit(ROUTE_DEVIATION, tick, -1, dev)
-        # lane-relative checks: nearest lane among drivable lanes
-        lane, s, dist = self.town.index.project_near(ego, self._driving_pts)
-        lane, s, dist = int(lane[0]), float(s[0]), float(dist[0])
         width = self.town.index.width[lane]
         outside = dist > width / 2.0 + 0.3
         if outside:
@@ -113,14 +122,12 @@ class EventMonitor:
         if off_road and not self._off_road_active:
             self.emit(OFF_ROAD, tick, -1, dist)
         self._outside_active, self._off_road_active = outside, off_road
-        _, heading = self.town.index.pose_at(np.array([lane]), np.array([s]))
-        wrong = v > 1.0 and not outside and abs(((yaw - heading[0] + np.pi) % (2 * np.pi)) - np.pi) > 2.1
+        wrong = v > 1.0 and not outside and abs(((yaw - heading + np.pi) % (2 * np.pi)) - np.pi) > 2.1
         wrong &= self.town.index.kind[lane] != CONNECTOR
         if wrong and not self._wrong_way_active:
             self.emit(WRONG_WAY, tick, -1, float(lane))
         self._wrong_way_active = wrong
         # stop lines: red lights and stop signs, when crossing the line of the current lane
-        ix = self.town.index
         if lane == self._lane:
             line = ix.length[lane] - STOP_LINE_SETBACK
             if ix.stop_at_end[lane] and line - STOP_CHECK_M < s:

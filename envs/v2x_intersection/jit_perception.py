@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .jit import _njit, visible_fraction_kernel
+from .jit import _njit, pose_at_kernel, project_kernel, visible_fraction_kernel
 
 
 @_njit
@@ -176,3 +176,37 @@ def perceive_kernel(pos, length, width, yaw, height, active, static_boxes, stati
             else:
                 rsu_vis[q - 1, near[a]] = vis[a]
     return ego_vis, rsu_vis
+
+
+@_njit
+def route_monitor_kernel(route_points, progress, ex, ey, points, pid, owner, offset, n_points, gs, base, heading,
+                         length):  # pragma: no cover
+    """The geometric part of ``infractions.EventMonitor.update``: the new route progress (the
+    furthest route point within 3 m among the next 40), the distance to the route around it, and
+    the nearest drivable lane (``project`` over ``pid``) with its heading there.
+
+    Returns:
+        ``(progress, deviation, lane, s, dist, heading)``.
+    """
+    n = route_points.shape[0]
+    hi = min(progress + 40, n)
+    last = -1
+    for k in range(progress, hi):
+        dx = route_points[k, 0] - ex
+        dy = route_points[k, 1] - ey
+        if np.sqrt(dx * dx + dy * dy) < 3.0:
+            last = k - progress
+    if last >= 0:
+        progress += last
+    dev = np.inf
+    for k in range(max(progress - 20, 0), min(progress + 40, n)):
+        dx = route_points[k, 0] - ex
+        dy = route_points[k, 1] - ey
+        d = np.sqrt(dx * dx + dy * dy)
+        if d < dev:
+            dev = d
+    q = np.empty((1, 2))
+    q[0, 0], q[0, 1] = ex, ey
+    lane, s, dist = project_kernel(q, points, pid, owner, offset, n_points, gs, base)
+    _, h = pose_at_kernel(lane, s, points, heading, offset, n_points, gs, base, length)
+    return progress, dev, lane[0], s[0], dist[0], h[0]

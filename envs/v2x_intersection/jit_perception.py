@@ -210,3 +210,34 @@ def route_monitor_kernel(route_points, progress, ex, ey, points, pid, owner, off
     lane, s, dist = project_kernel(q, points, pid, owner, offset, n_points, gs, base)
     _, h = pose_at_kernel(lane, s, points, heading, offset, n_points, gs, base, length)
     return progress, dev, lane[0], s[0], dist[0], h[0]
+
+
+@_njit
+def route_window_kernel(points, commands, k0, count, step, ex, ey, eyaw):  # pragma: no cover
+    """``observations.ego_observation``'s route: ``count`` route points every ``step`` from
+    ``k0`` (clamped to the last point) in the ego frame, with their commands; ``(count, 3)``
+    float32."""
+    out = np.zeros((count, 3), np.float32)
+    c, s = np.cos(eyaw), np.sin(eyaw)
+    last = points.shape[0] - 1
+    for a in range(count):
+        k = min(k0 + a * step, last)
+        d0 = points[k, 0] - ex
+        d1 = points[k, 1] - ey
+        out[a, 0] = c * d0 + s * d1
+        out[a, 1] = -s * d0 + c * d1
+        out[a, 2] = commands[k]
+    return out
+
+
+@_njit
+def pad_rows_kernel(objs, vis, m):  # pragma: no cover
+    """``observations._rows`` with ``vis`` looked up by track id: ``(m, 11)`` float32 rows
+    (present flag, the first 9 object fields, visible fraction ``vis[track id]``)."""
+    out = np.zeros((m, 11), np.float32)
+    for k in range(min(objs.shape[0], m)):
+        out[k, 0] = 1.0
+        for f in range(9):
+            out[k, 1 + f] = objs[k, f]
+        out[k, 10] = vis[np.int64(objs[k, 9])]
+    return out

@@ -40,7 +40,7 @@ from .geometry import (
     wrap_angle,
 )
 from .jit import HAVE_JIT
-from .jit_perception import rsu_to_ego_kernel
+from .jit_perception import pad_rows_kernel, route_window_kernel, rsu_to_ego_kernel
 from .rsu import RSU_PITCH
 from .traffic import STOP_LINE_SETBACK
 
@@ -177,14 +177,17 @@ def ego_observation(world) -> dict[str, np.ndarray]:
     ego_xy, ego_yaw = t.pos[0], float(t.yaw[0])
     seen = np.flatnonzero(world.ego_vis >= VISIBLE_THRESHOLD)
     objs = object_rows(t, seen, ego_xy, ego_yaw)
-    vis = world.ego_vis[objs[:, 9].astype(np.int64)] if len(objs) else np.zeros(0)
     # route ahead
     r = world.route
     k0 = world.monitor.progress
-    ks = np.minimum(k0 + np.arange(cfg.route_points) * cfg.route_step, len(r.points) - 1)
-    route = np.zeros((cfg.route_points, 3), np.float32)
-    route[:, :2] = world_to_local_2d(r.points[ks], ego_xy, ego_yaw)
-    route[:, 2] = r.commands[ks]
+    if HAVE_JIT:
+        route = route_window_kernel(r.points, r.commands, k0, cfg.route_points, cfg.route_step, float(ego_xy[0]),
+                                    float(ego_xy[1]), ego_yaw)
+    else:
+        ks = np.minimum(k0 + np.arange(cfg.route_points) * cfg.route_step, len(r.points) - 1)
+        route = np.zeros((cfg.route_points, 3), np.float32)
+        route[:, :2] = world_to_local_2d(r.points[ks], ego_xy, ego_yaw)
+        route[:, 2] = r.commands[ks]
     # traffic light of the current route lane
     ix = world.town.index
     lane = int(r.lane_ids[min(k0, len(r.lane_ids) - 1)])
@@ -202,7 +205,11 @@ def ego_observation(world) -> dict[str, np.ndarray]:
     v2x, info = _v2x(world, ego_xy, ego_yaw)
     out = {"ego": ego, "route": route, "v2x_objects": v2x, "v2x_info": info}
     if cfg.obs_mode == "objects":
-        out["objects"] = _rows(objs, vis, cfg.max_objects)
+        if HAVE_JIT:
+            out["objects"] = pad_rows_kernel(objs, world.ego_vis, cfg.max_objects)
+        else:
+            vis = world.ego_vis[objs[:, 9].astype(np.int64)] if len(objs) else np.zeros(0)
+            out["objects"] = _rows(objs, vis, cfg.max_objects)
     elif cfg.obs_mode == "sensors":
         s = sensor_observation(world)
         out["cameras"] = {k: v for k, v in s["cameras"].items() if k != "rsu_cam"}

@@ -63,8 +63,9 @@ def followers_kernel(idx, active, hold, behaviour, pos, yaw, length, width, spee
     max_brake, decel)``.
 
     Returns:
-        ``(gap, dv, s_new, v_new, stuck)`` per follower: leader gap and approach rate, arc length
-        after the move (before lane transitions), new speed, and whether it waited too long.
+        ``(gap, dv, s_new, v_new, stuck, over)``: per follower the leader gap and approach rate,
+        the arc length after the move (before lane transitions) and the new speed; the rows that
+        waited too long (to respawn); the followers (positions in ``idx``) past their lane's end.
     """
     m = idx.shape[0]
     others = np.flatnonzero(active)
@@ -135,19 +136,48 @@ def followers_kernel(idx, active, hold, behaviour, pos, yaw, length, width, spee
         behind_obstacle = ahead[k] >= 0 and (behaviour[ahead[k]] == _PARKED or behaviour[ahead[k]] == _STATIC)
         limit = blocked_s if behind_obstacle else stuck_s
         stuck[k] = wait[i] > limit and waiting and sig[k] != _RED and scenario[i] < 0
-    return gap, dv, s_new, v_new, stuck
+    over = np.flatnonzero(s_new > lane_length[lane])
+    return gap, dv, s_new, v_new, idx[stuck], over
 
 
 @_njit
-def pose_kernel(idx, lane, s, bike, v_new, lat_arr, pos, yaw, lane_width, lane_change_rate, dt, points, heading,
-                offset, n_points, gs, base, length):  # pragma: no cover
-    """The end of ``traffic.step_followers``: lateral offset (riders keep right, lane changes decay
-    to the centre), then position and heading on the lane, in place on ``lat_arr``, ``pos``,
-    ``yaw``."""
+def lane_change_kernel(idx, lane, s, gap, dv, bike, draws, lat_arr, active, lane_arr, s_arr, left, right, kind,
+                       lane_length, lane_width):  # pragma: no cover
+    """``traffic._lane_changes``: a car behind a slower leader (and whose ``draws`` < 0.05) moves
+    to a free neighbour lane, in place on ``lane``, ``s`` and ``lat_arr``."""
+    for k in range(idx.shape[0]):
+        if bike[k] or not gap[k] < 25.0 or not dv[k] > 1.0 or not abs(lat_arr[idx[k]]) < 0.1 or not draws[k] < 0.05:
+            continue
+        cur = lane[k]
+        for side_k in range(2):
+            nb = left[cur] if side_k == 0 else right[cur]
+            side = 1.0 if side_k == 0 else -1.0
+            if nb < 0 or kind[nb] != kind[cur]:
+                continue
+            s_nb = s[k] * lane_length[nb] / _np_max(lane_length[cur], 1e-6)
+            busy = False
+            for j in range(active.shape[0]):
+                if active[j] and lane_arr[j] == nb and s_arr[j] > s_nb - 15.0 and s_arr[j] < s_nb + 25.0:
+                    busy = True
+                    break
+            if busy or lane_length[nb] - s_nb < 30.0:
+                continue
+            lane[k], s[k] = nb, s_nb
+            lat_arr[idx[k]] = -side * lane_width[cur]
+            break
+
+
+@_njit
+def pose_kernel(idx, lane, s, bike, v_new, lane_arr, s_arr, lat_arr, pos, yaw, lane_width, lane_change_rate, dt,
+                points, heading, offset, n_points, gs, base, length):  # pragma: no cover
+    """The end of ``traffic.step_followers``: new lane and arc length, lateral offset (riders
+    keep right, lane changes decay to the centre), then position and heading on the lane, in
+    place on ``lane_arr``, ``s_arr``, ``lat_arr``, ``pos``, ``yaw``."""
     m = idx.shape[0]
     p, h = pose_at_kernel(lane, s, points, heading, offset, n_points, gs, base, length)
     for k in range(m):
         i = idx[k]
+        lane_arr[i], s_arr[i] = lane[k], s[k]
         old = lat_arr[i]
         if bike[k]:
             lat = -(lane_width[lane[k]] / 2.0 - 0.6)

@@ -10,7 +10,7 @@ from .actors import DRIVER, EGO, PARKED, RIDER, STATIC, ActorTable
 from .dynamics import IDMParams, idm_accel
 from .geometry import row_norms
 from .jit import HAVE_JIT, leaders_kernel
-from .jit_traffic import followers_kernel, pose_kernel
+from .jit_traffic import followers_kernel, lane_change_kernel, pose_kernel
 from .signals import RED, YELLOW
 from .town.model import PRIORITY, STOP, Town
 
@@ -123,24 +123,27 @@ def step_followers(t: ActorTable, town: Town, lane_signal: np.ndarray, rng: np.r
     bike = t.behaviour[idx] == RIDER
     if HAVE_JIT:
         a = _town_arrays(town)
-        gap, dv, s, v_new, stuck = followers_kernel(
+        gap, dv, s, v_new, stuck, over = followers_kernel(
             idx, t.active, t.hold, t.behaviour, t.pos, t.yaw, t.length, t.width, t.speed, t.lane, t.s, t.v0,
             t.stopped_at_sign, t.ignore_rules, t.wait, t.accel, t.scenario, lane_signal, ix.speed_limit,
             ix.length, ix.stop_at_end, ix.junction_ahead, a["stop_lane"], a["major"], a["center"], a["radius"],
             a["control"], _IDM_TUPLE, _IDM_BIKE_TUPLE, LOOKAHEAD, STOP_LINE_SETBACK, dt, BLOCKED_RESPAWN_S,
             STUCK_RESPAWN_S)
-    else:
-        gap, dv, s, v_new, stuck = _follow(t, town, lane_signal, dt, idx, lane, bike)
-    respawn = _lane_transitions(t, town, idx, lane, s, rng, plans)
+        respawn = _lane_transitions(t, town, idx, lane, s, rng, plans, over) if len(over) else []
+        if len(stuck):
+            respawn.extend(stuck.tolist())
+        lane_change_kernel(idx, lane, s, gap, dv, bike, rng.random(len(idx)), t.lat, t.active, t.lane, t.s, ix.left,
+                           ix.right, ix.kind, ix.length, ix.width)
+        pose_kernel(idx, lane, s, bike, v_new, t.lane, t.s, t.lat, t.pos, t.yaw, ix.width, LANE_CHANGE_RATE, dt,
+                    ix.points, ix.heading, ix.offset, ix.n_points, ix.gs, ix.base, ix.length)
+        return np.unique(np.array(respawn, np.int64)) if respawn else np.zeros(0, np.int64)
+    gap, dv, s, v_new, stuck = _follow(t, town, lane_signal, dt, idx, lane, bike)
+    respawn = _lane_transitions(t, town, idx, lane, s, rng, plans, np.flatnonzero(s > ix.length[lane]))
     respawn.extend(idx[stuck].tolist())
 
     _lane_changes(t, town, idx, lane, s, gap, dv, bike, rng, dt)
     t.lane[idx] = lane
     t.s[idx] = s
-    if HAVE_JIT:
-        pose_kernel(idx, lane, s, bike, v_new, t.lat, t.pos, t.yaw, ix.width, LANE_CHANGE_RATE, dt, ix.points,
-                    ix.heading, ix.offset, ix.n_points, ix.gs, ix.base, ix.length)
-        return np.unique(np.array(respawn, np.int64))
     # lateral offset: riders keep to the right edge; lane changes decay to the centre
     lat = t.lat[idx]
     edge = -(ix.width[lane] / 2.0 - 0.6)
@@ -199,12 +202,12 @@ def _follow(t: ActorTable, town: Town, lane_signal: np.ndarray, dt: float, idx: 
 
 
 def _lane_transitions(t: ActorTable, town: Town, idx: np.ndarray, lane: np.ndarray, s: np.ndarray,
-                      rng: np.random.Generator, plans: list[list[int]] | None) -> list[int]:
-    """Move followers past a lane's end onto a successor (their plan's next lane, else a random
-    one), in place on ``lane``/``s``; returns the rows at a dead end (to respawn)."""
+                      rng: np.random.Generator, plans: list[list[int]] | None, over: np.ndarray) -> list[int]:
+    """Move followers ``over`` (positions in ``idx``) past their lane's end onto a successor (their
+    plan's next lane, else a random one), in place on ``lane``/``s``; returns the rows at a dead
+    end (to respawn)."""
     ix = town.index
     respawn = []
-    over = np.flatnonzero(s > ix.length[lane])
     for k in over:
         i = idx[k]
         while s[k] > ix.length[lane[k]]:

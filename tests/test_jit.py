@@ -206,3 +206,43 @@ def test_pose_at_matches_numpy(monkeypatch):
         b = ix.pose_at(lanes, s)
     for x, y in zip(a, b):
         assert x.tobytes() == y.tobytes()
+
+
+@pytest.mark.parametrize("route_index", [0, 23])
+def test_expert_forecast_kernel_matches_numpy(monkeypatch, route_index):
+    """The expert drives a test50 route; at every tick its forecast is computed on the kernel and
+    on the NumPy path: every array of both forecasts is equal, bit for bit."""
+    import dataclasses
+
+    from v2xbench.agents.expert import Expert, planner, prediction
+    from v2xbench.collectors import jobs
+    from v2xbench.envs.v2x_intersection.config import make_config
+    from v2xbench.envs.v2x_intersection.route_files import load_suite_cached
+    from v2xbench.envs.v2x_intersection.world import World
+
+    calls = {"n": 0, "hypotheses": 0}
+    real = prediction.forecast
+
+    def both(*args, **kwargs):
+        out = []
+        for jit in (False, True):
+            with monkeypatch.context() as m:
+                m.setattr(prediction, "HAVE_JIT", jit)
+                out.append(real(*args, **kwargs))
+        for f in dataclasses.fields(out[0]):
+            a, b = getattr(out[0], f.name), getattr(out[1], f.name)
+            assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes(), f.name
+        calls["n"] += 1
+        calls["hypotheses"] += int((out[1].branch >= 0).sum())
+        return out[1]
+
+    monkeypatch.setattr(planner, "forecast", both)
+    spec = load_suite_cached("test50")[route_index]
+    w = World(make_config(town=spec.town))
+    w.reset(seed=jobs.job_seed(spec.seed, 0), spec=spec)
+    agent = Expert()
+    agent.reset({})
+    agent.bind(w)
+    for _ in range(250):
+        w.step(agent.act(None), w.default_rsu_message())
+    assert calls["n"] > 0 and calls["hypotheses"] > 0

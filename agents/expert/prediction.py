@@ -17,6 +17,7 @@ from v2xbench.envs.v2x_intersection.signals import RED, YELLOW
 
 from .lanes import LaneMap
 from .objects import Objects
+from .prediction_jit import HAVE_JIT, lane_forecast_kernel
 
 PRED_DT = 0.25  # s between predicted poses
 PRED_STEPS = 16  # poses (4 s)
@@ -109,26 +110,14 @@ def forecast(
         owner_b = owner
         br_b = hyp_br[~is_still]
         s0_b = hyp_s0[~is_still]
-        lat_b = hyp_lat[~is_still]
-        v = speed[owner_b]
-        a = np.clip(objs.accel[owner_b], -8.0, 2.0)
-        a = np.where((a > 0) & (v > 12.0), 0.0, a)
-        half = 0.5 * objs.length[owner_b]
-        tt = taus[None, :]
-        t_stop = np.where(a < 0, v / np.maximum(-a, 1e-6), np.inf)[:, None]
-        te = np.minimum(tt, t_stop)
-        sigma = s0_b[:, None] + v[:, None] * te + 0.5 * a[:, None] * te * te
-        stops = will_stop(lmap, br_b, s0_b, v, a, half, lane_signal)
-        limit = np.where(stops, lmap.br_stop_s[br_b] - half - 0.5, np.inf)
-        sigma = np.minimum(sigma, np.maximum(limit, s0_b)[:, None])
-        p, dirn = lmap.branch_points(br_b[:, None], sigma)
-        bike = objs.kind[owner_b] == BICYCLE
-        lat = np.where(
-            bike[:, None],
-            lat_b[:, None],
-            np.sign(lat_b)[:, None] * np.maximum(np.abs(lat_b)[:, None] - LAT_DECAY * tt, 0.0),
-        )
-        p = p + lat[..., None] * np.stack([-dirn[..., 1], dirn[..., 0]], -1)
+        args = (br_b, s0_b, hyp_lat[~is_still], speed[owner_b], objs.accel[owner_b], objs.length[owner_b],
+                objs.kind[owner_b] == BICYCLE, taus)
+        if HAVE_JIT:
+            p, dirn, stops = lane_forecast_kernel(
+                *args, LAT_DECAY, lane_signal, lmap.br_stop_s, lmap.br_stop_lane, lmap.br_stop_sign, lmap.br_n,
+                lmap.br_start, lmap.br_pts, lmap.br_cos, lmap.br_sin, RED, YELLOW)
+        else:
+            p, dirn, stops = _lane_forecast(lmap, lane_signal, *args)
         parts_pos.append(p)
         parts_dir.append(dirn)
     else:
@@ -162,3 +151,28 @@ def forecast(
         still_branch=still[1],
         still_s0=still[2],
     )
+
+
+def _lane_forecast(lmap: LaneMap, lane_signal: np.ndarray, br_b: np.ndarray, s0_b: np.ndarray, lat_b: np.ndarray,
+                   v: np.ndarray, accel: np.ndarray, length: np.ndarray, bike: np.ndarray,
+                   taus: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Lane-following hypotheses (NumPy path of ``prediction_jit.lane_forecast_kernel``):
+    ``(pos (H, T, 2), dirn (H, T, 2), stops (H,))``."""
+    a = np.clip(accel, -8.0, 2.0)
+    a = np.where((a > 0) & (v > 12.0), 0.0, a)
+    half = 0.5 * length
+    tt = taus[None, :]
+    t_stop = np.where(a < 0, v / np.maximum(-a, 1e-6), np.inf)[:, None]
+    te = np.minimum(tt, t_stop)
+    sigma = s0_b[:, None] + v[:, None] * te + 0.5 * a[:, None] * te * te
+    stops = will_stop(lmap, br_b, s0_b, v, a, half, lane_signal)
+    limit = np.where(stops, lmap.br_stop_s[br_b] - half - 0.5, np.inf)
+    sigma = np.minimum(sigma, np.maximum(limit, s0_b)[:, None])
+    p, dirn = lmap.branch_points(br_b[:, None], sigma)
+    lat = np.where(
+        bike[:, None],
+        lat_b[:, None],
+        np.sign(lat_b)[:, None] * np.maximum(np.abs(lat_b)[:, None] - LAT_DECAY * tt, 0.0),
+    )
+    p = p + lat[..., None] * np.stack([-dirn[..., 1], dirn[..., 0]], -1)
+    return p, dirn, stops

@@ -435,3 +435,83 @@ def pose_at_kernel(idx, s, points, heading, offset, n_points, gs, base, length):
         p[k, 1] = points[i, 1] * (1.0 - t) + points[i + 1, 1] * t
         h[k] = heading[i]
     return p, h
+
+
+@_njit
+def first_hit_fan_kernel(u, k, c, s, bx, by, hl, hw, z0, z1, oz):  # pragma: no cover
+    """The box part of ``raycast.first_hit_fan`` in float32: per azimuth column the footprint
+    slab test against every box (``_slabs_xy`` with the origin at 0), the boxes the column meets
+    ordered by entry distance (stable), then per elevation row the nearest hit among them.
+
+    Args:
+        u: ``(A, 2)`` float32 unit horizontal directions. k: ``(E, A)`` float32 slopes.
+        c, s, bx, by, hl, hw, z0, z1: ``(N,)`` float32 box terms (``raycast._Prepared``).
+        oz: float32 origin height.
+
+    Returns:
+        ``(t (E, A) float32, box (E, A) int64)``: horizontal distance to the first box hit
+        (``inf``: none) and its index (-1: none).
+    """
+    a_n, n = u.shape[0], c.shape[0]
+    e_n = k.shape[0]
+    zero, one, inf = np.float32(0.0), np.float32(1.0), np.float32(np.inf)
+    t_out_arr = np.full((e_n, a_n), inf, np.float32)
+    idx_out = np.full((e_n, a_n), -1, np.int64)
+    g_in = np.empty(n, np.float32)
+    g_out = np.empty(n, np.float32)
+    key = np.empty(n, np.float32)
+    cand = np.empty(n, np.int64)
+    za0 = np.empty(n, np.float32)
+    za1 = np.empty(n, np.float32)
+    for j in range(n):
+        za0[j] = z0[j] - oz
+        za1[j] = z1[j] - oz
+    for a in range(a_n):
+        u0, u1 = u[a, 0], u[a, 1]
+        m = 0
+        for j in range(n):
+            lx = (zero * c[j] + zero * s[j]) - bx[j]
+            acc = zero
+            acc += u0 * c[j]
+            acc += u1 * s[j]
+            inv = one / acc
+            t1 = (-hl[j] - lx) * inv
+            t2 = (hl[j] - lx) * inv
+            t_in = _fmin(t1, t2)
+            t_out = _fmax(t1, t2)
+            ly = (zero * c[j] - zero * s[j]) - by[j]
+            acc = zero
+            acc += u0 * -s[j]
+            acc += u1 * c[j]
+            inv = one / acc
+            t2 = (-hw[j] - ly) * inv
+            t3 = (hw[j] - ly) * inv
+            t_in = _fmax(t_in, _fmin(t2, t3))
+            t_out = _fmin(t_out, _fmax(t2, t3))
+            t_in = _fmax(t_in, zero)
+            kj = _fmax(t_in, (t_in - t_out) * inf)
+            if np.isfinite(kj):  # insertion sort by key, stable (ties keep index order)
+                q = m
+                while q > 0 and key[cand[q - 1]] > kj:
+                    cand[q] = cand[q - 1]
+                    q -= 1
+                cand[q] = j
+                key[j], g_in[j], g_out[j] = kj, t_in, t_out
+                m += 1
+        if m == 0:
+            continue
+        for e in range(e_n):
+            invk = one / k[e, a]
+            best, bj = inf, -1
+            for q in range(m):
+                j = cand[q]
+                za = za0[j] * invk
+                zb = za1[j] * invk
+                b_in = _fmax(g_in[j], _fmin(za, zb))
+                b_out = _fmin(g_out[j], _fmax(za, zb))
+                b_in = _fmax(b_in, (b_in - b_out) * inf)
+                if bj < 0 or b_in < best:
+                    best, bj = b_in, j
+            t_out_arr[e, a] = best
+            idx_out[e, a] = bj
+    return t_out_arr, idx_out

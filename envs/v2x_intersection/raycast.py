@@ -36,7 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .jit import HAVE_JIT, segments_blocked_kernel
+from .jit import HAVE_JIT, first_hit_fan_kernel, segments_blocked_kernel
 
 #: Floating dtype of the ray-casting computation and of the returned ``t`` arrays.
 DTYPE = np.float32
@@ -500,7 +500,14 @@ def first_hit_fan(
         n = len(boxes)
     t = np.full((e, a), np.inf, DTYPE)
     idx = np.full((e, a), NO_HIT, np.intp)
-    if n and a and e:
+    if n and a and e and HAVE_JIT:
+        p = _Prepared(boxes, origin[:2])
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            t, j = first_hit_fan_kernel(u.astype(DTYPE), np.ascontiguousarray(k), p.c, p.s, p.bx, p.by, p.hl, p.hw,
+                                        p.z0, p.z1, DTYPE(origin[2]))
+        idx = np.where(j >= 0, box_ids[np.maximum(j, 0)], NO_HIT)
+        idx[np.isinf(t)] = NO_HIT
+    elif n and a and e:
         p = _Prepared(boxes, origin[:2])
         o = np.array([[0.0, 0.0, origin[2]]], DTYPE)
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):

@@ -251,3 +251,18 @@ def test_select_active_along_a_route(deployments, case):
             assert u == int(np.argmin(dist))  # fallback: the nearest unit
     # route-adaptive deployment: most of the time a forward-facing unit is in range
     assert n_ok >= 0.7 * len(steps)
+
+
+def test_deployment_is_remembered_per_route_and_read_only():
+    town = get_town("Town02")
+    route = random_route(town, np.random.default_rng(7), 400.0)
+    trig = route.points[len(route.points) // 2][None]
+    first = deploy(town, route, trig)
+    assert deploy(town, route, trig) is first  # a replayed route reuses the placement
+    fresh = rsu_module._deploy(town, route, trig)
+    for name in ("pose", "kind", "route_s"):
+        assert np.array_equal(getattr(first, name), getattr(fresh, name))
+        with pytest.raises(ValueError):
+            getattr(first, name)[0] = 0
+    assert deploy(town, route, None) is not first  # other triggers, other placement
+    assert len(deploy(town, route, None)) == len(rsu_module._deploy(town, route, None))

@@ -56,14 +56,38 @@ class RSUSet:
         return pose_matrix(x, y, z, yaw, RSU_PITCH, RSU_ROLL)
 
 
+DEPLOY_CACHE_SIZE = 256  # deployments remembered per town (episodes that replay a route reuse them)
+
+
 def deploy(town: Town, route: Route, triggers: np.ndarray | None = None) -> RSUSet:
     """Place RSUs for a route (see module docstring).
+
+    The placement depends only on the town, the route's points and the triggers, so it is
+    remembered per town (the last :data:`DEPLOY_CACHE_SIZE` routes; the arrays are read-only).
 
     Args:
         town: the road network.
         route: the ego's route.
         triggers: optional ``(T, 2)`` scenario hazard (conflict) points (m); each gets a unit.
     """
+    trig = None if triggers is None else np.asarray(triggers, float).reshape(-1, 2)
+    key = (route.points.tobytes(), route.lane_ids.tobytes(), None if trig is None else trig.tobytes())
+    cache = town.__dict__.get("_rsu_deployments")
+    if cache is None:
+        cache = {}
+        object.__setattr__(town, "_rsu_deployments", cache)
+    units = cache.get(key)
+    if units is None:
+        units = _deploy(town, route, trig)
+        for a in (units.pose, units.kind, units.route_s):
+            a.setflags(write=False)
+        if len(cache) >= DEPLOY_CACHE_SIZE:
+            cache.pop(next(iter(cache)))
+        cache[key] = units
+    return units
+
+
+def _deploy(town: Town, route: Route, triggers: np.ndarray | None) -> RSUSet:
     cands: list[tuple[float, float, float, int, float]] = []
     pts, hd, s = route.points, route.headings, route.s
     in_junction = town.index.junction[route.lane_ids] >= 0

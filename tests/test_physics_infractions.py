@@ -333,37 +333,3 @@ def test_route_completion_does_not_jump_ahead_when_far():
     t.pos[0] = route.points[-1]  # teleported to the goal: not within the 40-point window
     mon.update(1, t, np.zeros(0, np.int64), np.full(len(town.lanes), NO_SIGNAL), 0.0)
     assert mon.route_completion == 0.0
-
-
-def test_collision_world_reused_across_resets_gives_the_same_episode():
-    """A second episode on the same town reuses the static shapes (only the actors' bodies are
-    replaced) and plays exactly as in a fresh world; a new town builds a new collision world."""
-    import dataclasses
-
-    from v2xbench.envs.v2x_intersection.route_files import load_suite_cached
-
-    rng = np.random.default_rng(0)
-    actions = rng.uniform([0.5, -0.4, 0.0], [1.0, 0.4, 0.1], (150, 3))  # erratic: it hits things
-    used = World(make_config(town="Town01", num_vehicles=40))
-    used.reset(seed=1)
-    first = used.collisions
-    for a in actions[:50]:
-        used.step(a)
-    used.reset(seed=2)
-    assert used.collisions is first
-    assert len(first.space.shapes) == len(used.static_boxes) + len(used.table)
-    fresh = World(make_config(town="Town01", num_vehicles=40))
-    fresh.reset(seed=2)
-    hits = 0
-    for a in actions:
-        ev_used, ev_fresh = used.step(a), fresh.step(a)
-        assert ev_used == ev_fresh
-        assert np.array_equal(used.collisions.ego_contacts(used.table), fresh.collisions.ego_contacts(fresh.table))
-        hits += len(fresh.collisions.ego_contacts(fresh.table))
-    for f in dataclasses.fields(used.table):
-        assert np.array_equal(getattr(used.table, f.name), getattr(fresh.table, f.name))
-    assert hits > 0
-    spec = load_suite_cached("test50")[0]  # another town: new static boxes, new collision world
-    used.reset(seed=3, spec=spec)
-    assert used.town.name == spec.town != "Town01" and used.collisions is not first
-    assert len(used.collisions.space.shapes) == len(used.static_boxes) + len(used.table)

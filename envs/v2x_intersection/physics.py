@@ -24,21 +24,9 @@ class CollisionWorld:
         statics: ``(S, 5)`` static boxes ``(x, y, length, width, yaw)`` (buildings, poles).
         """
         self.space = pymunk.Space()
-        self.shape_owner: dict[pymunk.Shape, int] = {}
-        self._statics = statics
-        for k, (x, y, length, width, yaw) in enumerate(np.asarray(statics, float).reshape(-1, 5)):
-            c, s = np.cos(yaw), np.sin(yaw)
-            hl, hw = length / 2, width / 2
-            verts = [(x + c * a - s * b, y + s * a + c * b) for a, b in ((hl, hw), (-hl, hw), (-hl, -hw), (hl, -hw))]
-            shape = pymunk.Poly(self.space.static_body, verts)
-            shape.sensor = True
-            self.space.add(shape)
-            self.shape_owner[shape] = -1 - k  # statics: negative ids
         self.bodies: list[pymunk.Body] = []
         self.shapes: list[pymunk.Shape] = []
-        self._add_actors(table)
-
-    def _add_actors(self, table: ActorTable) -> None:
+        self.shape_owner: dict[pymunk.Shape, int] = {}
         for i in range(len(table)):
             body = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
             shape = pymunk.Poly.create_box(body, (float(table.length[i]), float(table.width[i])))
@@ -48,20 +36,15 @@ class CollisionWorld:
             self.shapes.append(shape)
             self.shape_owner[shape] = i
         self.num_actors = len(table)
+        for k, (x, y, length, width, yaw) in enumerate(np.asarray(statics, float).reshape(-1, 5)):
+            c, s = np.cos(yaw), np.sin(yaw)
+            hl, hw = length / 2, width / 2
+            verts = [(x + c * a - s * b, y + s * a + c * b) for a, b in ((hl, hw), (-hl, hw), (-hl, -hw), (hl, -hw))]
+            shape = pymunk.Poly(self.space.static_body, verts)
+            shape.sensor = True
+            self.space.add(shape)
+            self.shape_owner[shape] = -1 - k  # statics: negative ids
         self._radius = 0.5 * np.hypot(table.length, table.width)
-
-    def reset(self, table: ActorTable, statics: np.ndarray) -> bool:
-        """Start a new episode on the same static boxes (the same array object): replace the
-        actors' bodies, keep the static shapes (most of the set-up cost). Returns ``False``, doing
-        nothing, when ``statics`` is another array (build a new ``CollisionWorld`` then)."""
-        if statics is not self._statics:
-            return False
-        for body, shape in zip(self.bodies, self.shapes):
-            self.space.remove(body, shape)
-            del self.shape_owner[shape]
-        self.bodies, self.shapes = [], []
-        self._add_actors(table)
-        return True
 
     def ego_contacts(self, table: ActorTable, static_radius: float = 60.0) -> np.ndarray:
         """Indices of actors (>= 1) and statics (encoded ``-1 - k``) in contact with the ego."""

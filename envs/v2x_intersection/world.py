@@ -67,7 +67,6 @@ class World:
             max_payload_floats=config.max_payload_floats, encoding=config.encoding, dt=config.dt,
         )
         self.town = None
-        self.collisions: CollisionWorld | None = None
         self._load_town(config.town)
         self.ended = True
         self.tick = 0
@@ -165,8 +164,7 @@ class World:
             t.scenario[rows] = k
             sc.setup(self, rows)
             row += sc.max_actors
-        if self.collisions is None or not self.collisions.reset(t, self.static_boxes):
-            self.collisions = CollisionWorld(t, self.static_boxes)
+        self.collisions = CollisionWorld(t, self.static_boxes)
         triggers = np.array([sc.conflict_point for sc in self.scenarios]).reshape(-1, 2)
         self.rsus: RSUSet = deploy(self.town, self.route, triggers if len(triggers) else None)
         self.channel = Channel(self.channel_config, self.rng)

@@ -81,9 +81,10 @@ def deploy(town: Town, route: Route, triggers: np.ndarray | None = None) -> RSUS
         units = _deploy(town, route, trig)
         for a in (units.pose, units.kind, units.route_s):
             a.setflags(write=False)
-        if len(cache) >= DEPLOY_CACHE_SIZE:
+        while cache and len(cache) >= DEPLOY_CACHE_SIZE:
             cache.pop(next(iter(cache)))
-        cache[key] = units
+        if DEPLOY_CACHE_SIZE > 0:
+            cache[key] = units
     return units
 
 

@@ -52,6 +52,32 @@ def _fmax(a, b):
 
 
 @_njit
+def _slabs_xy(ox, oy, d0, d1, c, s, bx, by, hl, hw):  # pragma: no cover
+    """Footprint slab interval ``(t_in, t_out)`` of one ray ``o + t d`` (``o``, ``d`` horizontal
+    parts, relative to the reference point) against one prepared box, in float32
+    (``raycast._slabs_xy``'s operations, the dot products accumulated as ``np.einsum`` does)."""
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    lx = ox * c + oy * s - bx
+    acc = zero
+    acc += d0 * c
+    acc += d1 * s
+    inv = one / acc
+    t1 = (-hl - lx) * inv
+    t2 = (hl - lx) * inv
+    t_in = _fmin(t1, t2)
+    t_out = _fmax(t1, t2)
+    ly = oy * c - ox * s - by
+    acc = zero
+    acc += d0 * (-s)
+    acc += d1 * c
+    inv = one / acc
+    t2 = (-hw - ly) * inv
+    t3 = (hw - ly) * inv
+    return _fmax(t_in, _fmin(t2, t3)), _fmin(t_out, _fmax(t2, t3))
+
+
+@_njit
 def segments_blocked_kernel(o, d, c, s, bx, by, hl, hw, z0, z1, ig, lo, hi):  # pragma: no cover
     """Whether each segment ``o + t d``, ``t in (lo, hi)``, crosses a box (see ``raycast``).
 
@@ -83,24 +109,7 @@ def segments_blocked_kernel(o, d, c, s, bx, by, hl, hw, z0, z1, ig, lo, hi):  # 
                     skip = True
             if skip:
                 continue
-            lx = ox * c[j] + oy * s[j] - bx[j]
-            acc = zero
-            acc += d0 * c[j]
-            acc += d1 * s[j]
-            inv = one / acc
-            t1 = (-hl[j] - lx) * inv
-            t2 = (hl[j] - lx) * inv
-            t_in = _fmin(t1, t2)
-            t_out = _fmax(t1, t2)
-            ly = oy * c[j] - ox * s[j] - by[j]
-            acc = zero
-            acc += d0 * (-s[j])
-            acc += d1 * c[j]
-            inv = one / acc
-            t2 = (-hw[j] - ly) * inv
-            t3 = (hw[j] - ly) * inv
-            t_in = _fmax(t_in, _fmin(t2, t3))
-            t_out = _fmin(t_out, _fmax(t2, t3))
+            t_in, t_out = _slabs_xy(ox, oy, d0, d1, c[j], s[j], bx[j], by[j], hl[j], hw[j])
             t2 = (z0[j] - oz) * invz
             t3 = (z1[j] - oz) * invz
             t_in = _fmax(t_in, _fmin(t2, t3))
@@ -118,24 +127,7 @@ def _box_blocks(ox, oy, oz, d0, d1, d2, c, s, bx, by, hl, hw, z0, z1, lo, hi):  
     one = np.float32(1.0)
     zero = np.float32(0.0)
     invz = one / d2
-    lx = ox * c + oy * s - bx
-    acc = zero
-    acc += d0 * c
-    acc += d1 * s
-    inv = one / acc
-    t1 = (-hl - lx) * inv
-    t2 = (hl - lx) * inv
-    t_in = _fmin(t1, t2)
-    t_out = _fmax(t1, t2)
-    ly = oy * c - ox * s - by
-    acc = zero
-    acc += d0 * (-s)
-    acc += d1 * c
-    inv = one / acc
-    t2 = (-hw - ly) * inv
-    t3 = (hw - ly) * inv
-    t_in = _fmax(t_in, _fmin(t2, t3))
-    t_out = _fmin(t_out, _fmax(t2, t3))
+    t_in, t_out = _slabs_xy(ox, oy, d0, d1, c, s, bx, by, hl, hw)
     t2 = (z0 - oz) * invz
     t3 = (z1 - oz) * invz
     t_in = _fmax(t_in, _fmin(t2, t3))
@@ -470,24 +462,7 @@ def first_hit_fan_kernel(u, k, c, s, bx, by, hl, hw, z0, z1, oz):  # pragma: no 
         u0, u1 = u[a, 0], u[a, 1]
         m = 0
         for j in range(n):
-            lx = (zero * c[j] + zero * s[j]) - bx[j]
-            acc = zero
-            acc += u0 * c[j]
-            acc += u1 * s[j]
-            inv = one / acc
-            t1 = (-hl[j] - lx) * inv
-            t2 = (hl[j] - lx) * inv
-            t_in = _fmin(t1, t2)
-            t_out = _fmax(t1, t2)
-            ly = (zero * c[j] - zero * s[j]) - by[j]
-            acc = zero
-            acc += u0 * -s[j]
-            acc += u1 * c[j]
-            inv = one / acc
-            t2 = (-hw[j] - ly) * inv
-            t3 = (hw[j] - ly) * inv
-            t_in = _fmax(t_in, _fmin(t2, t3))
-            t_out = _fmin(t_out, _fmax(t2, t3))
+            t_in, t_out = _slabs_xy(zero, zero, u0, u1, c[j], s[j], bx[j], by[j], hl[j], hw[j])
             t_in = _fmax(t_in, zero)
             kj = _fmax(t_in, (t_in - t_out) * inf)
             if np.isfinite(kj):  # insertion sort by key, stable (ties keep index order)

@@ -72,10 +72,7 @@ def deploy(town: Town, route: Route, triggers: np.ndarray | None = None) -> RSUS
     """
     trig = None if triggers is None else np.asarray(triggers, float).reshape(-1, 2)
     key = (route.points.tobytes(), route.lane_ids.tobytes(), None if trig is None else trig.tobytes())
-    cache = town.__dict__.get("_rsu_deployments")
-    if cache is None:
-        cache = {}
-        object.__setattr__(town, "_rsu_deployments", cache)
+    cache = town.cache("rsu_deployments")
     units = cache.get(key)
     if units is None:
         units = _deploy(town, route, trig)

@@ -86,10 +86,7 @@ def junction_clear(t: ActorTable, town: Town, jid: int, me: int) -> bool:
 def _major_mask(town: Town, jid: int) -> np.ndarray:
     """``(L + 1,)`` bool: lane is a major (no stop sign) approach of junction ``jid``; the extra
     last entry (lane -1) is False. Cached on the town."""
-    cache = town.__dict__.get("_major_masks")
-    if cache is None:
-        cache = {}
-        object.__setattr__(town, "_major_masks", cache)
+    cache = town.cache("major_masks")
     mask = cache.get(jid)
     if mask is None:
         j = town.junctions[jid]
@@ -231,18 +228,18 @@ def _town_arrays(town: Town) -> dict[str, np.ndarray]:
     """Junction tables for the kernels, cached on the town: ``stop_lane (L,)`` (the lane has a stop
     sign at its junction ahead), ``major (J, L + 1)`` (``_major_mask`` rows), and the junctions'
     ``center``, ``radius``, ``control``."""
-    a = town.__dict__.get("_traffic_arrays")
-    if a is None:
+    a = town.cache("traffic_arrays")
+    if not a:
         ix = town.index
         stop_lane = np.array([j >= 0 and k in town.junctions[j].stop_lanes
                               for k, j in enumerate(ix.junction_ahead)], bool)
         nj = len(town.junctions)
-        a = {"stop_lane": stop_lane,
-             "major": np.stack([_major_mask(town, j) for j in range(nj)]) if nj else np.zeros((1, len(town.lanes) + 1), bool),
-             "center": np.array([j.center for j in town.junctions], np.float64).reshape(-1, 2),
-             "radius": np.array([j.radius for j in town.junctions], np.float64),
-             "control": np.array([j.control for j in town.junctions], np.int64)}
-        object.__setattr__(town, "_traffic_arrays", a)
+        major = (np.stack([_major_mask(town, j) for j in range(nj)]) if nj
+                 else np.zeros((1, len(town.lanes) + 1), bool))
+        a.update(stop_lane=stop_lane, major=major,
+                 center=np.array([j.center for j in town.junctions], np.float64).reshape(-1, 2),
+                 radius=np.array([j.radius for j in town.junctions], np.float64),
+                 control=np.array([j.control for j in town.junctions], np.int64))
     return a
 
 

@@ -161,6 +161,11 @@ class Town:
             self._index = LaneIndex(self)
         return self._index
 
+    def cache(self, name: str) -> dict:
+        """A dict kept on the town for tables derived from it (a town does not change once built,
+        so what is computed from it once can live with it): ``town.cache("major_masks")``."""
+        return self.__dict__.setdefault(f"_cache_{name}", {})
+
     # ----------------------------------------------------------------- serialization
     def to_dict(self) -> dict:
         """JSON-compatible dict (lists of floats); :meth:`from_dict` restores it exactly."""

@@ -290,3 +290,10 @@ def test_sensor_rig_matches_numpy(monkeypatch):
     a, b = _both(monkeypatch, lambda: flat(rig.capture(w)))
     assert a.keys() == b.keys() and len(a) > 10
     assert [key for key in a if a[key] != b[key]] == []
+
+
+def test_kernel_signal_codes_match_signals():
+    from v2xbench.envs.v2x_intersection import jit_traffic, signals
+
+    ours = (jit_traffic._GREEN, jit_traffic._RED, jit_traffic._YELLOW, jit_traffic._NO_SIGNAL)
+    assert ours == (signals.GREEN, signals.RED, signals.YELLOW, signals.NO_SIGNAL)

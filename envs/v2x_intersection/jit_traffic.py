@@ -5,20 +5,25 @@ sidewalks or crossings (``pedestrians.step_walkers``).
 Like :mod:`.jit`, each kernel repeats the NumPy path's float operations in the same order and
 dtype, so both paths give bit-identical results (``tests/test_jit.py``). What draws random
 numbers (lane transitions at a lane's end, lane changes, a walker's choice at a sidewalk's end,
-jaywalking) stays in Python, so the world's one
-generator is drawn in the same order with or without numba.
+jaywalking) stays in Python, so the world's one generator is drawn in the same order with or
+without numba.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from .actors import DRIVER as _DRIVER
+from .actors import EGO as _EGO
+from .actors import PARKED as _PARKED
+from .actors import RIDER as _RIDER
+from .actors import STATIC as _STATIC
 from .jit import _njit, _np_max, _np_min, idm_kernel, leaders_kernel, pose_at_kernel
+from .town.model import PRIORITY as _PRIORITY
+from .town.model import STOP as _STOP
 
-# behaviour codes (actors.py) and junction controls (town/model.py), as plain ints for the kernels
-_EGO, _DRIVER, _PARKED, _RIDER, _STATIC = 0, 1, 2, 4, 5
-_STOP, _PRIORITY = 1, 2
-_RED, _YELLOW, _NO_SIGNAL = 2, 1, -1
+# signal states (signals.py imports this module, so they are repeated here; a test compares them)
+_GREEN, _RED, _YELLOW, _NO_SIGNAL = 0, 2, 1, -1
 
 
 @_njit
@@ -275,6 +280,6 @@ def lane_states_kernel(t, lanes, group, period, green, yellow, n_groups, offset,
         tm = (t + offset[k]) % _np_max(period[k] * n_groups[k], 1e-9)
         phase = np.int64(np.floor(tm / period[k]))
         within = tm - phase * period[k]
-        state = 0 if within < green[k] else (_YELLOW if within < green[k] + yellow[k] else _RED)
+        state = _GREEN if within < green[k] else (_YELLOW if within < green[k] + yellow[k] else _RED)
         out[lanes[k]] = state if phase == group[k] else _RED
     return out

@@ -112,7 +112,7 @@ class EventMonitor:
             heading = float(ix.pose_at(np.array([lane]), np.array([s]))[1][0])
         if dev > ROUTE_DEVIATION_M and not self.counts[ROUTE_DEVIATION]:
             self.emit(ROUTE_DEVIATION, tick, -1, dev)
-        width = self.town.index.width[lane]
+        width = ix.width[lane]
         outside = dist > width / 2.0 + 0.3
         if outside:
             self.outside_m += moved
@@ -156,9 +156,9 @@ class EventMonitor:
 
 def _driving_point_ids(town: Town) -> np.ndarray:
     """Point ids of all non-parking lanes (cached on the town)."""
-    cached = getattr(town, "_driving_point_ids", None)
-    if cached is None:
-        cached = town.index.point_ids(np.array([ln.id for ln in town.lanes if ln.kind != PARKING]))
-        cached.setflags(write=False)
-        object.__setattr__(town, "_driving_point_ids", cached)
-    return cached
+    store = town.cache("lanes")
+    if "driving_point_ids" not in store:
+        pid = town.index.point_ids(np.array([ln.id for ln in town.lanes if ln.kind != PARKING]))
+        pid.setflags(write=False)
+        store["driving_point_ids"] = pid
+    return store["driving_point_ids"]

@@ -51,7 +51,7 @@ def object_rows_kernel(idx, pos, yaw, speed, kind, length, width, height, actor_
 
 
 @_njit
-def select_active_kernel(pose, trigger, ex, ey, eyaw, max_range, slots, preference, max_angle):  # pragma: no cover
+def select_active_kernel(pose, kind, trigger_kind, ex, ey, eyaw, max_range, slots, preference, max_angle):  # pragma: no cover
     """``rsu.select_active``: the ``slots`` units with the smallest key (distance, minus
     ``preference`` for scenario units) among those ahead, facing the ego and in range; -1 pads;
     slot 0 falls back to the nearest unit when none qualifies.
@@ -70,7 +70,10 @@ def select_active_kernel(pose, trigger, ex, ey, eyaw, max_range, slots, preferen
         ahead = d0 * c + d1 * s > -10.0
         to_ego = np.arctan2(-d1, -d0)
         facing = abs((to_ego - pose[u, 3] + np.pi) % two_pi - np.pi) < max_angle
-        key[u] = dist[u] - preference * trigger[u] if (ahead and facing and dist[u] < max_range) else np.inf
+        if ahead and facing and dist[u] < max_range:
+            key[u] = dist[u] - (preference if kind[u] == trigger_kind else 0.0)
+        else:
+            key[u] = np.inf
     out = np.full(slots, -1, np.int64)
     taken = np.zeros(n, np.bool_)
     for k in range(min(slots, n)):

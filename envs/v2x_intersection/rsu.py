@@ -150,11 +150,10 @@ def _on_sidewalk(town: Town, cand: tuple) -> tuple:
 def _sidewalk_index(town: Town):
     from .town.model import PolylineIndex
 
-    cached = getattr(town, "_sidewalk_index", None)
-    if cached is None:
-        cached = PolylineIndex([sw.points for sw in town.sidewalks])
-        object.__setattr__(town, "_sidewalk_index", cached)
-    return cached
+    store = town.cache("sidewalks")
+    if "index" not in store:
+        store["index"] = PolylineIndex([sw.points for sw in town.sidewalks])
+    return store["index"]
 
 
 def _beside(p: np.ndarray, heading: float, offset: float) -> np.ndarray:
@@ -172,9 +171,9 @@ def select_active(rsus: RSUSet, ego_xy: np.ndarray, ego_yaw: float, max_range: f
     if len(rsus) == 0:
         return np.full(slots, -1, np.int64)
     if HAVE_JIT:
-        return select_active_kernel(rsus.pose, (rsus.kind == KIND_TRIGGER).astype(np.float64), float(ego_xy[0]),
-                                    float(ego_xy[1]), float(ego_yaw), float(max_range), int(slots),
-                                    float(TRIGGER_PREFERENCE_M), float(np.deg2rad(100.0)))
+        return select_active_kernel(rsus.pose, rsus.kind, KIND_TRIGGER, float(ego_xy[0]), float(ego_xy[1]),
+                                    float(ego_yaw), float(max_range), int(slots), float(TRIGGER_PREFERENCE_M),
+                                    float(np.deg2rad(100.0)))
     d = rsus.pose[:, :2] - ego_xy
     dist = np.linalg.norm(d, axis=1)
     ahead = d @ np.array([np.cos(ego_yaw), np.sin(ego_yaw)]) > -10.0

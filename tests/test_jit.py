@@ -161,6 +161,7 @@ def test_world_tick_kernels_match_numpy(monkeypatch, town):
         infractions,
         observations,
         pedestrians,
+        physics,
         rsu,
         signals,
         traffic,
@@ -171,7 +172,7 @@ def test_world_tick_kernels_match_numpy(monkeypatch, town):
     from v2xbench.envs.v2x_intersection.town import model
     from v2xbench.envs.v2x_intersection.world import World
 
-    modules = (traffic, pedestrians, world_module, rsu, model, observations, signals, infractions)
+    modules = (traffic, pedestrians, world_module, rsu, model, observations, signals, infractions, physics)
     worlds = [World(make_config(town=town, num_vehicles=40, num_pedestrians=30, jaywalk_prob=0.05, rsu_slots=2)) for _ in range(2)]
     for w in worlds:
         w.reset(seed=3)

@@ -1,4 +1,4 @@
-"""Tests of collision queries (pymunk) and of the infraction / route-progress monitor."""
+"""Tests of collision queries (separating-axis kernel and pymunk reference) and of the infraction / route-progress monitor."""
 
 from __future__ import annotations
 
@@ -99,25 +99,41 @@ def _sat_depth(c0: np.ndarray, c1: np.ndarray) -> float:
     return depth
 
 
-def test_collision_world_matches_separating_axis_test():
+@pytest.mark.parametrize("jit", [True, False], ids=["kernel", "pymunk"])
+def test_collision_world_matches_separating_axis_test(monkeypatch, jit):
+    from v2xbench.envs.v2x_intersection import physics
+
+    if jit and not physics.HAVE_JIT:
+        pytest.skip("numba not installed")
+    monkeypatch.setattr(physics, "HAVE_JIT", jit)
     rng = np.random.default_rng(0)
     n = 25
     t = table(n)
     t.length[1:], t.width[1:] = rng.uniform(0.5, 8.0, n - 1), rng.uniform(0.5, 2.5, n - 1)
-    cw = CollisionWorld(t, np.zeros((0, 5)))
-    total = 0
-    for _ in range(40):
+    t.active[-3:] = False  # inactive rows never touch
+    total = static_total = 0
+    for _ in range(60):
+        statics = np.column_stack([rng.uniform(-9, 9, (12, 2)), rng.uniform(0.3, 9.0, 12),
+                                   rng.uniform(0.3, 4.0, 12), rng.uniform(-4, 4, 12)])
+        cs = box_corners_2d(statics[:, :2], statics[:, 2], statics[:, 3], statics[:, 4])
+        cw = CollisionWorld(t, statics)
         t.pos[0] = rng.uniform(-1, 1, 2)
         t.pos[1:] = rng.uniform(-8, 8, (n - 1, 2))
         t.yaw[:] = rng.uniform(-4, 4, n)
         c = box_corners_2d(t.pos, t.length, t.width, t.yaw)
         depth = np.array([_sat_depth(c[0], c[i]) for i in range(n)])
-        got = set(cw.ego_contacts(t).tolist())
+        sdepth = np.array([_sat_depth(c[0], b) for b in cs])
+        got = cw.ego_contacts(t).tolist()
+        assert got == sorted(got)
         clear = np.abs(depth) > 1e-6
-        expected = {i for i in range(1, n) if depth[i] > 0}
-        assert {i for i in got if clear[i]} == {i for i in expected if clear[i]}
+        expected = {i for i in range(1, n) if depth[i] > 0 and t.active[i]}
+        assert {i for i in got if i > 0 and clear[i]} == {i for i in expected if clear[i]}
+        expected_static = {-1 - k for k in range(len(cs)) if sdepth[k] > 0}
+        sclear = {-1 - k for k in range(len(cs)) if abs(sdepth[k]) > 1e-6}
+        assert {i for i in got if i < 0 and i in sclear} == expected_static & sclear
         total += len(expected)
-    assert total > 100
+        static_total += len(expected_static)
+    assert total > 100 and static_total > 50
 
 
 # ------------------------------------------------------------------------------ collisions in a world

@@ -5,6 +5,10 @@ numba is installed with the package but optional at run time: when it is missing
 NumPy path. Every kernel repeats the NumPy path's float operations in the same order and dtype
 (no fastmath, no fused multiply-add), so both paths give bit-identical results; the tests check
 that on random scenes.
+
+Kernels are cached on disk (``cache=True``). numba checks only the caller's own source file, so
+after editing a kernel that others in another module call, delete the stale caches
+(``find . -name '*.nb[ic]' -delete``).
 """
 
 from __future__ import annotations
@@ -29,6 +33,10 @@ def _njit(fn):
     if not HAVE_JIT:
         return fn
     return numba.njit(cache=True, nogil=True, error_model="numpy")(fn)
+
+
+#: m, slack of the conservative broad phases in front of exact float32 box tests
+BROAD_PHASE_MARGIN = 0.05
 
 
 @_njit
@@ -189,14 +197,37 @@ def points_blocked_kernel(sensor, pts, cand, own, extra, center, cos_yaw, sin_ya
     oz = np.float32(sensor[2])
     zero = np.float32(0.0)
     out = np.zeros(cand.shape[0], np.bool_)
+    # Broad phase per target (consecutive points share one): a box can block a sight line to a
+    # point inside the target's footprint only if it comes within both half diagonals (+ a margin
+    # far above float32 rounding) of the segment from the sensor to the target's centre.
+    near = np.empty(k, np.int64)
+    k_near = 0
+    target = -1
     for i in range(cand.shape[0]):
+        if own[i] != target:
+            target = own[i]
+            tx, ty = center[target, 0] - sx, center[target, 1] - sy
+            tt = tx * tx + ty * ty
+            t_rad = 0.5 * np.sqrt(length[target] * length[target] + width[target] * width[target])
+            k_near = 0
+            for q in range(k):
+                j = keep[q]
+                if j == target:
+                    continue
+                r0, r1 = center[j, 0] - sx, center[j, 1] - sy
+                u = (r0 * tx + r1 * ty) / tt if tt > 0.0 else 0.0
+                u = min(max(u, 0.0), 1.0)
+                e0, e1 = r0 - u * tx, r1 - u * ty
+                lim = 0.5 * np.sqrt(length[j] * length[j] + width[j] * width[j]) + t_rad + BROAD_PHASE_MARGIN
+                if e0 * e0 + e1 * e1 <= lim * lim:
+                    near[k_near] = q
+                    k_near += 1
         p = cand[i]
         d0 = np.float32(pts[p, 0] - sx)
         d1 = np.float32(pts[p, 1] - sy)
         d2 = np.float32(pts[p, 2] - sensor[2])
-        for q in range(k):
-            if keep[q] == own[i]:
-                continue
+        for w in range(k_near):
+            q = near[w]
             if _box_blocks(zero, zero, oz, d0, d1, d2, c32[q], s32[q], bx[q], by[q], hl[q], hw[q], za[q], zb[q],
                            lo, hi):
                 out[i] = True

@@ -298,3 +298,19 @@ def test_kernel_signal_codes_match_signals():
 
     ours = (jit_traffic._GREEN, jit_traffic._RED, jit_traffic._YELLOW, jit_traffic._NO_SIGNAL)
     assert ours == (signals.GREEN, signals.RED, signals.YELLOW, signals.NO_SIGNAL)
+
+
+def test_bicycle_step_scalar_matches_numpy():
+    from v2xbench.envs.v2x_intersection.dynamics import VehicleParams, bicycle_step, bicycle_step_scalar
+
+    p = VehicleParams()
+    rng = np.random.default_rng(4)
+    for _ in range(2000):
+        x, y = rng.uniform(-500, 500, 2)
+        yaw = rng.uniform(-4, 4)
+        v = float(rng.choice([0.0, 24.99, 25.0, rng.uniform(0, 25)]))
+        th, st, br = rng.uniform(0, 1), rng.uniform(-1, 1), float(rng.choice([0.0, 1.0, rng.uniform(0, 1)]))
+        want = bicycle_step(np.float64(x), np.float64(y), np.float64(yaw), np.float64(v), th, st, br, p, 0.1)
+        got = bicycle_step_scalar(x, y, yaw, v, th, st, br, p.max_accel, p.max_brake, p.drag, p.max_speed,
+                                  p.max_steer, p.wheelbase, 0.1)
+        assert np.array(got).tobytes() == np.array(want, np.float64).tobytes()

@@ -628,6 +628,11 @@ class Channel:
         if p.dtype.kind != "f":
             raise ValueError(f"message payload has wrong dtype {p.dtype}: expected floating point")
         _check_used(p, length)
+        return self._send_checked(tick, sender_id, length, p)
+
+    def _send_checked(self, tick: int, sender_id: int, length: int, p: np.ndarray) -> int:
+        """:meth:`send` after its payload checks (``length > 0``, ``p[:length]`` finite, in range)."""
+        cfg = self.config
         self.advance(tick)
         if not _is_int(sender_id) or not 0 <= sender_id <= _MAX_U16:
             raise ValueError(f"sender_id must be an integer in [0, {_MAX_U16}], got {sender_id!r}")
@@ -658,7 +663,9 @@ class Channel:
     def send_action(self, tick: int, sender_id: int, action: Mapping) -> int:
         """Validate an RSU message action (:func:`validate_message`) and :meth:`send` it."""
         length, payload = validate_message(action, self.config)
-        return self.send(tick, sender_id, length, payload)
+        if length == 0:
+            return self.send(tick, sender_id, 0, payload)
+        return self._send_checked(tick, sender_id, length, payload)
 
     # -------------------------------------------------------------------------------- receive
     def receive(self, tick: int) -> list[tuple[int, int, np.ndarray]]:

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .jit import HAVE_JIT, idm_kernel
+from .jit import HAVE_JIT, _njit, idm_kernel
 
 
 @dataclass(frozen=True)
@@ -46,6 +46,25 @@ def bicycle_step(
     accel = (v_new - v) / dt
     delta = steer * params.max_steer
     yaw_rate = v_new * np.tan(delta) / params.wheelbase
+    yaw_new = yaw + yaw_rate * dt
+    yaw_new = (yaw_new + np.pi) % (2 * np.pi) - np.pi
+    x_new = x + v_new * np.cos(yaw_new) * dt
+    y_new = y + v_new * np.sin(yaw_new) * dt
+    return x_new, y_new, yaw_new, v_new, accel
+
+
+@_njit
+def bicycle_step_scalar(x, y, yaw, v, throttle, steer, brake, max_accel, max_brake, drag, max_speed, max_steer,
+                        wheelbase, dt):  # pragma: no cover
+    """:func:`bicycle_step` for one vehicle (float64 scalars, the same operations in the same order)."""
+    accel = throttle * max_accel - brake * max_brake - drag * v
+    v_new = v + accel * dt  # np.clip: NaN kept, else (v > lo ? v : lo), then (v < hi ? v : hi)
+    if v_new == v_new:
+        v_new = v_new if v_new > 0.0 else 0.0
+        v_new = v_new if v_new < max_speed else max_speed
+    accel = (v_new - v) / dt
+    delta = steer * max_steer
+    yaw_rate = v_new * np.tan(delta) / wheelbase
     yaw_new = yaw + yaw_rate * dt
     yaw_new = (yaw_new + np.pi) % (2 * np.pi) - np.pi
     x_new = x + v_new * np.cos(yaw_new) * dt

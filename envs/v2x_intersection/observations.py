@@ -153,9 +153,13 @@ def validate_control(action, name: str = "ego action") -> np.ndarray:
     if a.shape != (3,):
         raise ValueError(f"{name}: expected shape (3,) = (throttle, steer, brake), got {a.shape}")
     a = a.astype(np.float64)
-    if not np.all(np.isfinite(a)):
+    if not np.isfinite(a).all():
         raise ValueError(f"{name}: contains NaN or inf: {a.tolist()}")
-    return np.clip(a, [0.0, -1.0, 0.0], [1.0, 1.0, 1.0])
+    return np.minimum(np.maximum(a, _CONTROL_LO), _CONTROL_HI)
+
+
+_CONTROL_LO = np.array([0.0, -1.0, 0.0])
+_CONTROL_HI = np.array([1.0, 1.0, 1.0])
 
 
 def _rows(objs: np.ndarray, vis: np.ndarray, m: int) -> np.ndarray:
@@ -237,8 +241,9 @@ def _v2x(world, ego_xy: np.ndarray, ego_yaw: float) -> tuple[np.ndarray, np.ndar
         c, s = np.cos(yaw - ego_yaw), np.sin(yaw - ego_yaw)
         vx, vy = rows[:, 7].copy(), rows[:, 8].copy()
         rows[:, 7], rows[:, 8] = c * vx - s * vy, s * vx + c * vy
-    rel = world_to_local_2d(np.array([[x, y]]), ego_xy, ego_yaw)[0]
-    info[:] = (1.0, world.tick - sent_tick, len(rows), rel[0], rel[1], wrap_angle(yaw - ego_yaw))
+    c, s = np.cos(ego_yaw), np.sin(ego_yaw)  # the unit in the ego frame (world_to_local_2d's operations)
+    d0, d1 = x - ego_xy[0], y - ego_xy[1]
+    info[:] = (1.0, world.tick - sent_tick, len(rows), c * d0 + s * d1, -s * d0 + c * d1, wrap_angle(yaw - ego_yaw))
     return _rows(rows, np.ones(len(rows)), cfg.max_objects), info
 
 

@@ -162,15 +162,24 @@ class _Prepared:
     def __init__(self, boxes: Boxes, ref: np.ndarray):
         c, s = np.cos(boxes.yaw), np.sin(boxes.yaw)
         rel = boxes.center - ref
+        self._c64, self._s64 = c, s
         self.c, self.s = c.astype(DTYPE), s.astype(DTYPE)
-        self.rot_x = np.stack([c, s]).astype(DTYPE)  # (2, N): world vector -> local x
-        self.rot_y = np.stack([-s, c]).astype(DTYPE)  # (2, N): world vector -> local y
         self.bx = (c * rel[:, 0] + s * rel[:, 1]).astype(DTYPE)  # centre in the rotated axes
         self.by = (-s * rel[:, 0] + c * rel[:, 1]).astype(DTYPE)
         self.hl = (0.5 * boxes.length).astype(DTYPE)
         self.hw = (0.5 * boxes.width).astype(DTYPE)
         self.z0 = boxes.z0.astype(DTYPE)
         self.z1 = (boxes.z0 + boxes.height).astype(DTYPE)
+
+    @property
+    def rot_x(self) -> np.ndarray:
+        """``(2, N)``: world vector -> local x (the NumPy path's einsum operand)."""
+        return np.stack([self._c64, self._s64]).astype(DTYPE)
+
+    @property
+    def rot_y(self) -> np.ndarray:
+        """``(2, N)``: world vector -> local y."""
+        return np.stack([-self._s64, self._c64]).astype(DTYPE)
 
 
 def _slabs_xy(o: np.ndarray, d: np.ndarray, p: _Prepared) -> tuple[np.ndarray, np.ndarray]:

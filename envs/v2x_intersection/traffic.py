@@ -265,7 +265,7 @@ def _lane_changes(t, town, idx, lane, s, gap, dv, bike, rng, dt) -> None:
 
 def occupied(t: ActorTable, xy: np.ndarray, radius: float) -> bool:
     """Whether any active actor is within ``radius`` m of ``xy``."""
-    return bool(np.any(t.active & (row_norms(t.pos - xy) < radius)))
+    return bool((t.active & (row_norms(t.pos - xy) < radius)).any())
 
 
 def place_on_lane(t: ActorTable, town: Town, i: int, lane: int, s: float) -> None:

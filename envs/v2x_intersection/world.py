@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from .actors import DRIVER, EGO, PARKED, RIDER, WALKER, ActorTable, draw_size
-from .channel import Channel, ChannelConfig, empty_message, pack_objects, validate_message
+from .channel import Channel, ChannelConfig, empty_message, pack_objects
 from .classes import (
     BICYCLE,
     CAR,
@@ -30,7 +30,7 @@ from .classes import (
     TRAFFIC_SIGN,
 )
 from .config import EnvConfig
-from .dynamics import VehicleParams, bicycle_step
+from .dynamics import VehicleParams, bicycle_step, bicycle_step_scalar
 from .geometry import row_norms, world_to_local_2d
 from .infractions import EventMonitor
 from .jit import HAVE_JIT
@@ -253,15 +253,20 @@ class World:
         cfg, t = self.config, self.table
         # 2. V2X: the active RSU's message is sent now and delivered after the latency
         if rsu_message is not None:
-            length, payload = validate_message(rsu_message, self.channel_config)
-            self.channel.send(self.tick, int(max(self.active_rsu[0], 0)), length, payload)
+            self.channel.send_action(self.tick, int(max(self.active_rsu[0], 0)), rsu_message)
         else:
             self.channel.advance(self.tick)
         # 3. ego
         throttle, steer, brake = (float(c) for c in control)
         old = t.pos[0].copy()
-        x, y, yaw, v, a = bicycle_step(t.pos[0, 0], t.pos[0, 1], t.yaw[0], t.speed[0], throttle, steer, brake,
-                                       self.params, cfg.dt)
+        if HAVE_JIT:
+            pr = self.params
+            x, y, yaw, v, a = bicycle_step_scalar(
+                t.pos[0, 0], t.pos[0, 1], t.yaw[0], t.speed[0], throttle, steer, brake, pr.max_accel, pr.max_brake,
+                pr.drag, pr.max_speed, pr.max_steer, pr.wheelbase, cfg.dt)
+        else:
+            x, y, yaw, v, a = bicycle_step(t.pos[0, 0], t.pos[0, 1], t.yaw[0], t.speed[0], throttle, steer, brake,
+                                           self.params, cfg.dt)
         t.pos[0] = (x, y)
         t.yaw[0], t.speed[0], t.accel[0] = yaw, v, a
         self.last_control = np.array([throttle, steer, brake])

@@ -103,7 +103,7 @@ class LaneFlow:
     than ``ENTRY_HIDDEN_M`` from there: vehicles never pop up in view) once the previous vehicle is
     ``gap`` m (times a uniform factor in [0.5, 2.5], so that the flow leaves gaps long enough to
     overtake through now and then) down the lane and the entry is clear. Rows
-    keep their size (collision shapes are built once per episode).
+    keep their size.
     """
 
     def __init__(
@@ -125,6 +125,7 @@ class LaneFlow:
             ignore_rules,
         )
         self.last, self.next_gap, self.plan_id = -1, gap, -1
+        self._entry: np.ndarray | None = None  # lane point at s_lo, computed on first use
 
     def _draw_gap(self, rng: np.random.Generator) -> float:
         return float(self.gap * rng.uniform(0.5, 2.5))
@@ -180,7 +181,9 @@ class LaneFlow:
             and t.s[lead] - self.s_lo < self.next_gap
         ):
             return
-        p, _ = lane_point(world.town, self.lane, self.s_lo)
+        if self._entry is None:
+            self._entry = lane_point(world.town, self.lane, self.s_lo)[0]
+        p = self._entry
         if occupied(t, p, 7.0) or np.linalg.norm(t.pos[0] - p) < ENTRY_HIDDEN_M:
             return  # no vehicle appears out of nowhere within sight of the ego
         self._put(world, free[0], self.s_lo)

@@ -301,7 +301,11 @@ def test_kernel_signal_codes_match_signals():
 
 
 def test_bicycle_step_scalar_matches_numpy():
-    from v2xbench.envs.v2x_intersection.dynamics import VehicleParams, bicycle_step, bicycle_step_scalar
+    from v2xbench.envs.v2x_intersection.dynamics import (
+        VehicleParams,
+        bicycle_step,
+        bicycle_step_scalar,
+    )
 
     p = VehicleParams()
     rng = np.random.default_rng(4)

@@ -12,6 +12,7 @@ import numpy as np
 
 from .actors import WALKER, ActorTable
 from .classes import VEHICLE_CLASSES
+from .draws import signs
 from .geometry import world_to_local_2d
 from .jit import HAVE_JIT
 from .jit_traffic import crossing_kernel, walking_kernel
@@ -86,7 +87,7 @@ def step_walkers(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, 
             t.path[done], t.path_s[done] = sw, s
             p, h = net.index.pose_at(sw, s)  # keep the walker where it is: lateral offset from the path
             t.lat[done] = np.clip(((t.pos[done] - p) * np.stack([-np.sin(h), np.cos(h)], -1)).sum(-1), -1.2, 1.2)
-            t.path_dir[done] = rng.choice([-1.0, 1.0], size=len(done))
+            t.path_dir[done] = signs(rng, len(done))
 
     if len(walking) == 0:
         return

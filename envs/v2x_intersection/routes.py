@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .draws import pick
 from .geometry import polyline_lengths, resample_polyline
 from .town.model import (
     CHANGE_LANE_LEFT,
@@ -215,18 +216,18 @@ def random_route(town: Town, rng: np.random.Generator, min_length: float = 300.0
     best: list[int] = []
     best_len = 0.0
     for _ in range(tries):
-        lanes = [int(rng.choice(starts))]
+        lanes = [int(pick(rng, starts))]
         total = town.index.length[lanes[0]]
         while total < min_length:
             ln = town.lanes[lanes[-1]]
             nbs = [x for x in (ln.left, ln.right) if x >= 0]
             changed_before = len(lanes) > 1 and lanes[-1] in (town.lanes[lanes[-2]].left, town.lanes[lanes[-2]].right)
             if nbs and not changed_before and ln.length > 60 and rng.random() < lane_change_prob:
-                lanes.append(int(rng.choice(nbs)))
+                lanes.append(int(pick(rng, nbs)))
                 continue
             if not ln.successors:
                 break
-            lanes.append(int(rng.choice(ln.successors)))
+            lanes.append(int(pick(rng, ln.successors)))
             total += town.index.length[lanes[-1]]
         if total > best_len:
             best, best_len = lanes, total

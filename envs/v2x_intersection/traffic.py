@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from .actors import DRIVER, EGO, PARKED, RIDER, STATIC, ActorTable
+from .draws import pick
 from .dynamics import IDMParams, idm_accel
 from .geometry import row_norms
 from .jit import HAVE_JIT, leaders_kernel
@@ -284,7 +285,7 @@ def free_lane_spot(t: ActorTable, town: Town, lanes: np.ndarray, rng: np.random.
     from ``avoid (2,)``; ``None`` if none found in ``tries`` draws."""
     ix = town.index
     for _ in range(tries):
-        lane = int(rng.choice(lanes))
+        lane = int(pick(rng, lanes))
         s = float(rng.uniform(2.0, max(ix.length[lane] - 2.0, 2.5)))
         p, _ = ix.pose_at(np.array([lane]), np.array([s]))
         if np.linalg.norm(p[0] - avoid) < min_avoid or occupied(t, p[0], clearance):

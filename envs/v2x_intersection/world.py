@@ -30,6 +30,7 @@ from .classes import (
     TRAFFIC_SIGN,
 )
 from .config import EnvConfig
+from .draws import signs
 from .dynamics import VehicleParams, bicycle_step, bicycle_step_scalar
 from .geometry import row_norms, world_to_local_2d
 from .infractions import EventMonitor
@@ -213,7 +214,7 @@ class World:
             t.kind[row], t.behaviour[row], t.active[row] = PEDESTRIAN, WALKER, True
             t.length[row], t.width[row], t.height[row] = draw_size(PEDESTRIAN, rng)
             t.path[row], t.path_s[row] = sw, rng.uniform(0.0, net.index.length[sw])
-            t.path_dir[row] = rng.choice([-1.0, 1.0])
+            t.path_dir[row] = signs(rng)
             t.lat[row] = rng.uniform(-0.8, 0.8)
             t.speed[row] = rng.uniform(1.0, 1.6)
             p, h = net.index.pose_at(np.array([sw]), np.array([t.path_s[row]]))

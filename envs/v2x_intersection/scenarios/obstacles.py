@@ -17,6 +17,7 @@ import numpy as np
 
 from ..actors import draw_size
 from ..classes import CAR, LARGE_VEHICLE, STATIC_OBSTACLE, TRAFFIC_CONE, TRAFFIC_SIGN
+from ..draws import signs
 from ..town.model import DRIVING, PARKING, Town
 from ..traffic import occupied
 from .base import Scenario, Site
@@ -475,7 +476,7 @@ class ControlLoss(_LaneBlock):
             r = 0.5 * max(t.length[row], t.width[row])
             if abs(dx) < t.length[0] / 2 + r and abs(dy) < t.width[0] / 2 + r:
                 self._hit[k] = True
-                t.yaw[0] += float(self.params["loss_yaw"]) * float(world.rng.choice([-1.0, 1.0]))
+                t.yaw[0] += float(self.params["loss_yaw"]) * signs(world.rng)
 
 
 # ------------------------------------------------------------------------------------ opening door

@@ -6,6 +6,7 @@ import numpy as np
 
 from ..actors import DRIVER, PARKED, SCRIPTED, STATIC, WALKER, ActorTable, draw_size
 from ..classes import BICYCLE, LARGE_VEHICLE, PEDESTRIAN
+from ..draws import pick
 from ..routes import Route, route_from_lanes
 from ..town.model import CONNECTOR, DRIVING, PARKING, Town
 from .base import Scenario, Site
@@ -29,7 +30,7 @@ def extend_lanes(town: Town, rng: np.random.Generator, lanes: list[int], before:
         preds = [p for p in town.lanes[lanes[0]].predecessors if ix.kind[p] != PARKING]
         if not preds:
             break
-        p = int(rng.choice(preds))
+        p = int(pick(rng, preds))
         if p in lanes:
             break
         lanes.insert(0, p)
@@ -40,7 +41,7 @@ def extend_lanes(town: Town, rng: np.random.Generator, lanes: list[int], before:
         succ = [s for s in town.lanes[lanes[-1]].successors if ix.kind[s] != PARKING]
         if not succ:
             break
-        n = int(rng.choice(succ))
+        n = int(pick(rng, succ))
         if n in lanes:
             break
         lanes.append(n)

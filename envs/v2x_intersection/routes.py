@@ -212,7 +212,12 @@ def route_from_lanes(town: Town, lanes: list[int], s_start: float = 0.0, s_end: 
 def random_route(town: Town, rng: np.random.Generator, min_length: float = 300.0,
                  lane_change_prob: float = 0.1, tries: int = 200) -> Route:
     """A random drive of at least ``min_length`` m starting at a random driving lane."""
-    starts = [ln.id for ln in town.lanes if ln.kind not in (PARKING, CONNECTOR) and ln.length > 20]
+    store = town.cache("random_route")
+    if not store:  # lane lengths and start lanes depend on the town only
+        store["length"] = [ln.length for ln in town.lanes]
+        store["starts"] = [ln.id for ln, n in zip(town.lanes, store["length"])
+                           if ln.kind not in (PARKING, CONNECTOR) and n > 20]
+    starts, lane_length = store["starts"], store["length"]
     best: list[int] = []
     best_len = 0.0
     for _ in range(tries):
@@ -222,7 +227,7 @@ def random_route(town: Town, rng: np.random.Generator, min_length: float = 300.0
             ln = town.lanes[lanes[-1]]
             nbs = [x for x in (ln.left, ln.right) if x >= 0]
             changed_before = len(lanes) > 1 and lanes[-1] in (town.lanes[lanes[-2]].left, town.lanes[lanes[-2]].right)
-            if nbs and not changed_before and ln.length > 60 and rng.random() < lane_change_prob:
+            if nbs and not changed_before and lane_length[ln.id] > 60 and rng.random() < lane_change_prob:
                 lanes.append(int(pick(rng, nbs)))
                 continue
             if not ln.successors:

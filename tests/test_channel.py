@@ -502,3 +502,28 @@ def test_pack_unpack_errors():
 
 
 # ------------------------------------------------------------------------------------- speed
+
+
+def test_step_builtin_matches_step_with_default_message():
+    """World.step_builtin (the envs' path, message not checked twice) sends exactly what
+    step(control, default_rsu_message()) sends, with the same results."""
+    from v2xbench.envs.v2x_intersection.config import make_config
+    from v2xbench.envs.v2x_intersection.world import World
+
+    worlds = [World(make_config(town="Town03", latency_ticks=1)) for _ in range(2)]
+    for w in worlds:
+        w.reset(seed=5)
+    sent = 0
+    for k in range(120):
+        a = np.array([0.5, 0.05 * np.sin(k / 9), 0.0])
+        ev0 = worlds[0].step(a, worlds[0].default_rsu_message())
+        ev1 = worlds[1].step_builtin(a)
+        assert ev0 == ev1
+        s0, s1 = worlds[0].channel.stats(), worlds[1].channel.stats()
+        assert s0 == s1
+        i0, i1 = worlds[0].inbox, worlds[1].inbox
+        assert (i0 is None) == (i1 is None)
+        if i0 is not None:
+            assert i0[:2] == i1[:2] and i0[2].tobytes() == i1[2].tobytes()
+        sent = s1["messages_sent"]
+    assert sent > 0

@@ -125,7 +125,7 @@ class WorldBatch:
             if tr is None:
                 raise StepError(f"world {i}: step() called before reset()")
             w = self.worlds[i]
-            events = w.step(controls[i], w.default_rsu_message())
+            events = w.step_builtin(controls[i])
             r, te, tc, info = tr.after_step(events)
             self.reward[i], self.terminated[i], self.truncated[i] = r, te, tc
             self.infos[i] = info

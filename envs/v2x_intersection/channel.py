@@ -463,7 +463,14 @@ def pack_objects(
         raise ValueError(f"objs must have shape (K, {NUM_OBJECT_FIELDS}), got {a.shape}")
     if encoding not in _ENCODING_DTYPES:
         raise ValueError(f"unknown encoding {encoding!r}")
-    k = min(a.shape[0], max_objects(max_payload_floats))
+    length, payload = pack_rows(a, max_payload_floats, encoding)
+    _check_used(payload, length)
+    return length, payload
+
+
+def pack_rows(a: np.ndarray, max_payload_floats: int, encoding: str) -> tuple[int, np.ndarray]:
+    """:func:`pack_objects` without its checks (``a``: ``(K, NUM_OBJECT_FIELDS)`` float32, finite)."""
+    k = min(a.shape[0], max_payload_floats // NUM_OBJECT_FIELDS)
     length = k * NUM_OBJECT_FIELDS
     payload = np.zeros(max_payload_floats, np.float32)
     if k:
@@ -472,7 +479,6 @@ def pack_objects(
             rows = rows.copy()
             rows[:, _TRACK_ID_COL] = np.mod(rows[:, _TRACK_ID_COL], FLOAT16_TRACK_ID_MODULUS)
         payload[:length] = rows.reshape(-1)
-        _check_used(payload, length)
     return length, payload
 
 
@@ -628,10 +634,12 @@ class Channel:
         if p.dtype.kind != "f":
             raise ValueError(f"message payload has wrong dtype {p.dtype}: expected floating point")
         _check_used(p, length)
-        return self._send_checked(tick, sender_id, length, p)
+        return self.send_valid(tick, sender_id, length, p)
 
-    def _send_checked(self, tick: int, sender_id: int, length: int, p: np.ndarray) -> int:
-        """:meth:`send` after its payload checks (``length > 0``, ``p[:length]`` finite, in range)."""
+    def send_valid(self, tick: int, sender_id: int, length: int, p: np.ndarray) -> int:
+        """:meth:`send` without its payload checks: the caller guarantees ``length > 0`` and
+        ``p[:length]`` finite float32 within ``+-PAYLOAD_LIMIT`` (e.g. after
+        :func:`validate_message`, or rows the world packed itself)."""
         cfg = self.config
         self.advance(tick)
         if not _is_int(sender_id) or not 0 <= sender_id <= _MAX_U16:
@@ -665,7 +673,7 @@ class Channel:
         length, payload = validate_message(action, self.config)
         if length == 0:
             return self.send(tick, sender_id, 0, payload)
-        return self._send_checked(tick, sender_id, length, payload)
+        return self.send_valid(tick, sender_id, length, payload)
 
     # -------------------------------------------------------------------------------- receive
     def receive(self, tick: int) -> list[tuple[int, int, np.ndarray]]:

@@ -58,7 +58,7 @@ class V2XIntersectionEnv(gym.Env):
         if self._tracker.done:
             raise StepError("step() called after the episode ended; call reset()")
         control = validate_control(action)
-        events = self.world.step(control, self.world.default_rsu_message())
+        events = self.world.step_builtin(control)
         reward, terminated, truncated, info = self._tracker.after_step(events)
         return ego_observation(self.world), reward, terminated, truncated, info
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from .actors import DRIVER, EGO, PARKED, RIDER, WALKER, ActorTable, draw_size
-from .channel import Channel, ChannelConfig, empty_message, pack_objects
+from .channel import Channel, ChannelConfig, empty_message, pack_objects, pack_rows
 from .classes import (
     BICYCLE,
     CAR,
@@ -251,12 +251,32 @@ class World:
         """
         if self.ended:
             raise StepError("step() called on a world that has ended or was never reset; call reset()")
-        cfg, t = self.config, self.table
         # 2. V2X: the active RSU's message is sent now and delivered after the latency
         if rsu_message is not None:
             self.channel.send_action(self.tick, int(max(self.active_rsu[0], 0)), rsu_message)
         else:
             self.channel.advance(self.tick)
+        return self._advance(control)
+
+    def step_builtin(self, control: np.ndarray) -> list:
+        """:meth:`step` with the built-in RSU policy's message (:meth:`default_rsu_message`),
+        packed by the world itself and so sent without being checked again (the gym and batched
+        envs step this way)."""
+        if self.ended:
+            raise StepError("step() called on a world that has ended or was never reset; call reset()")
+        if self.config.rsu_policy == "none" or self.active_rsu[0] < 0:
+            self.channel.advance(self.tick)
+        else:
+            length, payload = pack_rows(self.rsu_objects(0), self.config.max_payload_floats, self.config.encoding)
+            if length:
+                self.channel.send_valid(self.tick, int(self.active_rsu[0]), length, payload)
+            else:
+                self.channel.send(self.tick, int(self.active_rsu[0]), 0, payload)
+        return self._advance(control)
+
+    def _advance(self, control: np.ndarray) -> list:
+        """Steps 3-8 of the tick (after the message is on the channel)."""
+        cfg, t = self.config, self.table
         # 3. ego
         throttle, steer, brake = (float(c) for c in control)
         old = t.pos[0].copy()

@@ -285,7 +285,7 @@ class EvalEnv(EnvBase):
         try:
             control = validate_control(tensordict.get("action").detach().cpu().numpy().reshape(-1),
                                        "policy action")
-            events = w.step(control, w.default_rsu_message())
+            events = w.step_builtin(control)
             reward, term, trunc, _ = self._tracker.after_step(events)
             self._log.after_step()
         except Exception as e:  # noqa: BLE001

@@ -174,7 +174,7 @@ def _drive(cfg, world, expert, tracker, cap, rig, rcfg, perturber, tmp, rel, epi
             keyframes.append(keyframe_facts(world, frame, expert, history, images, episode))
         if world.tick >= cap:
             break
-        events = world.step(executed, world.default_rsu_message())
+        events = world.step_builtin(executed)
         _, term, trunc, _ = tracker.after_step(events)
         if world.is_route_complete():
             ended = "route_complete"

@@ -47,6 +47,7 @@ from .town.model import DRIVING, RAMP
 from .traffic import free_lane_spot, place_on_lane, step_followers
 from .visibility import VISIBILITY_SAMPLING, VISIBLE_THRESHOLD, visible_fraction
 
+_NO_PAYLOAD = np.zeros(0, np.float32)
 EGO_SENSOR_Z = 1.8  # m, ego camera height (occlusion is judged from here)
 EGO_LENGTH, EGO_WIDTH, EGO_HEIGHT = 4.7, 1.9, 1.5  # m
 RSU_HFOV = np.deg2rad(120.0)  # rad, RSU LiDAR horizontal field of view
@@ -264,14 +265,14 @@ class World:
         envs step this way)."""
         if self.ended:
             raise StepError("step() called on a world that has ended or was never reset; call reset()")
-        if self.config.rsu_policy == "none" or self.active_rsu[0] < 0:
-            self.channel.advance(self.tick)
-        else:
+        sender = int(max(self.active_rsu[0], 0))
+        length = 0
+        if self.config.rsu_policy != "none" and self.active_rsu[0] >= 0:
             length, payload = pack_rows(self.rsu_objects(0), self.config.max_payload_floats, self.config.encoding)
-            if length:
-                self.channel.send_valid(self.tick, int(self.active_rsu[0]), length, payload)
-            else:
-                self.channel.send(self.tick, int(self.active_rsu[0]), 0, payload)
+        if length:
+            self.channel.send_valid(self.tick, sender, length, payload)
+        else:
+            self.channel.send(self.tick, sender, 0, _NO_PAYLOAD)  # sends nothing, as an empty message
         return self._advance(control)
 
     def _advance(self, control: np.ndarray) -> list:

@@ -24,17 +24,21 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..jit import HAVE_JIT
 from ..raycast import GROUND, NO_HIT
 from .ground import GroundRaster
 from .scene import Scene
 from .semantics import (
     CLASS_REFLECTIVITY,
     INSTANCE_NONE,
+    M_TERRAIN,
     MATERIAL_REFLECTIVITY,
+    MATERIAL_RGB,
     MATERIAL_SEMANTIC,
     SKY,
     TERRAIN,
 )
+from .shading_jit import shade_kernel
 from .textures import ATLAS_MODE, ATLAS_RGB, EMISSIVE, FIXED, REPEAT, STOREY, T
 
 FOG_DIST = 260.0  # m
@@ -123,6 +127,18 @@ def shade(
         ``rgb (M, 3)`` uint8, ``semantic (M,)`` uint8, ``instance (M,)`` int32.
     """
     m = len(idx)
+    if HAVE_JIT:
+        keep = np.exp(dist * _F32(-1.0 / FOG_DIST))
+        if sky is None:
+            sky = np.zeros((m, 3), np.float32)
+            miss = np.flatnonzero(idx == NO_HIT)
+            sky[miss] = sky_colors(dz[miss])
+        return shade_kernel(
+            p, dz, keep, np.ascontiguousarray(idx, np.int64), sky, scene.geo, scene.style,
+            scene.colors.reshape(-1, 3), scene.light.ravel(), scene.sem, scene.inst, REPEAT, _F32(STOREY[0]),
+            _F32(STOREY[1]), T, FIXED, EMISSIVE, _ATLAS_RGB, _ATLAS_MODE, ground.code, ground.rgb.reshape(-1, 3),
+            _F32(ground.xmin), _F32(ground.ymin), _F32(1.0 / ground.mpp), M_TERRAIN,
+            MATERIAL_RGB[M_TERRAIN].astype(np.uint8), MATERIAL_SEMANTIC, HAZE, SKY, TERRAIN, GROUND, INSTANCE_NONE)
     rgb = np.empty((m, 3), np.float32)
     sem = np.empty(m, np.uint8)
     inst = np.full(m, INSTANCE_NONE, np.int32)

@@ -1,0 +1,108 @@
+"""numba kernel of :func:`.shading.shade` (everything but the fog's ``exp`` and the sky's power,
+which stay NumPy calls so that both paths use the same transcendental functions).
+
+Every operation is repeated in float32 as NumPy does it: Python-float constants are cast to
+float32 first (NumPy treats them as weak scalars, numba would promote to float64), comparisons
+included. ``tests/test_sensors.py`` compares the images of both paths byte for byte.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..jit import _njit
+
+_F = np.float32
+
+
+@_njit
+def shade_kernel(p, dz, keep, idx, sky, geo, style, colors, light, sem_box, inst_box, repeat, storey_a, storey_b,
+                 tex_n, fixed, emissive, atlas_rgb, atlas_mode, code, ground_rgb, xmin, ymin, inv, terrain,
+                 terrain_rgb, material_sem, haze, sky_sem, terrain_sem, ground_id, inst_none):  # pragma: no cover
+    """``shade``'s colours, semantic and instance ids (see :func:`.shading.shade`).
+
+    Args:
+        p, dz, idx, sky: as ``shade`` (``sky`` filled for the misses). keep: ``exp(-dist / FOG_DIST)``.
+        geo ... inst_box: the scene's arrays (``colors (N * 3, 3)``, ``light (N * 6,)``).
+        repeat, storey_a, storey_b, tex_n, fixed, emissive, atlas_rgb, atlas_mode: the texture atlas.
+        code, ground_rgb, xmin, ymin, inv: the ground raster (``ground_rgb (H * W, 3)``, float32
+            ``xmin``, ``ymin``, ``inv = 1 / mpp``). terrain, terrain_rgb: material outside it.
+        material_sem, haze, sky_sem, terrain_sem: lookups. ground_id: ``raycast.GROUND``.
+    """
+    m = idx.shape[0]
+    rgb_out = np.empty((m, 3), np.uint8)
+    sem = np.empty(m, np.uint8)
+    inst = np.full(m, inst_none, np.int32)
+    h, w = code.shape
+    half, one, zero = _F(0.5), _F(1.0), _F(0.0)
+    tf = _F(tex_n)
+    inv255 = _F(1 / 255)
+    shadow_z, shadow = _F(0.35), _F(0.82)
+    cap = _F(255.0)
+    col3 = np.empty(3, np.float32)
+    for i in range(m):
+        j = idx[i]
+        k = keep[i]
+        if j >= 0:
+            g = geo[j]
+            c, s = g[0], g[1]
+            dx, dy = p[i, 0] - g[2], p[i, 1] - g[3]
+            u = (c * dx + s * dy) * g[4]
+            v = (c * dy - s * dx) * g[5]
+            z = p[i, 2]
+            wz = (z - g[6]) * g[7]
+            au, av, aw = abs(u), abs(v), abs(_F(2.0) * wz - one)
+            xf = au >= av and au >= aw
+            yf = not xf and av >= aw
+            if xf:
+                face = 1 if u < zero else 0
+            elif yf:
+                face = 3 if v < zero else 2
+            else:
+                face = 5 if wz < half else 4
+            ta = (v if xf else u) * half + half
+            tb = (one - wz) if (xf or yf) else v * half + half
+            st = style[j]
+            if repeat[st] and face < 4:
+                along = v / g[5] if xf else u / g[4]
+                ta = (along / storey_a) % one
+                tb = one - (z / storey_b) % one
+            cc = np.int64(ta * tf)
+            rr = np.int64(tb * tf)
+            cc = min(max(cc, 0), tex_n - 1)
+            rr = min(max(rr, 0), tex_n - 1)
+            texel = ((st * 6 + face) * tex_n + rr) * tex_n + cc
+            mode = atlas_mode[texel]
+            base = j * 3 + min(mode, 2)
+            lit = light[j * 6 + face]
+            if face < 4 and z < shadow_z:
+                lit *= shadow
+            if mode == emissive:
+                lit = one
+            for q in range(3):
+                tex = atlas_rgb[texel, q]
+                col3[q] = (tex if mode >= fixed else colors[base, q] * (tex * inv255)) * lit
+            sem[i] = sem_box[j]
+            inst[i] = inst_box[j]
+        elif j == ground_id:
+            cx = np.int64(np.floor((p[i, 0] - xmin) * inv))
+            ry = np.int64(np.floor((p[i, 1] - ymin) * inv))
+            if 0 <= cx < w and 0 <= ry < h:
+                mat = code[ry, cx]
+                for q in range(3):
+                    col3[q] = _F(ground_rgb[ry * w + cx, q])
+            else:
+                mat = terrain
+                for q in range(3):
+                    col3[q] = _F(terrain_rgb[q])
+            sem[i] = material_sem[mat]
+        else:
+            up = dz[i] >= zero
+            for q in range(3):
+                col3[q] = sky[i, q]
+            sem[i] = sky_sem if up else terrain_sem
+            k = one if up else zero
+        for q in range(3):
+            x = col3[q] * k + haze[q] * (one - k)
+            rgb_out[i, q] = np.uint8(x if x < cap else cap)
+    return rgb_out, sem, inst

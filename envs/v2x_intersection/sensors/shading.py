@@ -38,7 +38,7 @@ from .semantics import (
     SKY,
     TERRAIN,
 )
-from .shading_jit import shade_kernel
+from .shading_jit import lidar_returns_kernel, shade_kernel
 from .textures import ATLAS_MODE, ATLAS_RGB, EMISSIVE, FIXED, REPEAT, STOREY, T
 
 FOG_DIST = 260.0  # m
@@ -180,6 +180,11 @@ def lidar_returns(
         ``intensity (M,)`` float32 in ``[0, 1]``, ``semantic (M,)`` uint8, ``instance (M,)`` int32.
     """
     m = len(idx)
+    if HAVE_JIT:
+        return lidar_returns_kernel(
+            p, d, np.ascontiguousarray(idx, np.int64), scene.geo, scene.normals, scene.sem, scene.inst,
+            CLASS_REFLECTIVITY, ground.code, _F32(ground.xmin), _F32(ground.ymin), _F32(1.0 / ground.mpp),
+            M_TERRAIN, MATERIAL_SEMANTIC, MATERIAL_REFLECTIVITY)
     inten = np.empty(m, np.float32)
     sem = np.empty(m, np.uint8)
     inst = np.zeros(m, np.int32)

@@ -16,6 +16,65 @@ _F = np.float32
 
 
 @_njit
+def _face(g, x, y, z):  # pragma: no cover
+    """``shading.surface``'s box-frame coordinates ``u, v, w`` of a point on a box (``g``: its
+    ``scene.geo`` row), the face it lies on and whether that is an x / y face."""
+    one, zero, half = _F(1.0), _F(0.0), _F(0.5)
+    c, s = g[0], g[1]
+    dx, dy = x - g[2], y - g[3]
+    u = (c * dx + s * dy) * g[4]
+    v = (c * dy - s * dx) * g[5]
+    wz = (z - g[6]) * g[7]
+    au, av, aw = abs(u), abs(v), abs(_F(2.0) * wz - one)
+    xf = au >= av and au >= aw
+    yf = not xf and av >= aw
+    if xf:
+        face = 1 if u < zero else 0
+    elif yf:
+        face = 3 if v < zero else 2
+    else:
+        face = 5 if wz < half else 4
+    return u, v, wz, face, xf, yf
+
+
+@_njit
+def lidar_returns_kernel(p, d, idx, geo, normals, sem_box, inst_box, class_refl, code, xmin, ymin, inv, terrain,
+                         material_sem, material_refl):  # pragma: no cover
+    """:func:`.shading.lidar_returns`: intensity, semantic and instance id of each return.
+
+    Args:
+        p, d, idx: as ``lidar_returns``. geo, normals, sem_box, inst_box: the scene's arrays.
+        class_refl: reflectivity per semantic class. code, xmin, ymin, inv, terrain: the ground
+            raster (float32 ``xmin``, ``ymin``, ``inv``) and the material outside it.
+        material_sem, material_refl: lookups per material.
+    """
+    m = idx.shape[0]
+    inten = np.empty(m, np.float32)
+    sem = np.empty(m, np.uint8)
+    inst = np.zeros(m, np.int32)
+    h, w = code.shape
+    zero, one = _F(0.0), _F(1.0)
+    for i in range(m):
+        j = idx[i]
+        if j >= 0:
+            face = _face(geo[j], p[i, 0], p[i, 1], p[i, 2])[3]
+            acc = normals[j, face, 0] * d[i, 0]
+            acc += normals[j, face, 1] * d[i, 1]
+            acc += normals[j, face, 2] * d[i, 2]
+            sem[i] = sem_box[j]
+            inst[i] = inst_box[j]
+            x = class_refl[sem[i]] * abs(acc)
+        else:
+            cx = np.int64(np.floor((p[i, 0] - xmin) * inv))
+            ry = np.int64(np.floor((p[i, 1] - ymin) * inv))
+            mat = code[ry, cx] if (0 <= cx < w and 0 <= ry < h) else terrain
+            sem[i] = material_sem[mat]
+            x = material_refl[mat] * abs(d[i, 2])
+        inten[i] = zero if x < zero else (one if x > one else x)
+    return inten, sem, inst
+
+
+@_njit
 def shade_kernel(p, dz, keep, idx, sky, geo, style, colors, light, sem_box, inst_box, repeat, storey_a, storey_b,
                  tex_n, fixed, emissive, atlas_rgb, atlas_mode, code, ground_rgb, xmin, ymin, inv, terrain,
                  terrain_rgb, material_sem, haze, sky_sem, terrain_sem, ground_id, inst_none):  # pragma: no cover
@@ -45,21 +104,8 @@ def shade_kernel(p, dz, keep, idx, sky, geo, style, colors, light, sem_box, inst
         k = keep[i]
         if j >= 0:
             g = geo[j]
-            c, s = g[0], g[1]
-            dx, dy = p[i, 0] - g[2], p[i, 1] - g[3]
-            u = (c * dx + s * dy) * g[4]
-            v = (c * dy - s * dx) * g[5]
             z = p[i, 2]
-            wz = (z - g[6]) * g[7]
-            au, av, aw = abs(u), abs(v), abs(_F(2.0) * wz - one)
-            xf = au >= av and au >= aw
-            yf = not xf and av >= aw
-            if xf:
-                face = 1 if u < zero else 0
-            elif yf:
-                face = 3 if v < zero else 2
-            else:
-                face = 5 if wz < half else 4
+            u, v, wz, face, xf, yf = _face(g, p[i, 0], p[i, 1], z)
             ta = (v if xf else u) * half + half
             tb = (one - wz) if (xf or yf) else v * half + half
             st = style[j]

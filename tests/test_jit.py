@@ -5,7 +5,7 @@ import pytest
 from v2xbench.envs.v2x_intersection import raycast, visibility
 from v2xbench.envs.v2x_intersection.jit import HAVE_JIT
 from v2xbench.envs.v2x_intersection.raycast import Boxes, segments_blocked
-from v2xbench.envs.v2x_intersection.sensors import shading
+from v2xbench.envs.v2x_intersection.sensors import camera, shading
 from v2xbench.envs.v2x_intersection.visibility import visible_fraction
 
 pytestmark = pytest.mark.skipif(not HAVE_JIT, reason="numba not installed")
@@ -22,6 +22,7 @@ def _both(monkeypatch, fn):
         m.setattr(raycast, "HAVE_JIT", False)
         m.setattr(visibility, "HAVE_JIT", False)
         m.setattr(shading, "HAVE_JIT", False)
+        m.setattr(camera, "HAVE_JIT", False)
         b = fn()
     return a, b
 

@@ -511,6 +511,8 @@ def first_hit_fan_kernel(u, k, c, s, bx, by, hl, hw, z0, z1, oz):  # pragma: no 
             best, bj = inf, -1
             for q in range(m):
                 j = cand[q]
+                if bj >= 0 and key[j] >= best:  # sorted by entry: no later box can be nearer
+                    break
                 za = za0[j] * invk
                 zb = za1[j] * invk
                 b_in = _fmax(g_in[j], _fmin(za, zb))

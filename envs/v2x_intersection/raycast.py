@@ -458,6 +458,54 @@ def segments_blocked(
     return out
 
 
+def _fan_setup(origin, dirs_h, slopes, boxes: Boxes, ignore) -> tuple:
+    """:func:`first_hit_fan`'s inputs as its kernels take them: ``(origin (3,) float64, u (A, 2)
+    unit float64, k (E, A) DTYPE, the solid boxes, their indices in ``boxes``)``."""
+    origin = np.asarray(origin, dtype=np.float64).reshape(3)
+    u = np.asarray(dirs_h, dtype=np.float64).reshape(-1, 2)
+    u = u / np.linalg.norm(u, axis=1, keepdims=True)
+    k = np.asarray(slopes, dtype=np.float64)
+    k = k.reshape(-1, 1) if k.ndim == 1 else k
+    e, a, n = k.shape[0], u.shape[0], len(boxes)
+    k = np.broadcast_to(k, (e, a)).astype(DTYPE)
+    keep, per_row = _ignore_spec(ignore, a, n)
+    if per_row is not None:
+        raise ValueError("first_hit_fan takes only a global ignore (int or (N,) bool mask)")
+    keep = _solid(keep, boxes)
+    box_ids = np.arange(n)
+    if keep is not None:
+        boxes, box_ids = boxes.subset(keep), box_ids[keep]
+    return origin, u, k, boxes, box_ids
+
+
+def _fan_kernel(origin: np.ndarray, u: np.ndarray, k: np.ndarray, boxes: Boxes) -> tuple[np.ndarray, np.ndarray]:
+    """``first_hit_fan_kernel`` on :func:`_fan_setup`'s outputs (at least one box and ray)."""
+    p = _Prepared(boxes, origin[:2])
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        return first_hit_fan_kernel(u.astype(DTYPE), np.ascontiguousarray(k), p.c, p.s, p.bx, p.by, p.hl, p.hw,
+                                    p.z0, p.z1, DTYPE(origin[2]))
+
+
+def first_hit_fan_boxes(origin: np.ndarray, dirs_h: np.ndarray, slopes: np.ndarray,
+                        boxes: Boxes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The box part of :func:`first_hit_fan` (numba path only), for callers that finish the
+    rays in their own kernel (``sensors.camera``).
+
+    Returns:
+        ``(t, j, box_ids, k)``: per ray ``(E, A)`` the float32 horizontal distance to the first
+        box (``inf``: none) and that box's position in ``box_ids`` (-1: none; a ray with ``t``
+        infinite hit nothing whatever ``j`` says), ``box_ids`` the indices into ``boxes`` of the
+        boxes cast against, and the float32 slopes ``(E, A)``.
+    """
+    origin, u, k, boxes, box_ids = _fan_setup(origin, dirs_h, slopes, boxes, None)
+    e, a = k.shape
+    if len(boxes) and a and e:
+        t, j = _fan_kernel(origin, u, k, boxes)
+    else:
+        t, j = np.full((e, a), np.inf, DTYPE), np.full((e, a), -1, np.int64)
+    return t, j, box_ids, k
+
+
 def first_hit_fan(
     origin: np.ndarray,
     dirs_h: np.ndarray,
@@ -492,28 +540,12 @@ def first_hit_fan(
         3D range is ``t * sqrt(1 + slope**2)``), ``max_t`` where nothing is hit; ``index`` as in
         :func:`first_hit` (box index, :data:`GROUND` = -2, :data:`NO_HIT` = -1).
     """
-    origin = np.asarray(origin, dtype=np.float64).reshape(3)
-    u = np.asarray(dirs_h, dtype=np.float64).reshape(-1, 2)
-    u = u / np.linalg.norm(u, axis=1, keepdims=True)
-    k = np.asarray(slopes, dtype=np.float64)
-    k = k.reshape(-1, 1) if k.ndim == 1 else k
+    origin, u, k, boxes, box_ids = _fan_setup(origin, dirs_h, slopes, boxes, ignore)
     e, a, n = k.shape[0], u.shape[0], len(boxes)
-    k = np.broadcast_to(k, (e, a)).astype(DTYPE)
-    keep, per_row = _ignore_spec(ignore, a, n)
-    if per_row is not None:
-        raise ValueError("first_hit_fan takes only a global ignore (int or (N,) bool mask)")
-    keep = _solid(keep, boxes)
-    box_ids = np.arange(n)
-    if keep is not None:
-        boxes, box_ids = boxes.subset(keep), box_ids[keep]
-        n = len(boxes)
     t = np.full((e, a), np.inf, DTYPE)
     idx = np.full((e, a), NO_HIT, np.intp)
     if n and a and e and HAVE_JIT:
-        p = _Prepared(boxes, origin[:2])
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            t, j = first_hit_fan_kernel(u.astype(DTYPE), np.ascontiguousarray(k), p.c, p.s, p.bx, p.by, p.hl, p.hw,
-                                        p.z0, p.z1, DTYPE(origin[2]))
+        t, j = _fan_kernel(origin, u, k, boxes)
         idx = np.where(j >= 0, box_ids[np.maximum(j, 0)], NO_HIT)
         idx[np.isinf(t)] = NO_HIT
     elif n and a and e:

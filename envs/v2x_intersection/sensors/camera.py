@@ -41,9 +41,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry import T_BODY_OPTICAL, camera_intrinsics, pose_matrix
-from ..raycast import NO_HIT, first_hit_fan
+from ..jit import HAVE_JIT
+from ..raycast import GROUND, NO_HIT, first_hit_fan, first_hit_fan_boxes
 from .fan import fan_for
 from .ground import GroundRaster
+from .kernels import camera_hits_kernel
 from .scene import Scene
 from .shading import shade
 
@@ -150,6 +152,14 @@ def _cast(scene: Scene, spec: CameraSpec, t_world_body: np.ndarray, exclude, ove
     o = t_world_body[:3, 3].astype(np.float64)
     sel = scene.cull(o, yaw, fan.half_az + 0.02, float(fan.max_t.max()), exclude, spec.far)
     a = yaw + fan.az
+    if HAVE_JIT:
+        t, j, box_ids, k = first_hit_fan_boxes(o, np.stack([np.cos(a), np.sin(a)], -1), fan.slopes,
+                                               scene.boxes.subset(sel))
+        p, dist, idx, depth = camera_hits_kernel(
+            t, j, box_ids, sel, k, bool(o[2] >= 0), np.float32(o[2]), fan.max_t.astype(np.float32), fan.pix,
+            fan.dirs, fan.norm, fan.dpt, np.float32(np.cos(yaw)), np.float32(np.sin(yaw)), np.float32(o[0]),
+            np.float32(o[1]), np.float32(spec.far), NO_HIT, GROUND)
+        return p, fan.dirs[:, 2], dist, idx, depth, fan.sky
     t, idx = first_hit_fan(
         o,
         np.stack([np.cos(a), np.sin(a)], -1),

@@ -27,6 +27,7 @@ import numpy as np
 from ..jit import HAVE_JIT
 from ..raycast import GROUND, NO_HIT
 from .ground import GroundRaster
+from .kernels import lidar_returns_kernel, shade_kernel
 from .scene import Scene
 from .semantics import (
     CLASS_REFLECTIVITY,
@@ -38,7 +39,6 @@ from .semantics import (
     SKY,
     TERRAIN,
 )
-from .shading_jit import lidar_returns_kernel, shade_kernel
 from .textures import ATLAS_MODE, ATLAS_RGB, EMISSIVE, FIXED, REPEAT, STOREY, T
 
 FOG_DIST = 260.0  # m

@@ -1,9 +1,11 @@
-"""numba kernel of :func:`.shading.shade` (everything but the fog's ``exp`` and the sky's power,
-which stay NumPy calls so that both paths use the same transcendental functions).
+"""numba kernels of the sensors: camera rays finished into hit points (:func:`camera_hits_kernel`,
+``camera._cast``), shading (:func:`shade_kernel`, all of ``shading.shade`` but the fog's ``exp``
+and the sky's power, which stay NumPy calls so that both paths use the same transcendental
+functions) and LiDAR returns (:func:`lidar_returns_kernel`).
 
 Every operation is repeated in float32 as NumPy does it: Python-float constants are cast to
 float32 first (NumPy treats them as weak scalars, numba would promote to float64), comparisons
-included. ``tests/test_sensors.py`` compares the images of both paths byte for byte.
+included. ``tests/test_jit.py`` compares the outputs of both paths byte for byte.
 """
 
 from __future__ import annotations
@@ -152,3 +154,53 @@ def shade_kernel(p, dz, keep, idx, sky, geo, style, colors, light, sem_box, inst
             x = col3[q] * k + haze[q] * (one - k)
             rgb_out[i, q] = np.uint8(x if x < cap else cap)
     return rgb_out, sem, inst
+
+
+@_njit
+def camera_hits_kernel(t, j, box_ids, sel, k, ground, oz, max_t, pix, dirs, norm, dpt, c, s, ox, oy, far, no_hit,
+                       ground_id):  # pragma: no cover
+    """The end of ``camera._cast`` on the numba path: the fan's box hits (``raycast.
+    first_hit_fan_boxes``: ``t``, ``j``, ``box_ids``, slopes ``k``) with the ground plane (when
+    ``ground``: sensor height ``oz`` >= 0) and the far cut ``max_t (E, A)`` applied as
+    ``raycast._finish`` does, gathered per pixel (``pix``) and turned into scene box indices
+    (``sel``), hit points and depths (all float32 as the NumPy path).
+
+    Returns:
+        ``(p (P, 3), dist (P,), idx (P,), depth (P,))``.
+    """
+    n_pix = pix.shape[0]
+    a_n = t.shape[1]
+    p = np.empty((n_pix, 3), np.float32)
+    dist = np.empty(n_pix, np.float32)
+    idx = np.empty(n_pix, np.int64)
+    depth = np.empty(n_pix, np.float32)
+    inf, zero = _F(np.inf), _F(0.0)
+    for q in range(n_pix):
+        e = pix[q] // a_n
+        a = pix[q] % a_n
+        tt = t[e, a]
+        jj = j[e, a]
+        ii = box_ids[jj] if jj >= 0 else no_hit
+        if np.isinf(tt):
+            ii = no_hit
+        if ground:
+            kk = k[e, a]
+            tg = oz / -kk if kk < zero else inf
+            if tg < tt:
+                tt, ii = tg, ground_id
+        if tt > max_t[e, a]:
+            tt, ii = max_t[e, a], no_hit
+        if ii >= 0:
+            ii = sel[ii]
+        hit = ii != no_hit
+        if not hit:
+            tt = zero
+        d = tt * norm[q]
+        dist[q] = d
+        idx[q] = ii
+        d0, d1 = dirs[q, 0], dirs[q, 1]
+        p[q, 0] = (c * d0 - s * d1) * d + ox
+        p[q, 1] = (s * d0 + c * d1) * d + oy
+        p[q, 2] = dirs[q, 2] * d + oz
+        depth[q] = tt * dpt[q] if hit else far
+    return p, dist, idx, depth

@@ -216,6 +216,37 @@ def route_monitor_kernel(route_points, progress, ex, ey, points, pid, owner, off
 
 
 @_njit
+def v2x_rows_kernel(payload, n_rows, x, y, yaw, ex, ey, eyaw, m):  # pragma: no cover
+    """``observations._v2x``'s rows: the first ``n_rows`` objects of a received payload, moved
+    from the RSU frame at ``(x, y, yaw)`` to the ego frame (:func:`rsu_to_ego_kernel`) and padded
+    into ``(m, 11)`` observation rows (present flag, 9 fields, visible fraction 1)."""
+    rows = np.empty((n_rows, 10), np.float32)
+    for k in range(n_rows):
+        for f in range(10):
+            rows[k, f] = payload[k * 10 + f]
+    rows = rsu_to_ego_kernel(rows, x, y, yaw, ex, ey, eyaw)
+    out = np.zeros((m, 11), np.float32)
+    for k in range(min(n_rows, m)):
+        out[k, 0] = 1.0
+        for f in range(9):
+            out[k, 1 + f] = rows[k, f]
+        out[k, 10] = 1.0
+    return out
+
+
+@_njit
+def visible_objects_kernel(vis, threshold, pos, yaw, speed, kind, length, width, height, actor_id, ox, oy, oyaw,
+                           m):  # pragma: no cover
+    """``ego_observation``'s ``objects``: the actors with ``vis >= threshold`` as
+    :func:`object_rows_kernel` rows, padded by :func:`pad_rows_kernel`."""
+    idx = np.flatnonzero(vis >= threshold)
+    if idx.shape[0] == 0:
+        return np.zeros((m, 11), np.float32)
+    rows = object_rows_kernel(idx, pos, yaw, speed, kind, length, width, height, actor_id, ox, oy, oyaw)
+    return pad_rows_kernel(rows, vis, m)
+
+
+@_njit
 def route_window_kernel(points, commands, k0, count, step, ex, ey, eyaw):  # pragma: no cover
     """``observations.ego_observation``'s route: ``count`` route points every ``step`` from
     ``k0`` (clamped to the last point) in the ego frame, with their commands; ``(count, 3)``

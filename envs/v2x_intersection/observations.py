@@ -40,7 +40,7 @@ from .geometry import (
     wrap_angle,
 )
 from .jit import HAVE_JIT
-from .jit_perception import pad_rows_kernel, route_window_kernel, rsu_to_ego_kernel
+from .jit_perception import route_window_kernel, v2x_rows_kernel, visible_objects_kernel
 from .rsu import RSU_PITCH
 from .traffic import STOP_LINE_SETBACK
 
@@ -155,7 +155,7 @@ def validate_control(action, name: str = "ego action") -> np.ndarray:
     a = a.astype(np.float64)
     if not np.isfinite(a).all():
         raise ValueError(f"{name}: contains NaN or inf: {a.tolist()}")
-    return np.minimum(np.maximum(a, _CONTROL_LO), _CONTROL_HI)
+    return np.clip(a, _CONTROL_LO, _CONTROL_HI)
 
 
 _CONTROL_LO = np.array([0.0, -1.0, 0.0])
@@ -175,12 +175,11 @@ def _rows(objs: np.ndarray, vis: np.ndarray, m: int) -> np.ndarray:
 
 def ego_observation(world) -> dict[str, np.ndarray]:
     """Fill the ego observation (see module docstring)."""
-    from .world import VISIBLE_THRESHOLD, object_rows
+    from .visibility import VISIBLE_THRESHOLD
+    from .world import object_rows
 
     cfg, t = world.config, world.table
     ego_xy, ego_yaw = t.pos[0], float(t.yaw[0])
-    seen = np.flatnonzero(world.ego_vis >= VISIBLE_THRESHOLD)
-    objs = object_rows(t, seen, ego_xy, ego_yaw)
     # route ahead
     r = world.route
     k0 = world.monitor.progress
@@ -210,8 +209,11 @@ def ego_observation(world) -> dict[str, np.ndarray]:
     out = {"ego": ego, "route": route, "v2x_objects": v2x, "v2x_info": info}
     if cfg.obs_mode == "objects":
         if HAVE_JIT:
-            out["objects"] = pad_rows_kernel(objs, world.ego_vis, cfg.max_objects)
+            out["objects"] = visible_objects_kernel(
+                world.ego_vis, VISIBLE_THRESHOLD, t.pos, t.yaw, t.speed, t.kind, t.length, t.width, t.height,
+                t.actor_id, float(ego_xy[0]), float(ego_xy[1]), ego_yaw, cfg.max_objects)
         else:
+            objs = object_rows(t, np.flatnonzero(world.ego_vis >= VISIBLE_THRESHOLD), ego_xy, ego_yaw)
             vis = world.ego_vis[objs[:, 9].astype(np.int64)] if len(objs) else np.zeros(0)
             out["objects"] = _rows(objs, vis, cfg.max_objects)
     elif cfg.obs_mode == "sensors":
@@ -229,22 +231,26 @@ def _v2x(world, ego_xy: np.ndarray, ego_yaw: float) -> tuple[np.ndarray, np.ndar
     if world.inbox is None or world.tick - world.inbox[1] >= cfg.latency_ticks + V2X_HOLD_TICKS:
         return np.zeros((cfg.max_objects, len(OBJECT_FEATURES)), np.float32), info
     sender, sent_tick, payload = world.inbox
-    rows = unpack_objects(payload, len(payload) - len(payload) % NUM_OBJECT_FIELDS)
-    x, y, _, yaw = world.rsus.pose[sender]
-    if len(rows) and HAVE_JIT:
-        rows = rsu_to_ego_kernel(rows, float(x), float(y), float(yaw), float(ego_xy[0]), float(ego_xy[1]), ego_yaw)
-    elif len(rows):
-        xy = local_to_world_2d(rows[:, 1:3].astype(np.float64), np.array([x, y]), yaw)
-        rows = rows.copy()
-        rows[:, 1:3] = world_to_local_2d(xy, ego_xy, ego_yaw)
-        rows[:, 3] = wrap_angle(rows[:, 3] + yaw - ego_yaw)
-        c, s = np.cos(yaw - ego_yaw), np.sin(yaw - ego_yaw)
-        vx, vy = rows[:, 7].copy(), rows[:, 8].copy()
-        rows[:, 7], rows[:, 8] = c * vx - s * vy, s * vx + c * vy
+    x, y, _, yaw = world.rsus.pose[sender]  # float64 scalars (a float32 row + yaw stays float64)
+    n_rows = len(payload) // NUM_OBJECT_FIELDS
+    if HAVE_JIT:
+        rows_obs = v2x_rows_kernel(payload, n_rows, float(x), float(y), float(yaw), float(ego_xy[0]),
+                                   float(ego_xy[1]), ego_yaw, cfg.max_objects)
+    else:
+        rows = unpack_objects(payload, n_rows * NUM_OBJECT_FIELDS)
+        if n_rows:
+            xy = local_to_world_2d(rows[:, 1:3].astype(np.float64), np.array([x, y]), yaw)
+            rows = rows.copy()
+            rows[:, 1:3] = world_to_local_2d(xy, ego_xy, ego_yaw)
+            rows[:, 3] = wrap_angle(rows[:, 3] + yaw - ego_yaw)
+            c, s = np.cos(yaw - ego_yaw), np.sin(yaw - ego_yaw)
+            vx, vy = rows[:, 7].copy(), rows[:, 8].copy()
+            rows[:, 7], rows[:, 8] = c * vx - s * vy, s * vx + c * vy
+        rows_obs = _rows(rows, np.ones(n_rows), cfg.max_objects)
     c, s = np.cos(ego_yaw), np.sin(ego_yaw)  # the unit in the ego frame (world_to_local_2d's operations)
     d0, d1 = x - ego_xy[0], y - ego_xy[1]
-    info[:] = (1.0, world.tick - sent_tick, len(rows), c * d0 + s * d1, -s * d0 + c * d1, wrap_angle(yaw - ego_yaw))
-    return _rows(rows, np.ones(len(rows)), cfg.max_objects), info
+    info[:] = (1.0, world.tick - sent_tick, n_rows, c * d0 + s * d1, -s * d0 + c * d1, wrap_angle(yaw - ego_yaw))
+    return rows_obs, info
 
 
 def rsu_observation(world, slot: int = 0) -> dict[str, np.ndarray]:

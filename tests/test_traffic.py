@@ -362,10 +362,10 @@ def test_pedestrians_move_continuously(walk_run):
 
 
 def test_crossing_walker_waits_while_the_ego_stands_in_its_way():
-    from v2xbench.envs.v2x_intersection.pedestrians import step_walkers
+    from v2xbench.envs.v2x_intersection.pedestrians import SidewalkNetwork, step_walkers
+    from v2xbench.envs.v2x_intersection.town import get_town
 
-    class _Net:  # only crossing walkers move here: no sidewalk network is needed
-        index = object()
+    net = SidewalkNetwork(get_town("Town01"))  # only the crossing walker moves here
 
     t = ActorTable.empty(2)
     t.active[:] = True
@@ -375,10 +375,10 @@ def test_crossing_walker_waits_while_the_ego_stands_in_its_way():
     t.pos[:] = [[0.0, 0.0], [0.0, -2.0]]  # the walker 2 m to the ego's right, crossing to the left
     t.path[1], t.cross_from[1], t.cross_to[1], t.speed[1] = -1, [0.0, -2.0], [0.0, 8.0], 1.4
     rng = np.random.default_rng(0)
-    step_walkers(t, _Net(), rng, 0.1, 0.0)
+    step_walkers(t, net, rng, 0.1, 0.0)
     assert t.pos[1, 1] == pytest.approx(-2.0)  # 1 m ahead of it is inside the ego: it waits
     t.pos[0] = [10.0, 0.0]  # the ego moved on
-    step_walkers(t, _Net(), rng, 0.1, 0.0)
+    step_walkers(t, net, rng, 0.1, 0.0)
     assert t.pos[1, 1] == pytest.approx(-2.0 + 0.14)
 
 

@@ -18,6 +18,7 @@ from .actors import EGO as _EGO
 from .actors import PARKED as _PARKED
 from .actors import RIDER as _RIDER
 from .actors import STATIC as _STATIC
+from .actors import WALKER as _WALKER
 from .jit import _njit, _np_max, _np_min, idm_kernel, leaders_kernel, pose_at_kernel
 from .town.model import PRIORITY as _PRIORITY
 from .town.model import STOP as _STOP
@@ -270,6 +271,37 @@ def walking_kernel(walking, path, path_s, path_dir, speed, lat, pos, yaw, dt, po
         pos[i, 1] = p[k, 1] + lat[i] * np.cos(h[k])
         yaw[i] = h[k] if path_dir[i] > 0 else h[k] + np.pi
     return at_end
+
+
+@_njit
+def walkers_kernel(active, hold, behaviour, path, path_s, path_dir, speed, lat, pos, yaw, cross_from, cross_to,
+                   scenario, ego_ok, ego_x, ego_y, ego_yaw, ego_hl, ego_hw, lookahead, dt, points, heading, offset,
+                   n_points, gs, base, length):  # pragma: no cover
+    """The deterministic part of ``pedestrians.step_walkers`` in one call: pick the free walkers,
+    move the crossing ones (:func:`crossing_kernel`) and the walking ones
+    (:func:`walking_kernel`).
+
+    Returns:
+        ``(walking rows, crossing rows that finished their crossing, at_end (len(walking),))``.
+    """
+    n = active.shape[0]
+    walking = np.empty(n, np.int64)
+    crossing = np.empty(n, np.int64)
+    nw = nc = 0
+    for i in range(n):
+        if active[i] and not hold[i] and behaviour[i] == _WALKER:
+            if path[i] >= 0:
+                walking[nw] = i
+                nw += 1
+            else:
+                crossing[nc] = i
+                nc += 1
+    walking, crossing = walking[:nw], crossing[:nc]
+    done = crossing[crossing_kernel(crossing, pos, yaw, speed, cross_from, cross_to, scenario, ego_ok, ego_x, ego_y,
+                                    ego_yaw, ego_hl, ego_hw, lookahead, dt)]
+    at_end = walking_kernel(walking, path, path_s, path_dir, speed, lat, pos, yaw, dt, points, heading, offset,
+                            n_points, gs, base, length)
+    return walking, done, at_end
 
 
 @_njit

@@ -15,7 +15,7 @@ from .classes import VEHICLE_CLASSES
 from .draws import signs
 from .geometry import world_to_local_2d
 from .jit import HAVE_JIT
-from .jit_traffic import crossing_kernel, walking_kernel
+from .jit_traffic import walkers_kernel
 from .town.model import PolylineIndex, Town
 
 
@@ -56,6 +56,9 @@ def step_walkers(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, 
     """Advance all pedestrians by one tick, in place."""
     if net.index is None:
         return
+    if HAVE_JIT:
+        _step_walkers_jit(t, net, rng, dt, jaywalk_prob)
+        return
     idx = np.flatnonzero(t.active & ~t.hold & (t.behaviour == WALKER))
     if len(idx) == 0:
         return
@@ -65,46 +68,64 @@ def step_walkers(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, 
     # crossing pedestrians move on their segment (background walkers wait while the ego stands
     # in their way; scenario walkers are scripted hazards and walk on)
     if len(crossing):
-        if HAVE_JIT:
-            ego_ok = bool(len(t.active) and t.active[0] and t.kind[0] in VEHICLE_CLASSES)
-            done = crossing[crossing_kernel(
-                crossing, t.pos, t.yaw, t.speed, t.cross_from, t.cross_to, t.scenario, ego_ok, float(t.pos[0, 0]),
-                float(t.pos[0, 1]), float(t.yaw[0]), float(t.length[0] / 2 + EGO_MARGIN),
-                float(t.width[0] / 2 + EGO_MARGIN), PED_LOOKAHEAD, dt)]
-        else:
-            seg = t.cross_to[crossing] - t.cross_from[crossing]
-            left = t.cross_to[crossing] - t.pos[crossing]
-            dist = np.linalg.norm(left, axis=1)
-            u = seg / np.maximum(np.linalg.norm(seg, axis=1, keepdims=True), 1e-9)
-            blocked = ego_in_the_way(t, t.pos[crossing] + u * PED_LOOKAHEAD) & (t.scenario[crossing] < 0)
-            step = np.where(blocked, 0.0, t.speed[crossing] * dt)
-            t.pos[crossing] += u * np.minimum(step, dist)[:, None]
-            t.yaw[crossing] = np.arctan2(u[:, 1], u[:, 0])
-            done = crossing[(dist <= step) & (t.scenario[crossing] < 0)]  # scenario walkers stop at the end
-            t.speed[crossing[(dist <= step) & (t.scenario[crossing] >= 0)]] = 0.0
+        seg = t.cross_to[crossing] - t.cross_from[crossing]
+        left = t.cross_to[crossing] - t.pos[crossing]
+        dist = np.linalg.norm(left, axis=1)
+        u = seg / np.maximum(np.linalg.norm(seg, axis=1, keepdims=True), 1e-9)
+        blocked = ego_in_the_way(t, t.pos[crossing] + u * PED_LOOKAHEAD) & (t.scenario[crossing] < 0)
+        step = np.where(blocked, 0.0, t.speed[crossing] * dt)
+        t.pos[crossing] += u * np.minimum(step, dist)[:, None]
+        t.yaw[crossing] = np.arctan2(u[:, 1], u[:, 0])
+        done = crossing[(dist <= step) & (t.scenario[crossing] < 0)]  # scenario walkers stop at the end
+        t.speed[crossing[(dist <= step) & (t.scenario[crossing] >= 0)]] = 0.0
         if len(done):
-            sw, s, _ = net.index.project(t.pos[done])
-            t.path[done], t.path_s[done] = sw, s
-            p, h = net.index.pose_at(sw, s)  # keep the walker where it is: lateral offset from the path
-            t.lat[done] = np.clip(((t.pos[done] - p) * np.stack([-np.sin(h), np.cos(h)], -1)).sum(-1), -1.2, 1.2)
-            t.path_dir[done] = signs(rng, len(done))
+            _back_on_sidewalk(t, net, rng, done)
 
     if len(walking) == 0:
         return
     ix = net.index
-    if HAVE_JIT:
-        at_end = walking_kernel(walking, t.path, t.path_s, t.path_dir, t.speed, t.lat, t.pos, t.yaw, dt, ix.points,
-                                ix.heading, ix.offset, ix.n_points, ix.gs, ix.base, ix.length)
-    else:
-        s = t.path_s[walking] + t.path_dir[walking] * t.speed[walking] * dt
-        length = ix.length[t.path[walking]]
-        at_end = (s < 0.0) | (s > length)
-        s = np.clip(s, 0.0, length)
-        t.path_s[walking] = s
-        p, h = ix.pose_at(t.path[walking], s)
-        normal = np.stack([-np.sin(h), np.cos(h)], -1)
-        t.pos[walking] = p + t.lat[walking][:, None] * normal
-        t.yaw[walking] = np.where(t.path_dir[walking] > 0, h, h + np.pi)
+    s = t.path_s[walking] + t.path_dir[walking] * t.speed[walking] * dt
+    length = ix.length[t.path[walking]]
+    at_end = (s < 0.0) | (s > length)
+    s = np.clip(s, 0.0, length)
+    t.path_s[walking] = s
+    p, h = ix.pose_at(t.path[walking], s)
+    normal = np.stack([-np.sin(h), np.cos(h)], -1)
+    t.pos[walking] = p + t.lat[walking][:, None] * normal
+    t.yaw[walking] = np.where(t.path_dir[walking] > 0, h, h + np.pi)
+    _ends_and_jaywalk(t, net, rng, dt, jaywalk_prob, walking, at_end)
+
+
+def _step_walkers_jit(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, dt: float,
+                      jaywalk_prob: float) -> None:
+    """:func:`step_walkers` with the movement in one kernel (the random choices stay here, in the
+    NumPy path's order)."""
+    ix = net.index
+    ego_ok = bool(len(t.active) and t.active[0] and t.kind[0] in VEHICLE_CLASSES)
+    walking, done, at_end = walkers_kernel(
+        t.active, t.hold, t.behaviour, t.path, t.path_s, t.path_dir, t.speed, t.lat, t.pos, t.yaw, t.cross_from,
+        t.cross_to, t.scenario, ego_ok, float(t.pos[0, 0]), float(t.pos[0, 1]), float(t.yaw[0]),
+        float(t.length[0] / 2 + EGO_MARGIN), float(t.width[0] / 2 + EGO_MARGIN), PED_LOOKAHEAD, dt, ix.points,
+        ix.heading, ix.offset, ix.n_points, ix.gs, ix.base, ix.length)
+    if len(done):
+        _back_on_sidewalk(t, net, rng, done)
+    if len(walking):
+        _ends_and_jaywalk(t, net, rng, dt, jaywalk_prob, walking, at_end)
+
+
+def _back_on_sidewalk(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, done: np.ndarray) -> None:
+    """Walkers ``done`` with their crossing walk on along the sidewalk where they stand."""
+    sw, s, _ = net.index.project(t.pos[done])
+    t.path[done], t.path_s[done] = sw, s
+    p, h = net.index.pose_at(sw, s)  # keep the walker where it is: lateral offset from the path
+    t.lat[done] = np.clip(((t.pos[done] - p) * np.stack([-np.sin(h), np.cos(h)], -1)).sum(-1), -1.2, 1.2)
+    t.path_dir[done] = signs(rng, len(done))
+
+
+def _ends_and_jaywalk(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, dt: float,
+                      jaywalk_prob: float, walking: np.ndarray, at_end: np.ndarray) -> None:
+    """At a sidewalk's end cross (70 %) or turn around; elsewhere start jaywalking now and then."""
+    ix = net.index
     for k in np.flatnonzero(at_end):  # end of the sidewalk: cross, or turn around
         i = walking[k]
         c = net.crossing_near(t.pos[i])
@@ -124,6 +145,8 @@ def step_walkers(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, 
         _, s_o, _ = ix.project(t.pos[i][None], np.array([opp]))
         target, _ = ix.pose_at(np.array([opp]), s_o)
         _start_crossing(t, i, t.pos[i].copy(), target[0])
+
+
 
 
 PED_LOOKAHEAD = 1.0  # m: a crossing walker waits while this point ahead of it is inside the ego

@@ -5,7 +5,7 @@ import pytest
 from v2xbench.envs.v2x_intersection import raycast, visibility
 from v2xbench.envs.v2x_intersection.jit import HAVE_JIT
 from v2xbench.envs.v2x_intersection.raycast import Boxes, segments_blocked
-from v2xbench.envs.v2x_intersection.sensors import camera, shading
+from v2xbench.envs.v2x_intersection.sensors import camera, fan, shading
 from v2xbench.envs.v2x_intersection.visibility import visible_fraction
 
 pytestmark = pytest.mark.skipif(not HAVE_JIT, reason="numba not installed")
@@ -23,6 +23,7 @@ def _both(monkeypatch, fn):
         m.setattr(visibility, "HAVE_JIT", False)
         m.setattr(shading, "HAVE_JIT", False)
         m.setattr(camera, "HAVE_JIT", False)
+        m.setattr(fan, "HAVE_JIT", False)
         b = fn()
     return a, b
 
@@ -320,6 +321,31 @@ def test_shading_kernel_matches_numpy(monkeypatch, town):
         a, b = _both(monkeypatch, shoot)
         assert [k for k in a if a[k] != b[k]] == []
     assert len(kinds) >= 6  # ground materials, sky, objects
+
+
+def test_unoccluded_pixel_counts_kernel_matches_numpy(monkeypatch):
+    """The ground truth's unoccluded pixel counts (every candidate in every camera, riders on
+    bicycles included) on both paths: the same float64 bytes."""
+    from v2xbench.envs.v2x_intersection.config import make_config
+    from v2xbench.envs.v2x_intersection.sensors import SensorConfig, SensorRig
+    from v2xbench.envs.v2x_intersection.sensors.groundtruth import candidate_boxes
+    from v2xbench.envs.v2x_intersection.sensors.rig import ego_pose
+    from v2xbench.envs.v2x_intersection.world import World
+
+    w = World(make_config(town="Town03", num_bicycles=12, num_pedestrians=30))
+    w.reset(seed=4)
+    rig = SensorRig(SensorConfig())
+    total = 0.0
+    for _ in range(3):
+        for _ in range(12):
+            w.step(np.array([0.5, 0.0, 0.0]), w.default_rsu_message())
+        inst = candidate_boxes(w)["instance"]
+        reqs = [(s, ego_pose(w) @ s.T_parent_body(), 1.0, inst) for s in rig.ego_cameras]
+        a, b = _both(monkeypatch, lambda reqs=reqs: [x.tobytes() for x in
+                                                     fan.unoccluded_pixels_many(rig.scene(w), reqs)])
+        assert a == b
+        total += sum(np.frombuffer(x).sum() for x in a)
+    assert total > 100
 
 
 def test_kernel_signal_codes_match_signals():

@@ -21,7 +21,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..geometry import camera_intrinsics
+from ..jit import HAVE_JIT
 from ..raycast import Boxes, ray_box_intervals
+from .kernels import unoccluded_counts_kernel
 from .scene import Scene
 from .shading import sky_colors
 
@@ -181,6 +183,10 @@ def unoccluded_pixels_many(scene: Scene, requests: list) -> list[np.ndarray]:
         t_in, t_out = t_in_all[start : start + na], t_out_all[start : start + na]
         start += na
         inst_k = np.asarray(req[3], np.int64)
+        if HAVE_JIT:
+            outs[k] = unoccluded_counts_kernel(t_in, t_out, fan.max_t_col, box_inst, b.z0, b.height,
+                                               float(org[0, 2]), fan.col_c, -fan.row_s, fan.cumw, inst_k)
+            continue
         mine = np.isin(box_inst, inst_k)
         cols, bi = np.nonzero(np.isfinite(t_in) & mine & (t_in < fan.max_t_col[:, None]))
         if len(cols):

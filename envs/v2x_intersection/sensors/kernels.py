@@ -204,3 +204,96 @@ def camera_hits_kernel(t, j, box_ids, sel, k, ground, oz, max_t, pix, dirs, norm
         p[q, 2] = dirs[q, 2] * d + oz
         depth[q] = tt * dpt[q] if hit else far
     return p, dist, idx, depth
+
+
+@_njit
+def _search(a, x, right):  # pragma: no cover
+    """``np.searchsorted(a, x, "right" if right else "left")`` for increasing ``a``, non-NaN ``x``."""
+    lo, hi = 0, a.shape[0]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if a[mid] < x or (right and a[mid] == x):
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@_njit
+def unoccluded_counts_kernel(t_in, t_out, max_t_col, box_inst, z0, height, oz, col_c, neg_row_s, cumw,
+                             instances):  # pragma: no cover
+    """``fan._counts`` with its selection (``fan.unoccluded_pixels_many``) for one camera.
+
+    Args:
+        t_in, t_out: ``(A, B)`` float32 entry / exit of each column's vertical plane through each
+            candidate box. max_t_col: ``(A,)``. box_inst: each box's instance. z0, height: the
+            boxes' (float64). oz: camera height.
+        col_c, neg_row_s, cumw: the fan's (``-row_s``, increasing). instances: ``(M,)`` unique ids.
+
+    Returns:
+        ``(M,)`` float64 weighted pixel counts.
+    """
+    a_n, b_n = t_in.shape
+    mine = np.zeros(b_n, np.bool_)  # np.isin(box_inst, instances)
+    for b in range(b_n):
+        for m in range(instances.shape[0]):
+            if box_inst[b] == instances[m]:
+                mine[b] = True
+                break
+    cols = np.empty(a_n * b_n, np.int64)
+    bis = np.empty(a_n * b_n, np.int64)
+    n = 0
+    for c in range(a_n):
+        for b in range(b_n):
+            v = t_in[c, b]
+            if np.isfinite(v) and mine[b] and v < max_t_col[c]:
+                cols[n], bis[n] = c, b
+                n += 1
+    out = np.zeros(instances.shape[0])
+    if n == 0:
+        return out
+    r0 = np.empty(n, np.int64)
+    r1 = np.empty(n, np.int64)
+    comp = np.empty(n, np.int64)
+    inf = np.inf
+    for q in range(n):
+        c, b = cols[q], bis[q]
+        ai, ao = np.float64(t_in[c, b]), np.float64(t_out[c, b])
+        dz0 = z0[b] - oz
+        dz1 = dz0 + height[b]
+        if ai > 0:
+            lo_in, hi_in = dz0 / ai, dz1 / ai
+        else:
+            lo_in = -inf if dz0 <= 0 else inf
+            hi_in = inf if dz1 >= 0 else -inf
+        lo_out, hi_out = dz0 / ao, dz1 / ao
+        klo = (lo_out if lo_in != lo_in else (lo_in if (lo_out != lo_out or lo_in < lo_out) else lo_out)) / col_c[c]
+        khi = (hi_out if hi_in != hi_in else (hi_in if (hi_out != hi_out or hi_in > hi_out) else hi_out)) / col_c[c]
+        r0[q] = _search(neg_row_s, -khi, False)
+        r1[q] = max(_search(neg_row_s, -klo, True), r0[q])
+        comp[q] = (box_inst[b] * (a_n + 1) + c) * b_n + b
+    order = np.argsort(comp)  # unique keys: (instance, column, box)
+    prev_key, prev_r0, prev_r1 = -1, 0, 0
+    cur_inst, slot = -1, -1
+    for w in range(n):
+        q = order[w]
+        c, b = cols[q], bis[q]
+        key = box_inst[b] * (a_n + 1) + c
+        total = cumw[r1[q], c] - cumw[r0[q], c]
+        if key == prev_key:  # a second box of the same instance in this column: remove the overlap
+            lo = max(r0[q], prev_r0)
+            hi = max(min(r1[q], prev_r1), lo)
+            total -= cumw[hi, c] - cumw[lo, c]
+        prev_key, prev_r0, prev_r1 = key, r0[q], r1[q]
+        if box_inst[b] != cur_inst:
+            cur_inst = box_inst[b]
+            slot = -1
+            for m in range(instances.shape[0]):
+                if instances[m] == cur_inst:
+                    slot = m
+                    break
+            if slot >= 0:
+                out[slot] = 0.0
+        if slot >= 0:
+            out[slot] += total
+    return out

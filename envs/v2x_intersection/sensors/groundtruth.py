@@ -46,6 +46,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import transform_points
+from ..jit import HAVE_JIT
+from .kernels import instance_counts_kernel
 from .semantics import STATIC_INSTANCE_OFFSET, static_instance
 
 MIN_LIDAR_POINTS = 1
@@ -85,6 +87,8 @@ def _count(instances: np.ndarray, values: np.ndarray) -> np.ndarray:
     out = np.zeros(len(instances), np.int64)
     if len(v) == 0 or len(instances) == 0:
         return out
+    if HAVE_JIT:
+        return instance_counts_kernel(np.asarray(instances, np.int64), v, STATIC_INSTANCE_OFFSET)
     is_static = v >= STATIC_INSTANCE_OFFSET
     for sel, vals, base in (
         (instances < STATIC_INSTANCE_OFFSET, v[~is_static], 0),

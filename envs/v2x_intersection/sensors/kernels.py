@@ -297,3 +297,30 @@ def unoccluded_counts_kernel(t_in, t_out, max_t_col, box_inst, z0, height, oz, c
         if slot >= 0:
             out[slot] += total
     return out
+
+
+@_njit
+def instance_counts_kernel(instances, values, offset):  # pragma: no cover
+    """``groundtruth._count``: how often each of ``instances (M,)`` occurs in ``values`` (1-D
+    non-negative instance ids, integer or float; ids >= ``offset`` are static objects)."""
+    max_a = max_s = -1
+    for v in values:
+        if v >= offset:
+            max_s = max(max_s, np.int64(v - offset))
+        else:
+            max_a = max(max_a, np.int64(v))
+    ca = np.zeros(max_a + 1, np.int64)
+    cs = np.zeros(max_s + 1, np.int64)
+    for v in values:
+        if v >= offset:
+            cs[np.int64(v - offset)] += 1
+        else:
+            ca[np.int64(v)] += 1
+    out = np.zeros(instances.shape[0], np.int64)
+    for m in range(instances.shape[0]):
+        k = instances[m]
+        if k >= offset:
+            out[m] = cs[k - offset] if k - offset < cs.shape[0] else 0
+        else:
+            out[m] = ca[k] if k < ca.shape[0] else 0
+    return out

@@ -157,6 +157,78 @@ def shade_kernel(p, dz, keep, idx, sky, geo, style, colors, light, sem_box, inst
 
 
 @_njit
+def _finish_ray(t, j, box_ids, sel, k, ground, oz, max_t, e, a, no_hit, ground_id):  # pragma: no cover
+    """Ray ``(e, a)`` of a fan after ``raycast._finish``: ``(t, index)`` with the ground plane (a
+    box wins a tie) and the far cut ``max_t`` applied, the box index mapped through ``sel``."""
+    tt = t[e, a]
+    jj = j[e, a]
+    ii = box_ids[jj] if jj >= 0 else no_hit
+    if np.isinf(tt):
+        ii = no_hit
+    if ground:
+        kk = k[e, a]
+        tg = oz / -kk if kk < _F(0.0) else _F(np.inf)
+        if tg < tt:
+            tt, ii = tg, ground_id
+    if tt > max_t[e, a]:
+        tt, ii = max_t[e, a], no_hit
+    if ii >= 0:
+        ii = sel[ii]
+    return tt, ii
+
+
+@_njit
+def lidar_points_kernel(t, j, box_ids, sel, k, ground, oz, max_t, k64, norm64, cs, c, s, ox, oy, no_hit, ground_id,
+                        geo, normals, sem_box, inst_box, class_refl, code, xmin, ymin, inv, terrain, material_sem,
+                        material_refl):  # pragma: no cover
+    """The end of ``lidar.capture_lidar`` on the numba path: the fan's rays finished
+    (:func:`_finish_ray`), the returns in row-major order as sensor-frame points with their
+    world hit points and directions, shaded by :func:`lidar_returns_kernel`.
+
+    Args:
+        k64, norm64: per channel slope and 3D length per horizontal metre (float64). cs: ``(A, 2)``
+            float32 cos / sin of the azimuths. c, s, ox, oy, oz: float32 yaw cos / sin and origin.
+        The rest: as :func:`camera_hits_kernel` and :func:`lidar_returns_kernel`.
+
+    Returns:
+        ``(points (P, 6) float32, range image (E, A) float32)``.
+    """
+    e_n, a_n = t.shape
+    th = np.empty(e_n * a_n, np.float32)
+    ei = np.empty(e_n * a_n, np.int64)
+    ai = np.empty(e_n * a_n, np.int64)
+    idx = np.empty(e_n * a_n, np.int64)
+    n = 0
+    for e in range(e_n):
+        for a in range(a_n):
+            tt, ii = _finish_ray(t, j, box_ids, sel, k, ground, oz, max_t, e, a, no_hit, ground_id)
+            if ii != no_hit:
+                th[n], ei[n], ai[n], idx[n] = tt, e, a, ii
+                n += 1
+    pts = np.empty((n, 6), np.float32)
+    pw = np.empty((n, 3), np.float32)
+    dw = np.empty((n, 3), np.float32)
+    rng = np.zeros((e_n, a_n), np.float32)
+    for q in range(n):
+        kk, nn = np.float32(k64[ei[q]]), np.float32(norm64[ei[q]])
+        ca, sa = cs[ai[q], 0], cs[ai[q], 1]
+        x, y, z = th[q] * ca, th[q] * sa, th[q] * kk
+        pts[q, 0], pts[q, 1], pts[q, 2] = x, y, z
+        dw[q, 0] = (c * ca - s * sa) / nn
+        dw[q, 1] = (s * ca + c * sa) / nn
+        dw[q, 2] = kk / nn
+        pw[q, 0] = c * x - s * y + ox
+        pw[q, 1] = s * x + c * y + oy
+        pw[q, 2] = z + oz
+        rng[ei[q], ai[q]] = th[q] * nn
+    inten, sem, inst = lidar_returns_kernel(pw, dw, idx[:n], geo, normals, sem_box, inst_box, class_refl, code, xmin,
+                                            ymin, inv, terrain, material_sem, material_refl)
+    for q in range(n):
+        pts[q, 3], pts[q, 4], pts[q, 5] = inten[q], _F(sem[q]), _F(inst[q])
+    return pts, rng
+
+
+@_njit
 def camera_hits_kernel(t, j, box_ids, sel, k, ground, oz, max_t, pix, dirs, norm, dpt, c, s, ox, oy, far, no_hit,
                        ground_id):  # pragma: no cover
     """The end of ``camera._cast`` on the numba path: the fan's box hits (``raycast.
@@ -174,24 +246,11 @@ def camera_hits_kernel(t, j, box_ids, sel, k, ground, oz, max_t, pix, dirs, norm
     dist = np.empty(n_pix, np.float32)
     idx = np.empty(n_pix, np.int64)
     depth = np.empty(n_pix, np.float32)
-    inf, zero = _F(np.inf), _F(0.0)
+    zero = _F(0.0)
     for q in range(n_pix):
         e = pix[q] // a_n
         a = pix[q] % a_n
-        tt = t[e, a]
-        jj = j[e, a]
-        ii = box_ids[jj] if jj >= 0 else no_hit
-        if np.isinf(tt):
-            ii = no_hit
-        if ground:
-            kk = k[e, a]
-            tg = oz / -kk if kk < zero else inf
-            if tg < tt:
-                tt, ii = tg, ground_id
-        if tt > max_t[e, a]:
-            tt, ii = max_t[e, a], no_hit
-        if ii >= 0:
-            ii = sel[ii]
+        tt, ii = _finish_ray(t, j, box_ids, sel, k, ground, oz, max_t, e, a, no_hit, ground_id)
         hit = ii != no_hit
         if not hit:
             tt = zero

@@ -31,9 +31,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry import pose_matrix
-from ..raycast import NO_HIT, first_hit_fan
+from ..jit import HAVE_JIT
+from ..raycast import GROUND, NO_HIT, first_hit_fan, first_hit_fan_boxes
 from .ground import GroundRaster
+from .kernels import lidar_points_kernel
 from .scene import Scene
+from .semantics import CLASS_REFLECTIVITY, M_TERRAIN, MATERIAL_REFLECTIVITY, MATERIAL_SEMANTIC
 from .shading import lidar_returns
 
 POINT_FIELDS = ("x", "y", "z", "intensity", "semantic", "instance")
@@ -124,6 +127,18 @@ def capture_lidar(
     sel = scene.cull(o, yaw, half, spec.max_range, exclude)
     a = yaw + az
     dirs_h = np.stack([np.cos(a), np.sin(a)], -1)
+    c, s = np.float32(np.cos(yaw)), np.float32(np.sin(yaw))
+    if HAVE_JIT:
+        t, j, box_ids, k32 = first_hit_fan_boxes(o, dirs_h, k, scene.boxes.subset(sel))
+        max_t = np.broadcast_to(np.asarray(spec.max_range / norm[:, None], np.float32), t.shape)
+        pts, rng = lidar_points_kernel(
+            t, j, box_ids, sel, k32, bool(o[2] >= 0), np.float32(o[2]), np.ascontiguousarray(max_t), k, norm, cs, c,
+            s, np.float32(o[0]), np.float32(o[1]), NO_HIT, GROUND, scene.geo, scene.normals, scene.sem, scene.inst,
+            CLASS_REFLECTIVITY, ground.code, np.float32(ground.xmin), np.float32(ground.ymin),
+            np.float32(1.0 / ground.mpp), M_TERRAIN, MATERIAL_SEMANTIC, MATERIAL_REFLECTIVITY)
+        padded = np.zeros((spec.max_points, 6), np.float32)
+        padded[: len(pts)] = pts
+        return {"points": pts, "padded": padded, "count": len(pts), "range_image": rng}
     t, idx = first_hit_fan(
         o, dirs_h, k, scene.boxes.subset(sel), max_t=spec.max_range / norm[:, None]
     )
@@ -137,7 +152,6 @@ def capture_lidar(
     ca, sa = cs[a_i, 0], cs[a_i, 1]
     pts = np.empty((len(e_i), 6), np.float32)
     pts[:, 0], pts[:, 1], pts[:, 2] = th * ca, th * sa, th * kk
-    c, s = np.float32(np.cos(yaw)), np.float32(np.sin(yaw))
     dw = np.empty((len(e_i), 3), np.float32)
     dw[:, 0], dw[:, 1], dw[:, 2] = (c * ca - s * sa) / nn, (s * ca + c * sa) / nn, kk / nn
     pw = np.empty_like(dw)

@@ -5,7 +5,7 @@ import pytest
 from v2xbench.envs.v2x_intersection import raycast, visibility
 from v2xbench.envs.v2x_intersection.jit import HAVE_JIT
 from v2xbench.envs.v2x_intersection.raycast import Boxes, segments_blocked
-from v2xbench.envs.v2x_intersection.sensors import camera, fan, groundtruth, lidar, shading
+from v2xbench.envs.v2x_intersection.sensors import bev, camera, fan, groundtruth, lidar, shading
 from v2xbench.envs.v2x_intersection.visibility import visible_fraction
 
 pytestmark = pytest.mark.skipif(not HAVE_JIT, reason="numba not installed")
@@ -26,6 +26,7 @@ def _both(monkeypatch, fn):
         m.setattr(fan, "HAVE_JIT", False)
         m.setattr(groundtruth, "HAVE_JIT", False)
         m.setattr(lidar, "HAVE_JIT", False)
+        m.setattr(bev, "HAVE_JIT", False)
         b = fn()
     return a, b
 

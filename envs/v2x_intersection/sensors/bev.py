@@ -29,9 +29,11 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from ..classes import BICYCLE, CAR, LARGE_VEHICLE, PEDESTRIAN
+from ..jit import HAVE_JIT
 from ..signals import GREEN, NO_SIGNAL, RED, YELLOW
 from ..traffic import STOP_LINE_SETBACK
 from .ground import GroundRaster
+from .kernels import fill_boxes_kernel
 from .semantics import (
     CENTRE_BIT,
     M_CROSS_GAP,
@@ -180,6 +182,10 @@ def _fill_boxes(out, chans, boxes, ex, ey, yaw, mpp) -> None:
     r1 = np.clip(np.ceil(n / 2 - 0.5 - (bx - ext[0]) / mpp) + 1, 0, n).astype(int)
     k0 = np.clip(np.floor(n / 2 - 0.5 - (by + ext[1]) / mpp), 0, n).astype(int)
     k1 = np.clip(np.ceil(n / 2 - 0.5 - (by - ext[1]) / mpp) + 1, 0, n).astype(int)
+    if HAVE_JIT:
+        fill_boxes_kernel(out, np.asarray(chans, np.int64), np.flatnonzero((r1 > r0) & (k1 > k0)), r0, r1, k0, k1, bx,
+                          by, rel, hl, hw, float(mpp))
+        return
     for i in np.flatnonzero((r1 > r0) & (k1 > k0)):
         x = (n / 2 - np.arange(r0[i], r1[i]) - 0.5)[:, None] * mpp - bx[i]
         y = (n / 2 - np.arange(k0[i], k1[i]) - 0.5)[None, :] * mpp - by[i]

@@ -383,3 +383,20 @@ def instance_counts_kernel(instances, values, offset):  # pragma: no cover
         else:
             out[m] = ca[k] if k < ca.shape[0] else 0
     return out
+
+
+@_njit
+def fill_boxes_kernel(out, chans, idx, r0, r1, k0, k1, bx, by, rel, hl, hw, mpp):  # pragma: no cover
+    """The per-box loop of ``bev._fill_boxes``: set ``out[chans[i], r, k]`` for the pixels
+    ``[r0, r1) x [k0, k1)`` of boxes ``idx`` whose centres lie in the box (float64, the NumPy
+    path's operations)."""
+    n = out.shape[1]
+    half = n / 2
+    for i in idx:
+        cr, sr = np.cos(rel[i]), np.sin(rel[i])
+        for r in range(r0[i], r1[i]):
+            x = (half - r - 0.5) * mpp - bx[i]
+            for k in range(k0[i], k1[i]):
+                y = (half - k - 0.5) * mpp - by[i]
+                if abs(cr * x + sr * y) <= hl[i] and abs(cr * y - sr * x) <= hw[i]:
+                    out[chans[i], r, k] |= 1

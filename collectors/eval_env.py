@@ -286,7 +286,7 @@ class EvalEnv(EnvBase):
             control = validate_control(tensordict.get("action").detach().cpu().numpy().reshape(-1),
                                        "policy action")
             events = w.step_builtin(control)
-            reward, term, trunc, _ = self._tracker.after_step(events)
+            reward, term, trunc, _ = self._tracker.after_step(events, with_info=False)
             self._log.after_step()
         except Exception as e:  # noqa: BLE001
             self._finish(0, error=e)

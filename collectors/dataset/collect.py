@@ -175,7 +175,7 @@ def _drive(cfg, world, expert, tracker, cap, rig, rcfg, perturber, tmp, rel, epi
         if world.tick >= cap:
             break
         events = world.step_builtin(executed)
-        _, term, trunc, _ = tracker.after_step(events)
+        _, term, trunc, _ = tracker.after_step(events, with_info=False)
         if world.is_route_complete():
             ended = "route_complete"
         elif term or trunc:

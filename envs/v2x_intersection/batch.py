@@ -78,10 +78,11 @@ class WorldBatch:
             first reset). obs: nested dict of ``(N, ...)`` arrays (``observations.ego_space``
             layout), row ``i`` = world ``i``'s observation of its current tick.
         reward, terminated, truncated: ``(N,)`` results of the last :meth:`step`.
-        infos: per-world info dicts of the last reset/step (``episode.EpisodeTracker.info``).
+        infos: per-world info dicts of the last reset/step (``episode.EpisodeTracker.info``;
+            with ``with_infos=False`` only resets refresh them).
     """
 
-    def __init__(self, num_worlds: int, config=None, **kwargs: Any) -> None:
+    def __init__(self, num_worlds: int, config=None, with_infos: bool = True, **kwargs: Any) -> None:
         if not isinstance(num_worlds, int) or isinstance(num_worlds, bool) or num_worlds < 1:
             raise ValueError(f"num_worlds={num_worlds!r} must be a positive int")
         self.config = make_config(config, **kwargs)
@@ -94,6 +95,7 @@ class WorldBatch:
         self.terminated = np.zeros(num_worlds, bool)
         self.truncated = np.zeros(num_worlds, bool)
         self.infos: list[dict] = [{} for _ in range(num_worlds)]
+        self.with_infos = with_infos  # False: step() leaves ``infos`` as they were (TorchRL reads none)
 
     def reset_world(self, i: int, seed: int | None = None, **episode: Any) -> None:
         """Reset world ``i`` (``episode``: ``route``/``scenarios``/``spec`` of ``World.reset``)."""
@@ -126,9 +128,10 @@ class WorldBatch:
                 raise StepError(f"world {i}: step() called before reset()")
             w = self.worlds[i]
             events = w.step_builtin(controls[i])
-            r, te, tc, info = tr.after_step(events)
+            r, te, tc, info = tr.after_step(events, self.with_infos)
             self.reward[i], self.terminated[i], self.truncated[i] = r, te, tc
-            self.infos[i] = info
+            if info is not None:
+                self.infos[i] = info
             _write(self.obs, ego_observation(w), i)
 
     def copy_obs(self) -> dict:

@@ -43,8 +43,9 @@ class EpisodeTracker:
         self.prev_s = float(world.route.s[world.monitor.progress])
         self.done = False
 
-    def after_step(self, events: list) -> tuple[float, bool, bool, dict]:
-        """Reward, terminated, truncated, info for the tick just simulated."""
+    def after_step(self, events: list, with_info: bool = True) -> tuple[float, bool, bool, dict | None]:
+        """Reward, terminated, truncated, info for the tick just simulated (info ``None`` when
+        ``with_info`` is false: callers that never read it skip building it)."""
         w = self.world
         s = float(w.route.s[w.monitor.progress])
         terms = {
@@ -62,7 +63,7 @@ class EpisodeTracker:
         )
         truncated = bool(not terminated and w.tick >= self.max_steps)
         self.done = terminated or truncated
-        return reward, terminated, truncated, self.info(terms)
+        return reward, terminated, truncated, self.info(terms) if with_info else None
 
     def info(self, terms: dict | None = None) -> dict:
         """Flat numeric info: tick, route completion, event counts (``events``, indexed by

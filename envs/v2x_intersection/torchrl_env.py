@@ -54,7 +54,7 @@ class V2XTorchEnv(EnvBase):
             raise ValueError(f"num_worlds={num_worlds!r} must be a positive int")
         super().__init__(batch_size=torch.Size([num_worlds]), device=device)
         self.config = make_config(**config)
-        self.batch = WorldBatch(num_worlds, self.config)
+        self.batch = WorldBatch(num_worlds, self.config, with_infos=False)
         self._seed_rng = np.random.default_rng(self.config.seed)
         self._started = np.zeros(num_worlds, bool)
         n = num_worlds

@@ -7,7 +7,7 @@
 3. ego dynamics (kinematic bicycle);
 4. traffic lights, NPC vehicles and bicycles (IDM), pedestrians, then each scenario's hook;
 5. respawn NPCs that left the map or are stuck;
-6. collisions (pymunk query) and infraction / route-progress events;
+6. collisions (an exact box test; a pymunk query on the reference path) and infraction / route-progress events;
 7. ``tick += 1``; perception: which actors the ego and the active RSU(s) see (2.5D occlusion);
 8. the channel delivers what is due into the ego's inbox.
 

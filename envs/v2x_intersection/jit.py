@@ -486,13 +486,25 @@ def first_hit_fan_kernel(u, k, c, s, bx, by, hl, hw, z0, z1, oz):  # pragma: no 
     cand = np.empty(n, np.int64)
     za0 = np.empty(n, np.float32)
     za1 = np.empty(n, np.float32)
+    cx = np.empty(n)  # box centres relative to the origin, world axes, and bounding radii (broad phase)
+    cy = np.empty(n)
+    rad = np.empty(n)
     for j in range(n):
         za0[j] = z0[j] - oz
         za1[j] = z1[j] - oz
+        cj, sj, pj, qj = np.float64(c[j]), np.float64(s[j]), np.float64(bx[j]), np.float64(by[j])
+        cx[j] = cj * pj - sj * qj
+        cy[j] = sj * pj + cj * qj
+        rad[j] = np.sqrt(np.float64(hl[j]) ** 2 + np.float64(hw[j]) ** 2) + BROAD_PHASE_MARGIN
     for a in range(a_n):
         u0, u1 = u[a, 0], u[a, 1]
+        w0, w1 = np.float64(u0), np.float64(u1)
         m = 0
         for j in range(n):
+            # the column's ray misses a box whose bounding circle it passes by or lies behind
+            perp = w0 * cy[j] - w1 * cx[j]
+            if perp > rad[j] or perp < -rad[j] or w0 * cx[j] + w1 * cy[j] < -rad[j]:
+                continue
             t_in, t_out = _slabs_xy(zero, zero, u0, u1, c[j], s[j], bx[j], by[j], hl[j], hw[j])
             t_in = _fmax(t_in, zero)
             kj = _fmax(t_in, (t_in - t_out) * inf)

@@ -35,6 +35,14 @@ def _njit(fn):
     return numba.njit(cache=True, nogil=True, error_model="numpy")(fn)
 
 
+def _njit_inline(fn):
+    """:func:`_njit` for small helpers called per element with array arguments: inlined into the
+    caller, since a real call takes a reference on every array argument (tens of ns per call)."""
+    if not HAVE_JIT:
+        return fn
+    return numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")(fn)
+
+
 #: m, slack of the conservative broad phases in front of exact float32 box tests
 BROAD_PHASE_MARGIN = 0.05
 

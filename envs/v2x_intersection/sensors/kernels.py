@@ -12,21 +12,21 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..jit import _njit
+from ..jit import _njit, _njit_inline
 
 _F = np.float32
 
 
-@_njit
-def _face(g, x, y, z):  # pragma: no cover
-    """``shading.surface``'s box-frame coordinates ``u, v, w`` of a point on a box (``g``: its
-    ``scene.geo`` row), the face it lies on and whether that is an x / y face."""
+@_njit_inline
+def _face(geo, j, x, y, z):  # pragma: no cover
+    """``shading.surface``'s box-frame coordinates ``u, v, w`` of a point on box ``j`` (``geo``:
+    ``scene.geo``), the face it lies on and whether that is an x / y face."""
     one, zero, half = _F(1.0), _F(0.0), _F(0.5)
-    c, s = g[0], g[1]
-    dx, dy = x - g[2], y - g[3]
-    u = (c * dx + s * dy) * g[4]
-    v = (c * dy - s * dx) * g[5]
-    wz = (z - g[6]) * g[7]
+    c, s = geo[j, 0], geo[j, 1]
+    dx, dy = x - geo[j, 2], y - geo[j, 3]
+    u = (c * dx + s * dy) * geo[j, 4]
+    v = (c * dy - s * dx) * geo[j, 5]
+    wz = (z - geo[j, 6]) * geo[j, 7]
     au, av, aw = abs(u), abs(v), abs(_F(2.0) * wz - one)
     xf = au >= av and au >= aw
     yf = not xf and av >= aw
@@ -59,7 +59,7 @@ def lidar_returns_kernel(p, d, idx, geo, normals, sem_box, inst_box, class_refl,
     for i in range(m):
         j = idx[i]
         if j >= 0:
-            face = _face(geo[j], p[i, 0], p[i, 1], p[i, 2])[3]
+            face = _face(geo, j, p[i, 0], p[i, 1], p[i, 2])[3]
             acc = normals[j, face, 0] * d[i, 0]
             acc += normals[j, face, 1] * d[i, 1]
             acc += normals[j, face, 2] * d[i, 2]
@@ -105,14 +105,13 @@ def shade_kernel(p, dz, keep, idx, sky, geo, style, colors, light, sem_box, inst
         j = idx[i]
         k = keep[i]
         if j >= 0:
-            g = geo[j]
             z = p[i, 2]
-            u, v, wz, face, xf, yf = _face(g, p[i, 0], p[i, 1], z)
+            u, v, wz, face, xf, yf = _face(geo, j, p[i, 0], p[i, 1], z)
             ta = (v if xf else u) * half + half
             tb = (one - wz) if (xf or yf) else v * half + half
             st = style[j]
             if repeat[st] and face < 4:
-                along = v / g[5] if xf else u / g[4]
+                along = v / geo[j, 5] if xf else u / geo[j, 4]
                 ta = (along / storey_a) % one
                 tb = one - (z / storey_b) % one
             cc = np.int64(ta * tf)
@@ -156,24 +155,20 @@ def shade_kernel(p, dz, keep, idx, sky, geo, style, colors, light, sem_box, inst
     return rgb_out, sem, inst
 
 
-@_njit
-def _finish_ray(t, j, box_ids, sel, k, ground, oz, max_t, e, a, no_hit, ground_id):  # pragma: no cover
-    """Ray ``(e, a)`` of a fan after ``raycast._finish``: ``(t, index)`` with the ground plane (a
-    box wins a tie) and the far cut ``max_t`` applied, the box index mapped through ``sel``."""
-    tt = t[e, a]
-    jj = j[e, a]
+@_njit_inline
+def _finish_ray(tt, jj, box_ids, kk, mt, ground, oz, no_hit, ground_id):  # pragma: no cover
+    """One fan ray after ``raycast._finish``: ``(t, index into the cast boxes' ids)`` from the fan
+    kernel's ``tt``, ``jj`` and the ray's slope ``kk`` and far cut ``mt``, with the ground plane (a
+    box wins a tie) and the far cut applied."""
     ii = box_ids[jj] if jj >= 0 else no_hit
     if np.isinf(tt):
         ii = no_hit
     if ground:
-        kk = k[e, a]
         tg = oz / -kk if kk < _F(0.0) else _F(np.inf)
         if tg < tt:
             tt, ii = tg, ground_id
-    if tt > max_t[e, a]:
-        tt, ii = max_t[e, a], no_hit
-    if ii >= 0:
-        ii = sel[ii]
+    if tt > mt:
+        tt, ii = mt, no_hit
     return tt, ii
 
 
@@ -194,6 +189,7 @@ def lidar_points_kernel(t, j, box_ids, sel, k, ground, oz, max_t, k64, norm64, c
         ``(points (P, 6) float32, range image (E, A) float32)``.
     """
     e_n, a_n = t.shape
+    t, j, k, max_t = t.ravel(), j.ravel(), k.ravel(), max_t.ravel()
     th = np.empty(e_n * a_n, np.float32)
     ei = np.empty(e_n * a_n, np.int64)
     ai = np.empty(e_n * a_n, np.int64)
@@ -201,7 +197,10 @@ def lidar_points_kernel(t, j, box_ids, sel, k, ground, oz, max_t, k64, norm64, c
     n = 0
     for e in range(e_n):
         for a in range(a_n):
-            tt, ii = _finish_ray(t, j, box_ids, sel, k, ground, oz, max_t, e, a, no_hit, ground_id)
+            f = e * a_n + a
+            tt, ii = _finish_ray(t[f], j[f], box_ids, k[f], max_t[f], ground, oz, no_hit, ground_id)
+            if ii >= 0:
+                ii = sel[ii]
             if ii != no_hit:
                 th[n], ei[n], ai[n], idx[n] = tt, e, a, ii
                 n += 1
@@ -241,16 +240,17 @@ def camera_hits_kernel(t, j, box_ids, sel, k, ground, oz, max_t, pix, dirs, norm
         ``(p (P, 3), dist (P,), idx (P,), depth (P,))``.
     """
     n_pix = pix.shape[0]
-    a_n = t.shape[1]
+    t, j, k, max_t = t.ravel(), j.ravel(), k.ravel(), max_t.ravel()
     p = np.empty((n_pix, 3), np.float32)
     dist = np.empty(n_pix, np.float32)
     idx = np.empty(n_pix, np.int64)
     depth = np.empty(n_pix, np.float32)
     zero = _F(0.0)
     for q in range(n_pix):
-        e = pix[q] // a_n
-        a = pix[q] % a_n
-        tt, ii = _finish_ray(t, j, box_ids, sel, k, ground, oz, max_t, e, a, no_hit, ground_id)
+        f = pix[q]
+        tt, ii = _finish_ray(t[f], j[f], box_ids, k[f], max_t[f], ground, oz, no_hit, ground_id)
+        if ii >= 0:
+            ii = sel[ii]
         hit = ii != no_hit
         if not hit:
             tt = zero

@@ -36,8 +36,9 @@ def _njit(fn):
 
 
 def _njit_inline(fn):
-    """:func:`_njit` for small helpers called per element with array arguments: inlined into the
-    caller, since a real call takes a reference on every array argument (tens of ns per call)."""
+    """:func:`_njit` with ``inline="always"`` (numba inlines the helper into its callers at the IR
+    level), for small helpers called once per element. Give such helpers scalars, or a whole table
+    and an index, not array views: with views a call cost ~35 ns (``docs/performance.md``)."""
     if not HAVE_JIT:
         return fn
     return numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")(fn)

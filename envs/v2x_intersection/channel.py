@@ -470,7 +470,7 @@ def pack_objects(
 
 def pack_rows(a: np.ndarray, max_payload_floats: int, encoding: str) -> tuple[int, np.ndarray]:
     """:func:`pack_objects` without its checks (``a``: ``(K, NUM_OBJECT_FIELDS)`` float32, finite)."""
-    k = min(a.shape[0], max_payload_floats // NUM_OBJECT_FIELDS)
+    k = min(a.shape[0], max_objects(max_payload_floats))
     length = k * NUM_OBJECT_FIELDS
     payload = np.zeros(max_payload_floats, np.float32)
     if k:

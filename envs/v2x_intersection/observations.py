@@ -43,6 +43,7 @@ from .jit import HAVE_JIT
 from .jit_perception import route_window_kernel, v2x_rows_kernel, visible_objects_kernel
 from .rsu import RSU_PITCH
 from .traffic import STOP_LINE_SETBACK
+from .visibility import VISIBLE_THRESHOLD
 
 EGO_FEATURES = ("speed", "accel", "yaw_rate", "throttle", "steer", "brake", "light_state",
                 "dist_to_stop_line", "route_completion")
@@ -175,7 +176,6 @@ def _rows(objs: np.ndarray, vis: np.ndarray, m: int) -> np.ndarray:
 
 def ego_observation(world) -> dict[str, np.ndarray]:
     """Fill the ego observation (see module docstring)."""
-    from .visibility import VISIBLE_THRESHOLD
     from .world import object_rows
 
     cfg, t = world.config, world.table

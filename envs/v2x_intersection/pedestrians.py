@@ -101,10 +101,9 @@ def _step_walkers_jit(t: ActorTable, net: SidewalkNetwork, rng: np.random.Genera
     """:func:`step_walkers` with the movement in one kernel (the random choices stay here, in the
     NumPy path's order)."""
     ix = net.index
-    ego_ok = bool(len(t.active) and t.active[0] and t.kind[0] in VEHICLE_CLASSES)
     walking, done, at_end = walkers_kernel(
         t.active, t.hold, t.behaviour, t.path, t.path_s, t.path_dir, t.speed, t.lat, t.pos, t.yaw, t.cross_from,
-        t.cross_to, t.scenario, ego_ok, float(t.pos[0, 0]), float(t.pos[0, 1]), float(t.yaw[0]),
+        t.cross_to, t.scenario, _ego_is_vehicle(t), float(t.pos[0, 0]), float(t.pos[0, 1]), float(t.yaw[0]),
         float(t.length[0] / 2 + EGO_MARGIN), float(t.width[0] / 2 + EGO_MARGIN), PED_LOOKAHEAD, dt, ix.points,
         ix.heading, ix.offset, ix.n_points, ix.gs, ix.base, ix.length)
     if len(done):
@@ -158,10 +157,15 @@ def ego_in_the_way(t: ActorTable, points: np.ndarray, margin: float = EGO_MARGIN
 
     Only the ego is tested: walkers do not walk into the car being evaluated, while among
     background actors a wait rule could deadlock (car waits for walker waits for car)."""
-    if len(t.active) == 0 or not t.active[0] or t.kind[0] not in VEHICLE_CLASSES:
+    if not _ego_is_vehicle(t):
         return np.zeros(len(points), bool)
     local = world_to_local_2d(points, t.pos[0], float(t.yaw[0]))
     return (np.abs(local[:, 0]) < t.length[0] / 2 + margin) & (np.abs(local[:, 1]) < t.width[0] / 2 + margin)
+
+
+def _ego_is_vehicle(t: ActorTable) -> bool:
+    """Row 0 is an active vehicle (walkers wait only for that)."""
+    return bool(len(t.active) and t.active[0] and t.kind[0] in VEHICLE_CLASSES)
 
 
 def _start_crossing(t: ActorTable, i: int, a: np.ndarray, b: np.ndarray) -> None:

@@ -32,6 +32,7 @@ Numerics and speed:
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -171,12 +172,12 @@ class _Prepared:
         self.z0 = boxes.z0.astype(DTYPE)
         self.z1 = (boxes.z0 + boxes.height).astype(DTYPE)
 
-    @property
+    @functools.cached_property
     def rot_x(self) -> np.ndarray:
         """``(2, N)``: world vector -> local x (the NumPy path's einsum operand)."""
         return np.stack([self._c64, self._s64]).astype(DTYPE)
 
-    @property
+    @functools.cached_property
     def rot_y(self) -> np.ndarray:
         """``(2, N)``: world vector -> local y."""
         return np.stack([-self._s64, self._c64]).astype(DTYPE)

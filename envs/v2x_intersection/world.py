@@ -250,8 +250,7 @@ class World:
         Returns:
             Events emitted during this tick (``infractions.EventMonitor``).
         """
-        if self.ended:
-            raise StepError("step() called on a world that has ended or was never reset; call reset()")
+        self._check_running()
         # 2. V2X: the active RSU's message is sent now and delivered after the latency
         if rsu_message is not None:
             self.channel.send_action(self.tick, int(max(self.active_rsu[0], 0)), rsu_message)
@@ -263,17 +262,21 @@ class World:
         """:meth:`step` with the built-in RSU policy's message (:meth:`default_rsu_message`),
         packed by the world itself and so sent without being checked again (the gym and batched
         envs step this way)."""
-        if self.ended:
-            raise StepError("step() called on a world that has ended or was never reset; call reset()")
+        self._check_running()
         sender = int(max(self.active_rsu[0], 0))
+        objs = self._builtin_objects()
         length = 0
-        if self.config.rsu_policy != "none" and self.active_rsu[0] >= 0:
-            length, payload = pack_rows(self.rsu_objects(0), self.config.max_payload_floats, self.config.encoding)
+        if objs is not None:
+            length, payload = pack_rows(objs, self.config.max_payload_floats, self.config.encoding)
         if length:
             self.channel.send_valid(self.tick, sender, length, payload)
         else:
             self.channel.send(self.tick, sender, 0, _NO_PAYLOAD)  # sends nothing, as an empty message
         return self._advance(control)
+
+    def _check_running(self) -> None:
+        if self.ended:
+            raise StepError("step() called on a world that has ended or was never reset; call reset()")
 
     def _advance(self, control: np.ndarray) -> list:
         """Steps 3-8 of the tick (after the message is on the channel)."""
@@ -388,10 +391,17 @@ class World:
 
     def default_rsu_message(self) -> dict:
         """The built-in ``share_objects`` policy: pack what the RSU sees (or send nothing)."""
-        if self.config.rsu_policy == "none" or self.active_rsu[0] < 0:
+        objs = self._builtin_objects()
+        if objs is None:
             return empty_message(self.channel_config)
-        length, payload = pack_objects(self.rsu_objects(0), self.config.max_payload_floats, self.config.encoding)
+        length, payload = pack_objects(objs, self.config.max_payload_floats, self.config.encoding)
         return {"length": length, "payload": payload}
+
+    def _builtin_objects(self) -> np.ndarray | None:
+        """What the built-in policy sends: the slot-0 RSU's object rows (``None``: nothing)."""
+        if self.config.rsu_policy == "none" or self.active_rsu[0] < 0:
+            return None
+        return self.rsu_objects(0)
 
     def is_route_complete(self) -> bool:
         """The ego has passed the last route point (within 3 m)."""

@@ -39,6 +39,16 @@ def _face(geo, j, x, y, z):  # pragma: no cover
     return u, v, wz, face, xf, yf
 
 
+@_njit_inline
+def _ground_cell(x, y, xmin, ymin, inv, h, w):  # pragma: no cover
+    """``GroundRaster.flat_index`` for one float32 point: ``(row, col)``, ``(-1, -1)`` outside."""
+    cx = np.int64(np.floor((x - xmin) * inv))
+    ry = np.int64(np.floor((y - ymin) * inv))
+    if 0 <= cx < w and 0 <= ry < h:
+        return ry, cx
+    return -1, -1
+
+
 @_njit
 def lidar_returns_kernel(p, d, idx, geo, normals, sem_box, inst_box, class_refl, code, xmin, ymin, inv, terrain,
                          material_sem, material_refl):  # pragma: no cover
@@ -67,9 +77,8 @@ def lidar_returns_kernel(p, d, idx, geo, normals, sem_box, inst_box, class_refl,
             inst[i] = inst_box[j]
             x = class_refl[sem[i]] * abs(acc)
         else:
-            cx = np.int64(np.floor((p[i, 0] - xmin) * inv))
-            ry = np.int64(np.floor((p[i, 1] - ymin) * inv))
-            mat = code[ry, cx] if (0 <= cx < w and 0 <= ry < h) else terrain
+            ry, cx = _ground_cell(p[i, 0], p[i, 1], xmin, ymin, inv, h, w)
+            mat = code[ry, cx] if ry >= 0 else terrain
             sem[i] = material_sem[mat]
             x = material_refl[mat] * abs(d[i, 2])
         inten[i] = zero if x < zero else (one if x > one else x)
@@ -132,9 +141,8 @@ def shade_kernel(p, dz, keep, idx, sky, geo, style, colors, light, sem_box, inst
             sem[i] = sem_box[j]
             inst[i] = inst_box[j]
         elif j == ground_id:
-            cx = np.int64(np.floor((p[i, 0] - xmin) * inv))
-            ry = np.int64(np.floor((p[i, 1] - ymin) * inv))
-            if 0 <= cx < w and 0 <= ry < h:
+            ry, cx = _ground_cell(p[i, 0], p[i, 1], xmin, ymin, inv, h, w)
+            if ry >= 0:
                 mat = code[ry, cx]
                 for q in range(3):
                     col3[q] = _F(ground_rgb[ry * w + cx, q])

@@ -136,33 +136,28 @@ def capture_lidar(
             s, np.float32(o[0]), np.float32(o[1]), NO_HIT, GROUND, scene.geo, scene.normals, scene.sem, scene.inst,
             CLASS_REFLECTIVITY, ground.code, np.float32(ground.xmin), np.float32(ground.ymin),
             np.float32(1.0 / ground.mpp), M_TERRAIN, MATERIAL_SEMANTIC, MATERIAL_REFLECTIVITY)
-        padded = np.zeros((spec.max_points, 6), np.float32)
-        padded[: len(pts)] = pts
-        return {"points": pts, "padded": padded, "count": len(pts), "range_image": rng}
-    t, idx = first_hit_fan(
-        o, dirs_h, k, scene.boxes.subset(sel), max_t=spec.max_range / norm[:, None]
-    )
-    hit = idx != NO_HIT
-    e_i, a_i = np.nonzero(hit)
-    idx = idx[e_i, a_i]
-    if len(sel):
-        idx = np.where(idx >= 0, sel[np.maximum(idx, 0)], idx)
-    th = t[e_i, a_i]
-    kk, nn = k[e_i].astype(np.float32), norm[e_i].astype(np.float32)
-    ca, sa = cs[a_i, 0], cs[a_i, 1]
-    pts = np.empty((len(e_i), 6), np.float32)
-    pts[:, 0], pts[:, 1], pts[:, 2] = th * ca, th * sa, th * kk
-    dw = np.empty((len(e_i), 3), np.float32)
-    dw[:, 0], dw[:, 1], dw[:, 2] = (c * ca - s * sa) / nn, (s * ca + c * sa) / nn, kk / nn
-    pw = np.empty_like(dw)
-    pw[:, 0] = c * pts[:, 0] - s * pts[:, 1] + np.float32(o[0])
-    pw[:, 1] = s * pts[:, 0] + c * pts[:, 1] + np.float32(o[1])
-    pw[:, 2] = pts[:, 2] + np.float32(o[2])
-    pts[:, 3], pts[:, 4], pts[:, 5] = lidar_returns(scene, ground, pw, dw, idx)
+    else:
+        t, idx = first_hit_fan(o, dirs_h, k, scene.boxes.subset(sel), max_t=spec.max_range / norm[:, None])
+        e_i, a_i = np.nonzero(idx != NO_HIT)
+        idx = idx[e_i, a_i]
+        if len(sel):
+            idx = np.where(idx >= 0, sel[np.maximum(idx, 0)], idx)
+        th = t[e_i, a_i]
+        kk, nn = k[e_i].astype(np.float32), norm[e_i].astype(np.float32)
+        ca, sa = cs[a_i, 0], cs[a_i, 1]
+        pts = np.empty((len(e_i), 6), np.float32)
+        pts[:, 0], pts[:, 1], pts[:, 2] = th * ca, th * sa, th * kk
+        dw = np.empty((len(e_i), 3), np.float32)
+        dw[:, 0], dw[:, 1], dw[:, 2] = (c * ca - s * sa) / nn, (s * ca + c * sa) / nn, kk / nn
+        pw = np.empty_like(dw)
+        pw[:, 0] = c * pts[:, 0] - s * pts[:, 1] + np.float32(o[0])
+        pw[:, 1] = s * pts[:, 0] + c * pts[:, 1] + np.float32(o[1])
+        pw[:, 2] = pts[:, 2] + np.float32(o[2])
+        pts[:, 3], pts[:, 4], pts[:, 5] = lidar_returns(scene, ground, pw, dw, idx)
+        rng = np.zeros(t.shape, np.float32)
+        rng[e_i, a_i] = th * nn
     padded = np.zeros((spec.max_points, 6), np.float32)
     padded[: len(pts)] = pts
-    rng = np.zeros(t.shape, np.float32)
-    rng[e_i, a_i] = th * nn
     return {"points": pts, "padded": padded, "count": len(pts), "range_image": rng}
 
 

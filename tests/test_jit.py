@@ -5,7 +5,15 @@ import pytest
 from v2xbench.envs.v2x_intersection import raycast, visibility
 from v2xbench.envs.v2x_intersection.jit import HAVE_JIT
 from v2xbench.envs.v2x_intersection.raycast import Boxes, segments_blocked
-from v2xbench.envs.v2x_intersection.sensors import bev, camera, fan, groundtruth, lidar, shading
+from v2xbench.envs.v2x_intersection.sensors import (
+    bev,
+    camera,
+    fan,
+    groundtruth,
+    lidar,
+    scene,
+    shading,
+)
 from v2xbench.envs.v2x_intersection.visibility import visible_fraction
 
 pytestmark = pytest.mark.skipif(not HAVE_JIT, reason="numba not installed")
@@ -27,6 +35,7 @@ def _both(monkeypatch, fn):
         m.setattr(groundtruth, "HAVE_JIT", False)
         m.setattr(lidar, "HAVE_JIT", False)
         m.setattr(bev, "HAVE_JIT", False)
+        m.setattr(scene, "HAVE_JIT", False)
         b = fn()
     return a, b
 
@@ -254,6 +263,39 @@ def test_expert_forecast_kernel_matches_numpy(monkeypatch, route_index):
     for _ in range(250):
         w.step(agent.act(None), w.default_rsu_message())
     assert calls["n"] > 0 and calls["hypotheses"] > 0
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_ray_box_intervals_matches_numpy(monkeypatch, seed):
+    rng = np.random.default_rng(seed)
+    boxes = _scene(rng, 50)
+    d = np.concatenate([rng.normal(size=(200, 2)), rng.normal(size=(200, 1)) * (rng.random((200, 1)) > 0.3)], 1)
+    d[:5, :2] = 0.0  # vertical rays
+    d[5:10, 0] = 0.0  # rays along a world axis
+    for o in (np.array([0.5, -1.0, 1.5]), rng.uniform(-40, 40, (200, 3))):
+        a, b = _both(monkeypatch, lambda o=o: raycast.ray_box_intervals(o, d, boxes))
+        for x, y in zip(a, b):
+            assert x.dtype == y.dtype == np.float32 and x.tobytes() == y.tobytes()
+        assert np.isfinite(a[0]).any() and np.isinf(a[0]).any()
+
+
+def test_scene_cull_matches_numpy(monkeypatch):
+    from v2xbench.envs.v2x_intersection.config import make_config
+    from v2xbench.envs.v2x_intersection.world import World
+
+    w = World(make_config(town="Town03"))
+    w.reset(seed=1)
+    sc = scene.build_scene(w)
+    rng = np.random.default_rng(0)
+    kept = 0
+    for k in range(40):
+        o = np.r_[w.table.pos[0] + rng.uniform(-30, 30, 2), 1.8]
+        args = (o, rng.uniform(-4, 4), (0.3, 1.0, np.pi)[k % 3], rng.uniform(10, 120),
+                None if k % 2 else np.array([0, 3]), None if k % 5 else 60.0)
+        a, b = _both(monkeypatch, lambda args=args: sc.cull(*args))
+        assert a.dtype == b.dtype and a.tobytes() == b.tobytes()
+        kept += len(a)
+    assert kept > 100
 
 
 @pytest.mark.parametrize("seed", range(3))

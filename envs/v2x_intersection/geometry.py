@@ -85,6 +85,19 @@ def pose_matrix(x: float, y: float, z: float, yaw: float, pitch: float = 0.0, ro
     return t
 
 
+def memo_matrix(owner: object, name: str, build) -> np.ndarray:
+    """``build()`` computed once per ``owner`` (a frozen dataclass) and kept read-only on it.
+
+    For the constant mount matrices of sensor specs, asked for several times every frame.
+    """
+    m = owner.__dict__.get(name)
+    if m is None:
+        m = build()
+        m.setflags(write=False)
+        object.__setattr__(owner, name, m)
+    return m
+
+
 def invert_transform(t: np.ndarray) -> np.ndarray:
     """Inverse of rigid 4x4 transforms ``(..., 4, 4)``."""
     r = t[..., :3, :3]

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .jit import HAVE_JIT, first_hit_fan_kernel, segments_blocked_kernel
+from .jit import HAVE_JIT, first_hit_fan_kernel, ray_box_intervals_kernel, segments_blocked_kernel
 
 #: Floating dtype of the ray-casting computation and of the returned ``t`` arrays.
 DTYPE = np.float32
@@ -335,6 +335,9 @@ def ray_box_intervals(
     """
     o, d, p, same = _setup(origins, dirs, boxes)
     r, n = d.shape[0], len(boxes)
+    if HAVE_JIT:
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            return ray_box_intervals_kernel(o, d, p.c, p.s, p.bx, p.by, p.hl, p.hw, p.z0, p.z1)
     t_in = np.empty((r, n), DTYPE)
     t_out = np.empty((r, n), DTYPE)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):

@@ -110,12 +110,12 @@ def calibration(
     def put(name: str, parent: str, ext: np.ndarray, t_ws: np.ndarray, cam: CameraSpec | None):
         entry = {
             "parent": parent,
-            "extrinsics": ext,
+            "extrinsics": ext.copy(),
             "T_world_sensor": t_ws,
             "T_ego_sensor": t_ew @ t_ws,
         }
         if cam is not None:
-            entry.update(intrinsics=cam.intrinsics, width=cam.width, height=cam.height)
+            entry.update(intrinsics=cam.intrinsics.copy(), width=cam.width, height=cam.height)
         out[name] = entry
 
     for cam in ego_cameras:

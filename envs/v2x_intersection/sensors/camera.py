@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry import T_BODY_OPTICAL, camera_intrinsics, pose_matrix
+from ..geometry import T_BODY_OPTICAL, camera_intrinsics, memo_matrix, pose_matrix
 from ..jit import HAVE_JIT
 from ..raycast import GROUND, NO_HIT, first_hit_fan, first_hit_fan_boxes
 from .fan import fan_for
@@ -91,16 +91,23 @@ class CameraSpec:
 
     @property
     def intrinsics(self) -> np.ndarray:
-        """``(3, 3)`` pinhole matrix ``K`` (pixels)."""
-        return camera_intrinsics(self.width, self.height, self.fov_deg)
+        """``(3, 3)`` pinhole matrix ``K`` (pixels; read-only, computed once)."""
+        return memo_matrix(
+            self, "_K", lambda: camera_intrinsics(self.width, self.height, self.fov_deg)
+        )
 
     def T_parent_body(self) -> np.ndarray:
-        """``(4, 4)`` camera body frame (x forward, z up) -> parent frame."""
-        return pose_matrix(self.x, self.y, self.z, self.yaw, self.pitch, self.roll)
+        """``(4, 4)`` camera body frame (x forward, z up) -> parent frame (read-only)."""
+        return memo_matrix(
+            self,
+            "_T_parent_body",
+            lambda: pose_matrix(self.x, self.y, self.z, self.yaw, self.pitch, self.roll),
+        )
 
     def T_parent_optical(self) -> np.ndarray:
-        """``(4, 4)`` camera optical frame (x right, y down, z forward) -> parent frame."""
-        return self.T_parent_body() @ T_BODY_OPTICAL
+        """``(4, 4)`` camera optical frame (x right, y down, z forward) -> parent frame
+        (read-only)."""
+        return memo_matrix(self, "_T_parent_optical", lambda: self.T_parent_body() @ T_BODY_OPTICAL)
 
 
 def ego_camera_specs(
@@ -150,13 +157,13 @@ def _cast(scene: Scene, spec: CameraSpec, t_world_body: np.ndarray, exclude, ove
     """Cast one camera's rays: per pixel hit point, ray z, distance, box index, depth, sky."""
     fan, yaw = fan_for(spec, t_world_body, oversample)
     o = t_world_body[:3, 3].astype(np.float64)
-    sel = scene.cull(o, yaw, fan.half_az + 0.02, float(fan.max_t.max()), exclude, spec.far)
+    sel = scene.cull(o, yaw, fan.half_az + 0.02, fan.reach, exclude, spec.far)
     a = yaw + fan.az
     if HAVE_JIT:
         t, j, box_ids, k = first_hit_fan_boxes(o, np.stack([np.cos(a), np.sin(a)], -1), fan.slopes,
                                                scene.boxes.subset(sel))
         p, dist, idx, depth = camera_hits_kernel(
-            t, j, box_ids, sel, k, bool(o[2] >= 0), np.float32(o[2]), fan.max_t.astype(np.float32), fan.pix,
+            t, j, box_ids, sel, k, bool(o[2] >= 0), np.float32(o[2]), fan.max_t32, fan.pix,
             fan.dirs, fan.norm, fan.dpt, np.float32(np.cos(yaw)), np.float32(np.sin(yaw)), np.float32(o[0]),
             np.float32(o[1]), np.float32(spec.far), NO_HIT, GROUND)
         return p, fan.dirs[:, 2], dist, idx, depth, fan.sky

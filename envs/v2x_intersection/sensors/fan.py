@@ -53,6 +53,8 @@ class Fan:
     dpt: np.ndarray  # (P,)
     sky: np.ndarray  # (P, 3)
     half_az: float  # largest |azimuth| (rad)
+    max_t32: np.ndarray  # max_t as contiguous float32 (the kernels' far cut)
+    reach: float  # largest max_t (m): the cull range
 
 
 def _level_rotation(t_world_body: np.ndarray) -> tuple[float, np.ndarray]:
@@ -114,13 +116,23 @@ def _fan(width: int, height: int, fov: float, far: float, r_level: tuple, oversa
         dpt.ravel()[pix].astype(np.float32),
         sky_colors(dirs[:, 2].astype(np.float32)),
         float(np.abs(az).max()),
+        np.ascontiguousarray(max_t, np.float32),
+        float(max_t.max()),
     )
+
+
+_LEVEL_KEY = tuple(np.eye(3).ravel().tolist())
 
 
 def fan_for(spec: CameraSpec, t_world_body: np.ndarray, oversample: float = 1.0):
     """``(fan, yaw)``: the cached ray layout of ``spec`` at this pose, and its world yaw."""
-    yaw, rl = _level_rotation(t_world_body)
-    key = tuple(np.round(rl, 9).ravel().tolist())
+    r = t_world_body
+    if r[2, 0] == 0.0 and r[2, 1] == 0.0 and r[0, 2] == 0.0 and r[1, 2] == 0.0 and r[2, 2] == 1.0:
+        # level (a yaw only): the level rotation is the identity (rounds to it exactly)
+        yaw, key = float(np.arctan2(r[1, 0], r[0, 0])), _LEVEL_KEY
+    else:
+        yaw, rl = _level_rotation(t_world_body)
+        key = tuple(np.round(rl, 9).ravel().tolist())
     return _fan(spec.width, spec.height, spec.fov_deg, spec.far, key, float(oversample)), yaw
 
 

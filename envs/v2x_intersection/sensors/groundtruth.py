@@ -64,20 +64,24 @@ def candidate_boxes(world) -> dict[str, np.ndarray]:
     n_build = len(world.town.buildings)
     sb = world.static_boxes
     js = np.arange(n_build, len(sb))
+    na, ns = len(rows), len(js)
+    center, size = np.empty((na + ns, 3)), np.empty((na + ns, 3))
     h_a, h_s = t.height[rows], world.static_heights[js]
-    vel = t.velocity()[rows]
+    center[:na, :2], center[:na, 2] = t.pos[rows], h_a / 2
+    center[na:, :2], center[na:, 2] = sb[js, :2], h_s / 2
+    size[:na, 0], size[:na, 1], size[:na, 2] = t.length[rows], t.width[rows], h_a
+    size[na:, 0], size[na:, 1], size[na:, 2] = sb[js, 2], sb[js, 3], h_s
+    velocity = np.zeros((na + ns, 3))
+    velocity[:na, 0] = t.speed[rows] * np.cos(t.yaw[rows])
+    velocity[:na, 1] = t.speed[rows] * np.sin(t.yaw[rows])
     return {
         "id": np.concatenate([t.actor_id[rows], static_instance(js)]).astype(np.int64),
         "instance": np.concatenate([rows + 1, static_instance(js)]).astype(np.int64),
         "class": np.concatenate([t.kind[rows], world.static_kinds[js]]).astype(np.int64),
-        "center": np.concatenate([np.c_[t.pos[rows], h_a / 2], np.c_[sb[js, :2], h_s / 2]]).reshape(
-            -1, 3
-        ),
-        "size": np.concatenate(
-            [np.c_[t.length[rows], t.width[rows], h_a], np.c_[sb[js, 2], sb[js, 3], h_s]]
-        ).reshape(-1, 3),
+        "center": center,
+        "size": size,
         "yaw": np.concatenate([t.yaw[rows], sb[js, 4]]),
-        "velocity": np.concatenate([np.c_[vel, np.zeros(len(rows))], np.zeros((len(js), 3))]),
+        "velocity": velocity,
     }
 
 

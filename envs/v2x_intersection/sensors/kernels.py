@@ -408,3 +408,32 @@ def fill_boxes_kernel(out, chans, idx, r0, r1, k0, k1, bx, by, rel, hl, hw, mpp)
                 y = (half - k - 0.5) * mpp - by[i]
                 if abs(cr * x + sr * y) <= hl[i] and abs(cr * y - sr * x) <= hw[i]:
                     out[chans[i], r, k] |= 1
+
+
+@_njit
+def cull_kernel(center, radius, active, ox, oy, yaw, half_fov, max_range, max_depth, exclude):  # pragma: no cover
+    """:meth:`.scene.Scene.cull`'s tests per box (float64, the NumPy path's operations; ``max_depth``
+    ``inf``: no depth test). Returns the kept box indices, increasing."""
+    n = center.shape[0]
+    keep = np.zeros(n, np.bool_)
+    ca, sa = np.cos(yaw), np.sin(yaw)
+    two_pi = 2 * np.pi
+    for i in range(n):
+        if not active[i]:
+            continue
+        rx, ry = center[i, 0] - ox, center[i, 1] - oy
+        dist = np.hypot(rx, ry)
+        r = radius[i]
+        if not dist - r < max_range:
+            continue
+        if max_depth < np.inf and not rx * ca + ry * sa - r < max_depth:
+            continue
+        if half_fov < np.pi and dist > r:
+            ang = abs((np.arctan2(ry, rx) - yaw + np.pi) % two_pi - np.pi)
+            slack = np.arcsin(min(max(r / max(dist, 1e-9), 0.0), 1.0))
+            if not ang <= half_fov + slack:
+                continue
+        keep[i] = True
+    for e in exclude:
+        keep[e] = False
+    return np.flatnonzero(keep)

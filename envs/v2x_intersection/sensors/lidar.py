@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry import pose_matrix
+from ..geometry import memo_matrix, pose_matrix
 from ..jit import HAVE_JIT
 from ..raycast import GROUND, NO_HIT, first_hit_fan, first_hit_fan_boxes
 from .ground import GroundRaster
@@ -82,8 +82,10 @@ class LidarSpec:
         return np.deg2rad(np.linspace(hi, lo, self.channels))
 
     def T_parent_sensor(self) -> np.ndarray:
-        """``(4, 4)`` sensor frame -> parent frame."""
-        return pose_matrix(self.x, self.y, self.z, self.yaw)
+        """``(4, 4)`` sensor frame -> parent frame (read-only, computed once)."""
+        return memo_matrix(
+            self, "_T_parent_sensor", lambda: pose_matrix(self.x, self.y, self.z, self.yaw)
+        )
 
 
 def ego_lidar_spec(
@@ -122,7 +124,7 @@ def capture_lidar(
     """
     o = t_world_sensor[:3, 3].astype(np.float64)
     yaw = float(np.arctan2(t_world_sensor[1, 0], t_world_sensor[0, 0]))
-    az, k, norm, cs = _rays(spec)
+    az, k, norm, cs, max_t32 = _rays(spec)
     half = np.pi if spec.hfov_deg >= 360.0 else np.deg2rad(spec.hfov_deg) / 2 + 0.01
     sel = scene.cull(o, yaw, half, spec.max_range, exclude)
     a = yaw + az
@@ -130,9 +132,8 @@ def capture_lidar(
     c, s = np.float32(np.cos(yaw)), np.float32(np.sin(yaw))
     if HAVE_JIT:
         t, j, box_ids, k32 = first_hit_fan_boxes(o, dirs_h, k, scene.boxes.subset(sel))
-        max_t = np.broadcast_to(np.asarray(spec.max_range / norm[:, None], np.float32), t.shape)
         pts, rng = lidar_points_kernel(
-            t, j, box_ids, sel, k32, bool(o[2] >= 0), np.float32(o[2]), np.ascontiguousarray(max_t), k, norm, cs, c,
+            t, j, box_ids, sel, k32, bool(o[2] >= 0), np.float32(o[2]), max_t32, k, norm, cs, c,
             s, np.float32(o[0]), np.float32(o[1]), NO_HIT, GROUND, scene.geo, scene.normals, scene.sem, scene.inst,
             CLASS_REFLECTIVITY, ground.code, np.float32(ground.xmin), np.float32(ground.ymin),
             np.float32(1.0 / ground.mpp), M_TERRAIN, MATERIAL_SEMANTIC, MATERIAL_REFLECTIVITY)
@@ -162,12 +163,15 @@ def capture_lidar(
 
 
 @functools.lru_cache(maxsize=32)
-def _rays(spec: LidarSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Azimuths (A,), slopes (E,), 3D length per horizontal metre (E,), (A, 2) float32 cos/sin."""
+def _rays(spec: LidarSpec) -> tuple[np.ndarray, ...]:
+    """Azimuths (A,), slopes (E,), 3D length per horizontal metre (E,), (A, 2) float32 cos/sin,
+    and the range cut as horizontal distance, ``(E, A)`` contiguous float32."""
     az = spec.azimuths()
     k = np.tan(spec.elevations())
     cs = np.stack([np.cos(az), np.sin(az)], -1).astype(np.float32)
-    return az, k, np.sqrt(1.0 + k * k), cs
+    norm = np.sqrt(1.0 + k * k)
+    max_t = np.broadcast_to(np.asarray(spec.max_range / norm[:, None], np.float32), (len(k), len(az)))
+    return az, k, norm, cs, np.ascontiguousarray(max_t)
 
 
 def blank_lidar(spec: LidarSpec) -> dict[str, np.ndarray | int]:

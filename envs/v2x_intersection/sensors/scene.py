@@ -29,14 +29,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..classes import BICYCLE, TRAFFIC_CONE, TRAFFIC_LIGHT, TRAFFIC_SIGN
+from ..jit import HAVE_JIT
 from ..raycast import Boxes
 from ..signals import GREEN, RED, YELLOW
+from .kernels import cull_kernel
 from .semantics import actor_instance, static_instance
 
 # style codes (texture atlas rows); S_HEAD + k: light head, k = 0 dark, 1 red, 2 yellow, 3 green
 S_CAR, S_TRUCK, S_PED, S_BIKE, S_POLE, S_SIGN_POLE, S_PLATE, S_CONE = range(8)
 S_OBSTACLE, S_BUILDING, S_SIGN, S_RIDER, S_HEAD = 8, 9, 10, 11, 12
 N_STYLES = S_HEAD + 4
+_NONE = np.zeros(0, np.int64)
 _KIND_STYLE = np.array([S_CAR, S_TRUCK, S_PED, S_BIKE, S_POLE, S_SIGN, S_CONE, S_OBSTACLE])
 _HEAD_K = np.zeros(4, np.int64)  # signal state + 1 -> head style offset
 _HEAD_K[[RED + 1, YELLOW + 1, GREEN + 1]] = (1, 2, 3)
@@ -188,6 +191,11 @@ class Scene:
             ``(K,)`` int64 box indices.
         """
         b = self.boxes
+        if HAVE_JIT:
+            ex = _NONE if exclude is None else np.asarray(exclude, dtype=np.int64)
+            depth = np.inf if max_depth is None else float(max_depth)
+            return cull_kernel(b.center, self.radius, self.active, float(origin[0]), float(origin[1]),
+                               float(yaw), float(half_fov), float(max_range), depth, ex)
         rel = b.center - np.asarray(origin, dtype=np.float64)[:2]
         dist = np.hypot(rel[:, 0], rel[:, 1])
         r = self.radius
@@ -215,6 +223,7 @@ class _StaticPart:
     colors: np.ndarray
     head_at: np.ndarray  # positions of the light heads within this part
     head_lanes: np.ndarray  # the lane each head shows
+    terms: tuple  # _box_terms(box): geo, normals, light, radius, active
 
 
 _STATIC_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -257,18 +266,49 @@ def _static_part(world) -> _StaticPart:
     if len(lights_at) and len(lights):
         d2 = ((s[lights_at, None, :2] - lights[None, :, :2]) ** 2).sum(-1)
         head_lanes = lights[np.argmin(d2, axis=1), 3].astype(np.int64)
+    box = np.concatenate(rows)
     part = _StaticPart(
         source=s,
-        box=np.concatenate(rows),
+        box=box,
         inst=np.concatenate(inst),
         sem=np.concatenate(sem).astype(np.int64),
         style=style.astype(np.int64),
         colors=colors,
         head_at=n + np.arange(len(lights_at)),
         head_lanes=head_lanes,
+        terms=_box_terms(box),
     )
     _STATIC_CACHE[world] = part
     return part
+
+
+def _box_terms(box: np.ndarray) -> tuple:
+    """Per-box shading and culling terms of ``(N, 7)`` rows ``x, y, length, width, yaw, z0,
+    height``: ``geo (N, 8)``, ``normals (N, 6, 3)``, ``light (N, 6)`` (float32), ``radius``,
+    ``active`` (row-wise, so a scene's constant rows are computed once per world)."""
+    n = len(box)
+    c, s = np.cos(box[:, 4]), np.sin(box[:, 4])
+    normals = np.zeros((n, 6, 3))
+    normals[:, 0, 0], normals[:, 0, 1] = c, s  # front
+    normals[:, 1, 0], normals[:, 1, 1] = -c, -s  # back
+    normals[:, 2, 0], normals[:, 2, 1] = -s, c  # left
+    normals[:, 3, 0], normals[:, 3, 1] = s, -c  # right
+    normals[:, 4, 2], normals[:, 5, 2] = 1.0, -1.0  # top, bottom
+    light = AMBIENT + DIFFUSE * np.maximum(normals @ SUN, 0.0)
+    light[:, 5] = AMBIENT * 0.7
+    geo = np.empty((n, 8))
+    geo[:, 0], geo[:, 1], geo[:, 2], geo[:, 3] = c, s, box[:, 0], box[:, 1]
+    geo[:, 4] = 2 / np.maximum(box[:, 2], 1e-6)
+    geo[:, 5] = 2 / np.maximum(box[:, 3], 1e-6)
+    geo[:, 6] = box[:, 5]
+    geo[:, 7] = 1 / np.maximum(box[:, 6], 1e-6)
+    return (
+        geo.astype(np.float32),
+        normals.astype(np.float32),
+        light.astype(np.float32),
+        0.5 * np.hypot(box[:, 2], box[:, 3]),
+        box[:, 6] > 0,
+    )
 
 
 def build_scene(world) -> Scene:
@@ -295,20 +335,20 @@ def build_scene(world) -> Scene:
     bikes = np.flatnonzero(t.active & (kind == BICYCLE))
     full = t.height[bikes]
     height[bikes] = np.minimum(full, BIKE_HEIGHT)
-    fwd = np.stack([np.cos(t.yaw[bikes]), np.sin(t.yaw[bikes])], -1)
     rl, rw, rz = RIDER_SIZE
     nb = len(bikes)
-    rider = np.c_[
-        t.pos[bikes] + (RIDER_OFFSET * t.length[bikes])[:, None] * fwd,
-        np.full(nb, rl),
-        np.full(nb, rw),
-        t.yaw[bikes],
-        np.full(nb, rz),
-        np.maximum(full - rz, 0.0),
-    ]
-    actors = np.c_[t.pos, t.length, t.width, t.yaw, np.zeros(na), height]
+    dyn = np.empty((na + nb, 7))  # rows x, y, length, width, yaw, z0, height: actors, riders
+    dyn[:na, :2], dyn[:na, 2], dyn[:na, 3], dyn[:na, 4] = t.pos, t.length, t.width, t.yaw
+    dyn[:na, 5], dyn[:na, 6] = 0.0, height
+    by = t.yaw[bikes]
+    back = RIDER_OFFSET * t.length[bikes]
+    rider = dyn[na:]
+    rider[:, 0] = t.pos[bikes, 0] + back * np.cos(by)
+    rider[:, 1] = t.pos[bikes, 1] + back * np.sin(by)
+    rider[:, 2], rider[:, 3], rider[:, 4], rider[:, 5] = rl, rw, by, rz
+    rider[:, 6] = np.maximum(full - rz, 0.0)
+    actors = dyn[:na]
     box = np.concatenate([actors, sp.box, rider])
-    boxes = Boxes(box[:, :2], box[:, 2], box[:, 3], box[:, 4], box[:, 5], box[:, 6])
     people = np.concatenate([np.flatnonzero(style == S_PED), bikes])  # shirt, trousers, skin
     rider_colors = np.zeros((nb, 3, 3), np.float32)
     rider_colors[:, 0] = SHIRT_COLORS[(cidx[bikes] + 5) % 8]
@@ -320,42 +360,20 @@ def build_scene(world) -> Scene:
         sig = np.asarray(world.lane_signal)
         state = np.where(sp.head_lanes >= 0, sig[np.clip(sp.head_lanes, 0, len(sig) - 1)], -1)
         styles[na + sp.head_at] = S_HEAD + _HEAD_K[np.clip(state, -1, 2) + 1]
-    c, s = np.cos(box[:, 4]), np.sin(box[:, 4])
-    z = np.zeros_like(c)
-    normals = np.stack(
-        [
-            np.c_[c, s, z],
-            np.c_[-c, -s, z],
-            np.c_[-s, c, z],
-            np.c_[s, -c, z],
-            np.c_[z, z, z + 1],
-            np.c_[z, z, z - 1],
-        ],
-        1,
+    geo, normals, light, radius, active = (
+        np.concatenate([d[:na], st, d[na:]]) for d, st in zip(_box_terms(dyn), sp.terms)
     )
-    light = AMBIENT + DIFFUSE * np.maximum(normals @ SUN, 0.0)
-    light[:, 5] = AMBIENT * 0.7
-    geo = np.c_[
-        c,
-        s,
-        box[:, 0],
-        box[:, 1],
-        2 / np.maximum(box[:, 2], 1e-6),
-        2 / np.maximum(box[:, 3], 1e-6),
-        box[:, 5],
-        1 / np.maximum(box[:, 6], 1e-6),
-    ]
     return Scene(
-        boxes=boxes,
+        boxes=Boxes.trusted(*(np.ascontiguousarray(box[:, k]) for k in (slice(0, 2), 2, 3, 4, 5, 6))),
         inst=np.concatenate([actor_instance(np.arange(na)), sp.inst, actor_instance(bikes)]),
         sem=np.concatenate([kind, sp.sem, kind[bikes]]),
         style=styles,
         colors=np.concatenate([colors, sp.colors, rider_colors]),
-        active=box[:, 6] > 0,
-        radius=0.5 * np.hypot(box[:, 2], box[:, 3]),
-        geo=geo.astype(np.float32),
-        normals=normals.astype(np.float32),
-        light=light.astype(np.float32),
+        active=active,
+        radius=radius,
+        geo=geo,
+        normals=normals,
+        light=light,
         n_actors=na,
     )
 

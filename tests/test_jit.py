@@ -342,6 +342,28 @@ def test_sensor_rig_matches_numpy(monkeypatch):
     assert [key for key in a if a[key] != b[key]] == []
 
 
+def test_bev_matches_numpy(monkeypatch):
+    """The BEV (map channels from the ground raster, objects, stop lines) on both paths, with the
+    ego at random poses, one of them off the town's raster: the same bytes."""
+    from v2xbench.envs.v2x_intersection.config import make_config
+    from v2xbench.envs.v2x_intersection.sensors import SensorRig
+    from v2xbench.envs.v2x_intersection.world import World
+
+    w = World(make_config(town="Town03"))
+    w.reset(seed=5)
+    rig = SensorRig()
+    rng = np.random.default_rng(1)
+    g = rig.ground(w)
+    xs = [rng.uniform(g.xmin, g.xmin + 150, 2) for _ in range(5)] + [np.array([g.xmin - 20.0, g.ymin + 10.0])]
+    mapped = 0
+    for xy in xs:
+        w.table.pos[0], w.table.yaw[0] = xy, rng.uniform(-np.pi, np.pi)
+        a, b = _both(monkeypatch, lambda: rig.capture_bev(w))
+        assert a.dtype == b.dtype == np.uint8 and a.tobytes() == b.tobytes()
+        mapped += bool(a[:6].any())
+    assert mapped >= 3
+
+
 @pytest.mark.parametrize("town", ["Town01", "Town03"])
 def test_shading_kernel_matches_numpy(monkeypatch, town):
     """The six ego cameras and the RSU camera at full size, shaded on both paths: the same bytes

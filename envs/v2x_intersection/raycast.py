@@ -462,6 +462,13 @@ def segments_blocked(
     return out
 
 
+def fan_unit_dirs(azimuths: np.ndarray) -> np.ndarray:
+    """``(A, 2)`` float32 unit horizontal directions of world azimuths, as :func:`first_hit_fan`
+    normalizes ``(cos, sin)`` for its kernel (for callers of the sensors' fused fan kernel)."""
+    d = np.stack([np.cos(azimuths), np.sin(azimuths)], -1)
+    return (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(DTYPE)
+
+
 def _fan_setup(origin, dirs_h, slopes, boxes: Boxes, ignore) -> tuple:
     """:func:`first_hit_fan`'s inputs as its kernels take them: ``(origin (3,) float64, u (A, 2)
     unit float64, k (E, A) DTYPE, the solid boxes, their indices in ``boxes``)``."""
@@ -488,26 +495,6 @@ def _fan_kernel(origin: np.ndarray, u: np.ndarray, k: np.ndarray, boxes: Boxes) 
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         return first_hit_fan_kernel(u.astype(DTYPE), np.ascontiguousarray(k), p.c, p.s, p.bx, p.by, p.hl, p.hw,
                                     p.z0, p.z1, DTYPE(origin[2]))
-
-
-def first_hit_fan_boxes(origin: np.ndarray, dirs_h: np.ndarray, slopes: np.ndarray,
-                        boxes: Boxes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The box part of :func:`first_hit_fan` (numba path only), for callers that finish the
-    rays in their own kernel (``sensors.camera``).
-
-    Returns:
-        ``(t, j, box_ids, k)``: per ray ``(E, A)`` the float32 horizontal distance to the first
-        box (``inf``: none) and that box's position in ``box_ids`` (-1: none; a ray with ``t``
-        infinite hit nothing whatever ``j`` says), ``box_ids`` the indices into ``boxes`` of the
-        boxes cast against, and the float32 slopes ``(E, A)``.
-    """
-    origin, u, k, boxes, box_ids = _fan_setup(origin, dirs_h, slopes, boxes, None)
-    e, a = k.shape
-    if len(boxes) and a and e:
-        t, j = _fan_kernel(origin, u, k, boxes)
-    else:
-        t, j = np.full((e, a), np.inf, DTYPE), np.full((e, a), -1, np.int64)
-    return t, j, box_ids, k
 
 
 def first_hit_fan(

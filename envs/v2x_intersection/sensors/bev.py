@@ -33,7 +33,7 @@ from ..jit import HAVE_JIT
 from ..signals import GREEN, NO_SIGNAL, RED, YELLOW
 from ..traffic import STOP_LINE_SETBACK
 from .ground import GroundRaster
-from .kernels import fill_boxes_kernel
+from .kernels import bev_ground_kernel, fill_boxes_kernel
 from .semantics import (
     CENTRE_BIT,
     M_CROSS_GAP,
@@ -81,6 +81,9 @@ BEV_CHANNELS = (
     STOP_SIGN_CH,
 ) = range(len(BEV_CHANNELS))
 _LIGHT_CH = {GREEN: LIGHT_GREEN, YELLOW: LIGHT_YELLOW, RED: LIGHT_RED}
+_KIND_CHANNEL = np.full(256, OBSTACLE)  # object class -> BEV channel (everything else: obstacle)
+_KIND_CHANNEL[[CAR, LARGE_VEHICLE]] = VEHICLE
+_KIND_CHANNEL[[PEDESTRIAN, BICYCLE]] = VRU
 
 
 def _material_bits() -> np.ndarray:
@@ -206,16 +209,20 @@ def capture_bev(world, ground: GroundRaster, spec: BevSpec = BevSpec()) -> np.nd
         ``(len(BEV_CHANNELS), size, size)`` uint8 in ``{0, 1}``.
     """
     n, mpp = spec.size, float(spec.mpp)
-    s = int(np.clip(round(mpp / ground.mpp), 1, 4))
+    s = min(max(round(mpp / ground.mpp), 1), 4)
     t = world.table
     ex, ey, yaw = float(t.pos[0, 0]), float(t.pos[0, 1]), float(t.yaw[0])
     c, si = np.cos(yaw), np.sin(yaw)
     lx, ly = _grid(n, mpp)
     # sample the block of s x s ground pixels under each BEV pixel (its lower-left corner)
     half = 0.5 * mpp - 0.5 * ground.mpp
-    row, col, inside = ground.pixel(ex + c * lx - si * ly - half, ey + si * lx + c * ly - half)
-    bits = np.where(inside, _dilated_bits(ground, s)[row, col], np.uint16(0))
-    out = ((bits[None] >> _SHIFTS) & 1).astype(np.uint8)
+    if HAVE_JIT:
+        out = bev_ground_kernel(_dilated_bits(ground, s), lx, ly, ex, ey, float(c), float(si), half,
+                                float(ground.xmin), float(ground.ymin), 1.0 / ground.mpp, len(BEV_CHANNELS))
+    else:
+        row, col, inside = ground.pixel(ex + c * lx - si * ly - half, ey + si * lx + c * ly - half)
+        bits = np.where(inside, _dilated_bits(ground, s)[row, col], np.uint16(0))
+        out = ((bits[None] >> _SHIFTS) & 1).astype(np.uint8)
     reach = n * mpp * 0.75 + 15.0
 
     def to_px(pts: np.ndarray) -> np.ndarray:
@@ -225,18 +232,18 @@ def capture_bev(world, ground: GroundRaster, spec: BevSpec = BevSpec()) -> np.nd
 
     # objects, filled by pixel centres (statics first, then actors)
     idx = np.flatnonzero(t.active & (np.hypot(t.pos[:, 0] - ex, t.pos[:, 1] - ey) < reach))
-    chan = np.select(
-        [np.isin(t.kind[idx], (CAR, LARGE_VEHICLE)), np.isin(t.kind[idx], (PEDESTRIAN, BICYCLE))],
-        [VEHICLE, VRU],
-        OBSTACLE,
-    )
-    chan[idx == 0] = EGO_CH
     sb = world.static_boxes
     near = np.flatnonzero(
         np.hypot(sb[:, 0] - ex, sb[:, 1] - ey) < reach + 0.5 * np.hypot(sb[:, 2], sb[:, 3])
     )
-    boxes = np.concatenate([sb[near], np.c_[t.pos[idx], t.length[idx], t.width[idx], t.yaw[idx]]])
-    _fill_boxes(out, np.concatenate([np.full(len(near), OBSTACLE), chan]), boxes, ex, ey, yaw, mpp)
+    k = len(near)
+    boxes = np.empty((k + len(idx), 5))
+    boxes[:k] = sb[near]
+    boxes[k:, :2], boxes[k:, 2], boxes[k:, 3], boxes[k:, 4] = t.pos[idx], t.length[idx], t.width[idx], t.yaw[idx]
+    chans = np.full(len(boxes), OBSTACLE)
+    chans[k:] = _KIND_CHANNEL[t.kind[idx]]
+    chans[k:][idx == 0] = EGO_CH
+    _fill_boxes(out, chans, boxes, ex, ey, yaw, mpp)
     # traffic control on the stop lines (green 1, yellow 2, red 3, stop sign 4)
     bars, lanes = stop_bars(world.town)
     if len(bars):

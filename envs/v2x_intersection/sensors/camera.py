@@ -42,7 +42,7 @@ import numpy as np
 
 from ..geometry import T_BODY_OPTICAL, camera_intrinsics, memo_matrix, pose_matrix
 from ..jit import HAVE_JIT
-from ..raycast import GROUND, NO_HIT, first_hit_fan, first_hit_fan_boxes
+from ..raycast import GROUND, NO_HIT, fan_unit_dirs, first_hit_fan
 from .fan import fan_for
 from .ground import GroundRaster
 from .kernels import camera_hits_kernel
@@ -157,16 +157,16 @@ def _cast(scene: Scene, spec: CameraSpec, t_world_body: np.ndarray, exclude, ove
     """Cast one camera's rays: per pixel hit point, ray z, distance, box index, depth, sky."""
     fan, yaw = fan_for(spec, t_world_body, oversample)
     o = t_world_body[:3, 3].astype(np.float64)
-    sel = scene.cull(o, yaw, fan.half_az + 0.02, fan.reach, exclude, spec.far)
     a = yaw + fan.az
     if HAVE_JIT:
-        t, j, box_ids, k = first_hit_fan_boxes(o, np.stack([np.cos(a), np.sin(a)], -1), fan.slopes,
-                                               scene.boxes.subset(sel))
+        t, j, sel = scene.cast_fan(o, yaw, fan.half_az + 0.02, fan.reach, exclude, spec.far, fan_unit_dirs(a),
+                                   fan.k32)
         p, dist, idx, depth = camera_hits_kernel(
-            t, j, box_ids, sel, k, bool(o[2] >= 0), np.float32(o[2]), fan.max_t32, fan.pix,
+            t, j, np.arange(len(sel)), sel, fan.k32, bool(o[2] >= 0), np.float32(o[2]), fan.max_t32, fan.pix,
             fan.dirs, fan.norm, fan.dpt, np.float32(np.cos(yaw)), np.float32(np.sin(yaw)), np.float32(o[0]),
             np.float32(o[1]), np.float32(spec.far), NO_HIT, GROUND)
         return p, fan.dirs[:, 2], dist, idx, depth, fan.sky
+    sel = scene.cull(o, yaw, fan.half_az + 0.02, fan.reach, exclude, spec.far)
     t, idx = first_hit_fan(
         o,
         np.stack([np.cos(a), np.sin(a)], -1),

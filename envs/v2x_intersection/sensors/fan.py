@@ -54,6 +54,8 @@ class Fan:
     sky: np.ndarray  # (P, 3)
     half_az: float  # largest |azimuth| (rad)
     max_t32: np.ndarray  # max_t as contiguous float32 (the kernels' far cut)
+    k32: np.ndarray  # slopes as contiguous float32 (the kernels' slopes)
+    neg_row_s: np.ndarray  # -row_s (increasing)
     reach: float  # largest max_t (m): the cull range
 
 
@@ -117,6 +119,8 @@ def _fan(width: int, height: int, fov: float, far: float, r_level: tuple, oversa
         sky_colors(dirs[:, 2].astype(np.float32)),
         float(np.abs(az).max()),
         np.ascontiguousarray(max_t, np.float32),
+        np.ascontiguousarray(slopes, np.float32),
+        -row_s,
         float(max_t.max()),
     )
 
@@ -178,26 +182,29 @@ def unoccluded_pixels_many(scene: Scene, requests: list) -> list[np.ndarray]:
     boxes = np.flatnonzero(np.isin(scene.inst, want) & scene.active)
     if len(boxes) == 0:
         return outs
-    fans, origins, dirs = [], [], []
+    fans, azimuths = [], []
     for spec, pose, oversample, _ in requests:
         fan, yaw = fan_for(spec, pose, oversample)
-        a = yaw + fan.az
         fans.append(fan)
-        origins.append(np.broadcast_to(pose[:3, 3], (len(a), 3)))
-        dirs.append(np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], -1))
+        azimuths.append(yaw + fan.az)
+    a = np.concatenate(azimuths)  # every camera's fan columns: one vertical plane each
+    origins = np.repeat(np.array([r[1][:3, 3] for r in requests], np.float64), [len(f.az) for f in fans], axis=0)
+    dirs = np.zeros((len(a), 3))
+    dirs[:, 0], dirs[:, 1] = np.cos(a), np.sin(a)
     b = scene.boxes.subset(boxes)
-    tall = Boxes(b.center, b.length, b.width, b.yaw, np.full(len(b), -1e4), np.full(len(b), 2e4))
-    t_in_all, t_out_all = ray_box_intervals(np.concatenate(origins), np.concatenate(dirs), tall)
+    tall = Boxes.trusted(b.center, b.length, b.width, b.yaw, np.full(len(b), -1e4), np.full(len(b), 2e4))
+    t_in_all, t_out_all = ray_box_intervals(origins, dirs, tall)
     box_inst = scene.inst[boxes]
     start = 0
-    for k, (fan, org, req) in enumerate(zip(fans, origins, requests)):
+    for k, (fan, req) in enumerate(zip(fans, requests)):
         na = len(fan.az)
         t_in, t_out = t_in_all[start : start + na], t_out_all[start : start + na]
+        org = origins[start : start + na]
         start += na
         inst_k = np.asarray(req[3], np.int64)
         if HAVE_JIT:
             outs[k] = unoccluded_counts_kernel(t_in, t_out, fan.max_t_col, box_inst, b.z0, b.height,
-                                               float(org[0, 2]), fan.col_c, -fan.row_s, fan.cumw, inst_k)
+                                               float(org[0, 2]), fan.col_c, fan.neg_row_s, fan.cumw, inst_k)
             continue
         mine = np.isin(box_inst, inst_k)
         cols, bi = np.nonzero(np.isfinite(t_in) & mine & (t_in < fan.max_t_col[:, None]))

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..jit import _njit, _njit_inline
+from ..jit import _njit, _njit_inline, first_hit_fan_kernel
 
 _F = np.float32
 
@@ -238,8 +238,8 @@ def lidar_points_kernel(t, j, box_ids, sel, k, ground, oz, max_t, k64, norm64, c
 @_njit
 def camera_hits_kernel(t, j, box_ids, sel, k, ground, oz, max_t, pix, dirs, norm, dpt, c, s, ox, oy, far, no_hit,
                        ground_id):  # pragma: no cover
-    """The end of ``camera._cast`` on the numba path: the fan's box hits (``raycast.
-    first_hit_fan_boxes``: ``t``, ``j``, ``box_ids``, slopes ``k``) with the ground plane (when
+    """The end of ``camera._cast`` on the numba path: the fan's box hits (:func:`cast_fan_kernel`:
+    ``t``, ``j``, ``box_ids``, slopes ``k``) with the ground plane (when
     ``ground``: sensor height ``oz`` >= 0) and the far cut ``max_t (E, A)`` applied as
     ``raycast._finish`` does, gathered per pixel (``pix``) and turned into scene box indices
     (``sel``), hit points and depths (all float32 as the NumPy path).
@@ -437,3 +437,61 @@ def cull_kernel(center, radius, active, ox, oy, yaw, half_fov, max_range, max_de
     for e in exclude:
         keep[e] = False
     return np.flatnonzero(keep)
+
+
+@_njit
+def cast_fan_kernel(center, length, width, z0, height, cos_yaw, sin_yaw, radius, active, ox, oy, oz, yaw, half_fov,
+                    max_range, max_depth, exclude, u, k):  # pragma: no cover
+    """A sensor's fan against the scene in one call: :func:`cull_kernel`, the culled boxes'
+    ``raycast._Prepared`` terms (relative to the origin ``ox, oy``; ``cos_yaw``, ``sin_yaw``: the
+    scene boxes' float64 trig from NumPy) and ``jit.first_hit_fan_kernel`` (``u (A, 2)``,
+    ``k (E, A)`` float32, as ``raycast._fan_setup`` makes them).
+
+    Returns:
+        ``(t (E, A), j (E, A), sel)``: ``first_hit_fan_kernel``'s outputs, ``j`` indexing ``sel``,
+        the scene indices of the boxes cast against (the culled boxes are all solid).
+    """
+    sel = cull_kernel(center, radius, active, ox, oy, yaw, half_fov, max_range, max_depth, exclude)
+    n = sel.shape[0]
+    c, s = np.empty(n, _F), np.empty(n, _F)
+    bx, by = np.empty(n, _F), np.empty(n, _F)
+    hl, hw = np.empty(n, _F), np.empty(n, _F)
+    za, zb = np.empty(n, _F), np.empty(n, _F)
+    for q in range(n):
+        i = sel[q]
+        c64, s64 = cos_yaw[i], sin_yaw[i]
+        rx, ry = center[i, 0] - ox, center[i, 1] - oy
+        c[q], s[q] = _F(c64), _F(s64)
+        bx[q] = _F(c64 * rx + s64 * ry)
+        by[q] = _F(-s64 * rx + c64 * ry)
+        hl[q], hw[q] = _F(0.5 * length[i]), _F(0.5 * width[i])
+        za[q], zb[q] = _F(z0[i]), _F(z0[i] + height[i])
+    if n == 0 or u.shape[0] == 0 or k.shape[0] == 0:
+        return (np.full(k.shape, np.inf, _F), np.full(k.shape, -1, np.int64), sel)
+    t, j = first_hit_fan_kernel(u, k, c, s, bx, by, hl, hw, za, zb, _F(oz))
+    return t, j, sel
+
+
+@_njit
+def bev_ground_kernel(bits, lx, ly, ex, ey, c, s, half, xmin, ymin, inv, n_channels):  # pragma: no cover
+    """The map channels of ``bev.capture_bev``: per BEV pixel the world point ``(ex + c lx - s ly
+    - half, ey + s lx + c ly - half)`` (float64, the NumPy path's order), its ground raster cell
+    (``GroundRaster.flat_index``) and that cell's channel bits (``bits (H, W)`` uint16, 0
+    outside), unpacked into ``(n_channels, n, n)`` uint8."""
+    n_r, n_c = lx.shape
+    h, w = bits.shape
+    px = np.zeros((n_r, n_c), np.uint16)
+    for r in range(n_r):
+        for q in range(n_c):
+            x = ex + c * lx[r, q] - s * ly[r, q] - half
+            y = ey + s * lx[r, q] + c * ly[r, q] - half
+            col = np.int64(np.floor((x - xmin) * inv))
+            row = np.int64(np.floor((y - ymin) * inv))
+            if 0 <= col < w and 0 <= row < h:
+                px[r, q] = bits[row, col]
+    out = np.empty((n_channels, n_r, n_c), np.uint8)
+    for ch in range(n_channels):
+        for r in range(n_r):
+            for q in range(n_c):
+                out[ch, r, q] = (px[r, q] >> ch) & 1
+    return out

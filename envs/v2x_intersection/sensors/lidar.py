@@ -32,7 +32,7 @@ import numpy as np
 
 from ..geometry import memo_matrix, pose_matrix
 from ..jit import HAVE_JIT
-from ..raycast import GROUND, NO_HIT, first_hit_fan, first_hit_fan_boxes
+from ..raycast import GROUND, NO_HIT, fan_unit_dirs, first_hit_fan
 from .ground import GroundRaster
 from .kernels import lidar_points_kernel
 from .scene import Scene
@@ -124,20 +124,20 @@ def capture_lidar(
     """
     o = t_world_sensor[:3, 3].astype(np.float64)
     yaw = float(np.arctan2(t_world_sensor[1, 0], t_world_sensor[0, 0]))
-    az, k, norm, cs, max_t32 = _rays(spec)
+    az, k, norm, cs, max_t32, k32 = _rays(spec)
     half = np.pi if spec.hfov_deg >= 360.0 else np.deg2rad(spec.hfov_deg) / 2 + 0.01
-    sel = scene.cull(o, yaw, half, spec.max_range, exclude)
     a = yaw + az
-    dirs_h = np.stack([np.cos(a), np.sin(a)], -1)
     c, s = np.float32(np.cos(yaw)), np.float32(np.sin(yaw))
     if HAVE_JIT:
-        t, j, box_ids, k32 = first_hit_fan_boxes(o, dirs_h, k, scene.boxes.subset(sel))
+        t, j, sel = scene.cast_fan(o, yaw, half, spec.max_range, exclude, None, fan_unit_dirs(a), k32)
         pts, rng = lidar_points_kernel(
-            t, j, box_ids, sel, k32, bool(o[2] >= 0), np.float32(o[2]), max_t32, k, norm, cs, c,
+            t, j, np.arange(len(sel)), sel, k32, bool(o[2] >= 0), np.float32(o[2]), max_t32, k, norm, cs, c,
             s, np.float32(o[0]), np.float32(o[1]), NO_HIT, GROUND, scene.geo, scene.normals, scene.sem, scene.inst,
             CLASS_REFLECTIVITY, ground.code, np.float32(ground.xmin), np.float32(ground.ymin),
             np.float32(1.0 / ground.mpp), M_TERRAIN, MATERIAL_SEMANTIC, MATERIAL_REFLECTIVITY)
     else:
+        sel = scene.cull(o, yaw, half, spec.max_range, exclude)
+        dirs_h = np.stack([np.cos(a), np.sin(a)], -1)
         t, idx = first_hit_fan(o, dirs_h, k, scene.boxes.subset(sel), max_t=spec.max_range / norm[:, None])
         e_i, a_i = np.nonzero(idx != NO_HIT)
         idx = idx[e_i, a_i]
@@ -165,13 +165,14 @@ def capture_lidar(
 @functools.lru_cache(maxsize=32)
 def _rays(spec: LidarSpec) -> tuple[np.ndarray, ...]:
     """Azimuths (A,), slopes (E,), 3D length per horizontal metre (E,), (A, 2) float32 cos/sin,
-    and the range cut as horizontal distance, ``(E, A)`` contiguous float32."""
+    and, ``(E, A)`` contiguous float32, the range cut as horizontal distance and the slopes."""
     az = spec.azimuths()
     k = np.tan(spec.elevations())
     cs = np.stack([np.cos(az), np.sin(az)], -1).astype(np.float32)
     norm = np.sqrt(1.0 + k * k)
     max_t = np.broadcast_to(np.asarray(spec.max_range / norm[:, None], np.float32), (len(k), len(az)))
-    return az, k, norm, cs, np.ascontiguousarray(max_t)
+    k32 = np.ascontiguousarray(np.broadcast_to(k[:, None], (len(k), len(az))), np.float32)
+    return az, k, norm, cs, np.ascontiguousarray(max_t), k32
 
 
 def blank_lidar(spec: LidarSpec) -> dict[str, np.ndarray | int]:

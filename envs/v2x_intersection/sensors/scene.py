@@ -32,7 +32,7 @@ from ..classes import BICYCLE, TRAFFIC_CONE, TRAFFIC_LIGHT, TRAFFIC_SIGN
 from ..jit import HAVE_JIT
 from ..raycast import Boxes
 from ..signals import GREEN, RED, YELLOW
-from .kernels import cull_kernel
+from .kernels import cast_fan_kernel, cull_kernel
 from .semantics import actor_instance, static_instance
 
 # style codes (texture atlas rows); S_HEAD + k: light head, k = 0 dark, 1 red, 2 yellow, 3 green
@@ -209,6 +209,38 @@ class Scene:
         if exclude is not None:
             keep[np.asarray(exclude, dtype=np.int64)] = False
         return np.flatnonzero(keep)
+
+
+    def cast_fan(
+        self,
+        origin: np.ndarray,
+        yaw: float,
+        half_fov: float,
+        max_range: float,
+        exclude: np.ndarray | None,
+        max_depth: float | None,
+        u: np.ndarray,
+        k: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A sensor fan's box hits (numba path only): :meth:`cull`, then the box part of
+        ``raycast.first_hit_fan`` on the kept boxes, in one kernel call.
+
+        Args:
+            origin, yaw, half_fov, max_range, exclude, max_depth: as :meth:`cull`.
+            u: ``(A, 2)`` float32 unit directions (``raycast.fan_unit_dirs``). k: ``(E, A)``
+                contiguous float32 slopes.
+
+        Returns:
+            ``(t (E, A), j (E, A), sel)``: horizontal distance to the first box (``inf``: none),
+            its position in ``sel`` (-1: none), and the kept box indices.
+        """
+        b = self.boxes
+        c, s = b.trig()
+        ex = _NONE if exclude is None else np.asarray(exclude, dtype=np.int64)
+        depth = np.inf if max_depth is None else float(max_depth)
+        return cast_fan_kernel(b.center, b.length, b.width, b.z0, b.height, c, s, self.radius, self.active,
+                               float(origin[0]), float(origin[1]), float(origin[2]), float(yaw), float(half_fov),
+                               float(max_range), depth, ex, u, k)
 
 
 @dataclass(frozen=True)

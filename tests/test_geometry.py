@@ -135,6 +135,22 @@ def test_pose_matrix_yaw_only():
     np.testing.assert_allclose(t[3], [0.0, 0.0, 0.0, 1.0])
 
 
+def test_pose_matrix_yaw_only_path_matches_the_full_product():
+    """The yaw-only shortcut gives the bits of ``Rz @ Ry(0) @ Rx(0)`` (zeros' signs included)."""
+    rng = np.random.default_rng(0)
+    yaws = [0.0, -0.0, PI, -PI, PI / 2, -PI / 2, 1e-300, *rng.uniform(-10, 10, 300)]
+    for yaw in yaws:
+        x, y, z = rng.normal(size=3)
+        cy, sy = np.cos(yaw), np.sin(yaw)
+        rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+        ry = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [-0.0, 0.0, 1.0]])
+        rx = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, -0.0], [0.0, 0.0, 1.0]])
+        full = np.eye(4)
+        full[:3, :3] = rz @ ry @ rx
+        full[:3, 3] = (x, y, z)
+        assert pose_matrix(x, y, z, yaw).tobytes() == full.tobytes()
+
+
 def test_pose_matrix_positive_pitch_points_x_down():
     t = pose_matrix(0.0, 0.0, 5.0, 0.0, pitch=np.deg2rad(30.0))
     fwd = transform_points(t, np.array([1.0, 0.0, 0.0])) - t[:3, 3]

@@ -73,6 +73,10 @@ def pose_matrix(x: float, y: float, z: float, yaw: float, pitch: float = 0.0, ro
     Positive pitch tilts the x axis down (nose down), as for a roadside camera looking at the road.
     """
     cy, sy = np.cos(yaw), np.sin(yaw)
+    if pitch == 0.0 and roll == 0.0:  # yaw only: the same bits as the product below (tested)
+        t = np.array([[cy, -sy, 0.0, x], [sy, cy, 0.0, y], [0.0, 0.0, 1.0, z], [0.0, 0.0, 0.0, 1.0]])
+        t[:2, :2] += 0.0  # the product's zeros are +0.0 (-sin(0) is -0.0)
+        return t
     cp, sp = np.cos(pitch), np.sin(pitch)
     cr, sr = np.cos(roll), np.sin(roll)
     rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])

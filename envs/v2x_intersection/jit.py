@@ -145,25 +145,31 @@ def ray_box_intervals_kernel(o, d, c, s, bx, by, hl, hw, z0, z1):  # pragma: no 
     {1, r}``, and ``d`` ``(r, 3)`` as ``segments_blocked_kernel``'s)."""
     r = d.shape[0]
     n = c.shape[0]
-    one, zero, inf = np.float32(1.0), np.float32(0.0), np.float32(np.inf)
     t_in_out = np.empty((r, n), np.float32)
     t_out_out = np.empty((r, n), np.float32)
     for i in range(r):
         io = i if o.shape[0] > 1 else 0
-        ox, oy, oz = o[io, 0], o[io, 1], o[io, 2]
-        d0, d1 = d[i, 0], d[i, 1]
-        invz = one / d[i, 2]
         for j in range(n):
-            t_in, t_out = _slabs_xy(ox, oy, d0, d1, c[j], s[j], bx[j], by[j], hl[j], hw[j])
-            t2 = (z0[j] - oz) * invz
-            t3 = (z1[j] - oz) * invz
-            t_in = _fmax(t_in, _fmin(t2, t3))
-            t_out = _fmin(t_out, _fmax(t2, t3))
-            t_in = _fmax(t_in, zero)
-            gap = (t_in - t_out) * inf  # +inf: miss, -inf: hit, NaN: touch
-            t_in_out[i, j] = _fmax(t_in, gap)
-            t_out_out[i, j] = _fmin(t_out, -gap)
+            t_in_out[i, j], t_out_out[i, j] = ray_box_interval(o, d, io, i, c[j], s[j], bx[j], by[j], hl[j], hw[j],
+                                                               z0[j], z1[j])
     return t_in_out, t_out_out
+
+
+@_njit_inline
+def ray_box_interval(o, d, io, i, c, s, bx, by, hl, hw, z0, z1):  # pragma: no cover
+    """One element of :func:`ray_box_intervals_kernel`: ray ``i`` (origin row ``io``) against one
+    prepared box."""
+    one, zero, inf = np.float32(1.0), np.float32(0.0), np.float32(np.inf)
+    oz = o[io, 2]
+    invz = one / d[i, 2]
+    t_in, t_out = _slabs_xy(o[io, 0], o[io, 1], d[i, 0], d[i, 1], c, s, bx, by, hl, hw)
+    t2 = (z0 - oz) * invz
+    t3 = (z1 - oz) * invz
+    t_in = _fmax(t_in, _fmin(t2, t3))
+    t_out = _fmin(t_out, _fmax(t2, t3))
+    t_in = _fmax(t_in, zero)
+    gap = (t_in - t_out) * inf  # +inf: miss, -inf: hit, NaN: touch
+    return _fmax(t_in, gap), _fmin(t_out, -gap)
 
 
 @_njit

@@ -233,6 +233,13 @@ def _miss_to_inf(t_in: np.ndarray, t_out: np.ndarray) -> np.ndarray:
     return np.fmax(t_in, t_out, out=t_in)
 
 
+def ray_box_setup(origins: np.ndarray, dirs: np.ndarray, boxes: Boxes) -> tuple:
+    """:func:`ray_box_intervals`' inputs as its kernels take them (for callers that evaluate
+    only some ray-box pairs with ``jit.ray_box_interval``): ``(o (1 or R, 3), d (R, 3)`` float32
+    relative to the first origin, the prepared boxes, whether all rays share one origin)."""
+    return _setup(origins, dirs, boxes)
+
+
 def _setup(origins: np.ndarray, dirs: np.ndarray, boxes: Boxes):
     origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
     dirs = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
@@ -460,13 +467,6 @@ def segments_blocked(
             _apply_row_ignore(blk, per_row, sl, False)
             out[sl] = blk.any(axis=1)
     return out
-
-
-def fan_unit_dirs(azimuths: np.ndarray) -> np.ndarray:
-    """``(A, 2)`` float32 unit horizontal directions of world azimuths, as :func:`first_hit_fan`
-    normalizes ``(cos, sin)`` for its kernel (for callers of the sensors' fused fan kernel)."""
-    d = np.stack([np.cos(azimuths), np.sin(azimuths)], -1)
-    return (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(DTYPE)
 
 
 def _fan_setup(origin, dirs_h, slopes, boxes: Boxes, ignore) -> tuple:

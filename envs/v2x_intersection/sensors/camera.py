@@ -42,8 +42,8 @@ import numpy as np
 
 from ..geometry import T_BODY_OPTICAL, camera_intrinsics, memo_matrix, pose_matrix
 from ..jit import HAVE_JIT
-from ..raycast import GROUND, NO_HIT, fan_unit_dirs, first_hit_fan
-from .fan import fan_for
+from ..raycast import GROUND, NO_HIT, first_hit_fan
+from .fan import Fan, fan_for
 from .ground import GroundRaster
 from .kernels import camera_hits_kernel
 from .scene import Scene
@@ -153,19 +153,42 @@ def rsu_camera_spec(
     return CameraSpec("rsu_cam", width, height, RSU_CAMERA_FOV, far=far)
 
 
+def _cast_into(scene: Scene, spec: CameraSpec, t_world_body: np.ndarray, exclude, oversample: float, p, dist, idx,
+               depth) -> Fan:
+    """Cast one camera's rays on the numba path into the buffers ``p, dist, idx, depth`` (its rows
+    of a batch); returns its fan (ray z and sky colours per pixel)."""
+    fan, yaw = fan_for(spec, t_world_body, oversample)
+    o = t_world_body[:3, 3].astype(np.float64)
+    t, j, sel = scene.cast_fan(o, yaw, fan.half_az + 0.02, fan.reach, exclude, spec.far, yaw + fan.az, fan.k32)
+    camera_hits_kernel(
+        t, j, np.arange(len(sel)), sel, fan.k32, bool(o[2] >= 0), np.float32(o[2]), fan.max_t32, fan.pix,
+        fan.dirs, fan.norm, fan.dpt, np.float32(np.cos(yaw)), np.float32(np.sin(yaw)), np.float32(o[0]),
+        np.float32(o[1]), np.float32(spec.far), NO_HIT, GROUND, p, dist, idx, depth)
+    return fan
+
+
+_FAN_RAYS: dict = {}
+
+
+def _fan_rays(fans: list[Fan]) -> tuple[np.ndarray, np.ndarray]:
+    """Ray z ``(P,)`` and sky colours ``(P, 3)`` of several fans' pixels, concatenated (cached per
+    combination of fans: they are constant)."""
+    key = tuple(id(f) for f in fans)
+    hit = _FAN_RAYS.get(key)
+    if hit is None or any(a is not b for a, b in zip(hit[0], fans)):
+        if len(_FAN_RAYS) > 16:
+            _FAN_RAYS.clear()
+        hit = (tuple(fans), np.concatenate([f.dirs[:, 2] for f in fans]), np.concatenate([f.sky for f in fans]))
+        _FAN_RAYS[key] = hit
+    return hit[1], hit[2]
+
+
 def _cast(scene: Scene, spec: CameraSpec, t_world_body: np.ndarray, exclude, oversample: float):
-    """Cast one camera's rays: per pixel hit point, ray z, distance, box index, depth, sky."""
+    """Cast one camera's rays on the NumPy path: per pixel hit point, ray z, distance, box index,
+    depth, sky."""
     fan, yaw = fan_for(spec, t_world_body, oversample)
     o = t_world_body[:3, 3].astype(np.float64)
     a = yaw + fan.az
-    if HAVE_JIT:
-        t, j, sel = scene.cast_fan(o, yaw, fan.half_az + 0.02, fan.reach, exclude, spec.far, fan_unit_dirs(a),
-                                   fan.k32)
-        p, dist, idx, depth = camera_hits_kernel(
-            t, j, np.arange(len(sel)), sel, fan.k32, bool(o[2] >= 0), np.float32(o[2]), fan.max_t32, fan.pix,
-            fan.dirs, fan.norm, fan.dpt, np.float32(np.cos(yaw)), np.float32(np.sin(yaw)), np.float32(o[0]),
-            np.float32(o[1]), np.float32(spec.far), NO_HIT, GROUND)
-        return p, fan.dirs[:, 2], dist, idx, depth, fan.sky
     sel = scene.cull(o, yaw, fan.half_az + 0.02, fan.reach, exclude, spec.far)
     t, idx = first_hit_fan(
         o,
@@ -213,10 +236,21 @@ def render_cameras(
         One dict per camera: ``{"rgb": (H, W, 3) uint8, "depth": (H, W) float32 m,
         "semantic": (H, W) uint8, "instance": (H, W) int32}``.
     """
-    casts = [_cast(scene, sp, po, exclude, oversample) for sp, po in zip(specs, poses)]
-    if not casts:
+    if not specs:
         return []
-    p, dz, dist, idx, depth, sky = (np.concatenate(x) for x in zip(*casts))
+    if HAVE_JIT:
+        n = sum(sp.height * sp.width for sp in specs)
+        p, dist = np.empty((n, 3), np.float32), np.empty(n, np.float32)
+        idx, depth = np.empty(n, np.int64), np.empty(n, np.float32)
+        fans, a = [], 0
+        for sp, po in zip(specs, poses):
+            b = a + sp.height * sp.width
+            fans.append(_cast_into(scene, sp, po, exclude, oversample, p[a:b], dist[a:b], idx[a:b], depth[a:b]))
+            a = b
+        dz, sky = _fan_rays(fans)
+    else:
+        casts = [_cast(scene, sp, po, exclude, oversample) for sp, po in zip(specs, poses)]
+        p, dz, dist, idx, depth, sky = (np.concatenate(x) for x in zip(*casts))
     rgb, sem, inst = shade(scene, ground, p, dz, dist, idx, sky)
     out, a = [], 0
     for sp in specs:

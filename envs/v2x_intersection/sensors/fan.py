@@ -22,7 +22,7 @@ import numpy as np
 
 from ..geometry import camera_intrinsics
 from ..jit import HAVE_JIT
-from ..raycast import Boxes, ray_box_intervals
+from ..raycast import Boxes, ray_box_intervals, ray_box_setup
 from .kernels import unoccluded_counts_kernel
 from .scene import Scene
 from .shading import sky_colors
@@ -193,8 +193,17 @@ def unoccluded_pixels_many(scene: Scene, requests: list) -> list[np.ndarray]:
     dirs[:, 0], dirs[:, 1] = np.cos(a), np.sin(a)
     b = scene.boxes.subset(boxes)
     tall = Boxes.trusted(b.center, b.length, b.width, b.yaw, np.full(len(b), -1e4), np.full(len(b), 2e4))
-    t_in_all, t_out_all = ray_box_intervals(origins, dirs, tall)
     box_inst = scene.inst[boxes]
+    if HAVE_JIT:  # the kernel computes the intervals of each camera's own boxes only
+        o, d, p, _ = ray_box_setup(origins, dirs, tall)
+        start = 0
+        for k, (fan, req) in enumerate(zip(fans, requests)):
+            outs[k] = unoccluded_counts_kernel(
+                o, d, start, p.c, p.s, p.bx, p.by, p.hl, p.hw, p.z0, p.z1, fan.max_t_col, box_inst, b.z0, b.height,
+                float(origins[start, 2]), fan.col_c, fan.neg_row_s, fan.cumw, np.asarray(req[3], np.int64))
+            start += len(fan.az)
+        return outs
+    t_in_all, t_out_all = ray_box_intervals(origins, dirs, tall)
     start = 0
     for k, (fan, req) in enumerate(zip(fans, requests)):
         na = len(fan.az)
@@ -202,10 +211,6 @@ def unoccluded_pixels_many(scene: Scene, requests: list) -> list[np.ndarray]:
         org = origins[start : start + na]
         start += na
         inst_k = np.asarray(req[3], np.int64)
-        if HAVE_JIT:
-            outs[k] = unoccluded_counts_kernel(t_in, t_out, fan.max_t_col, box_inst, b.z0, b.height,
-                                               float(org[0, 2]), fan.col_c, fan.neg_row_s, fan.cumw, inst_k)
-            continue
         mine = np.isin(box_inst, inst_k)
         cols, bi = np.nonzero(np.isfinite(t_in) & mine & (t_in < fan.max_t_col[:, None]))
         if len(cols):

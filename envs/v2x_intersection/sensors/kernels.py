@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..jit import _njit, _njit_inline, first_hit_fan_kernel
+from ..jit import _njit, _njit_inline, first_hit_fan_kernel, ray_box_interval
 
 _F = np.float32
 
@@ -237,22 +237,18 @@ def lidar_points_kernel(t, j, box_ids, sel, k, ground, oz, max_t, k64, norm64, c
 
 @_njit
 def camera_hits_kernel(t, j, box_ids, sel, k, ground, oz, max_t, pix, dirs, norm, dpt, c, s, ox, oy, far, no_hit,
-                       ground_id):  # pragma: no cover
+                       ground_id, p, dist, idx, depth):  # pragma: no cover
     """The end of ``camera._cast`` on the numba path: the fan's box hits (:func:`cast_fan_kernel`:
     ``t``, ``j``, ``box_ids``, slopes ``k``) with the ground plane (when
     ``ground``: sensor height ``oz`` >= 0) and the far cut ``max_t (E, A)`` applied as
     ``raycast._finish`` does, gathered per pixel (``pix``) and turned into scene box indices
     (``sel``), hit points and depths (all float32 as the NumPy path).
 
-    Returns:
-        ``(p (P, 3), dist (P,), idx (P,), depth (P,))``.
+    Writes ``p (P, 3)``, ``dist (P,)``, ``idx (P,)``, ``depth (P,)`` (the caller's buffers, e.g.
+    one camera's rows of a batch).
     """
     n_pix = pix.shape[0]
     t, j, k, max_t = t.ravel(), j.ravel(), k.ravel(), max_t.ravel()
-    p = np.empty((n_pix, 3), np.float32)
-    dist = np.empty(n_pix, np.float32)
-    idx = np.empty(n_pix, np.int64)
-    depth = np.empty(n_pix, np.float32)
     zero = _F(0.0)
     for q in range(n_pix):
         f = pix[q]
@@ -270,7 +266,6 @@ def camera_hits_kernel(t, j, box_ids, sel, k, ground, oz, max_t, pix, dirs, norm
         p[q, 1] = (s * d0 + c * d1) * d + oy
         p[q, 2] = dirs[q, 2] * d + oz
         depth[q] = tt * dpt[q] if hit else far
-    return p, dist, idx, depth
 
 
 @_njit
@@ -287,20 +282,24 @@ def _search(a, x, right):  # pragma: no cover
 
 
 @_njit
-def unoccluded_counts_kernel(t_in, t_out, max_t_col, box_inst, z0, height, oz, col_c, neg_row_s, cumw,
-                             instances):  # pragma: no cover
-    """``fan._counts`` with its selection (``fan.unoccluded_pixels_many``) for one camera.
+def unoccluded_counts_kernel(o, d, start, c_, s_, bx, by, hl, hw, z0t, z1t, max_t_col, box_inst, z0, height, oz,
+                             col_c, neg_row_s, cumw, instances):  # pragma: no cover
+    """``fan._counts`` with its selection (``fan.unoccluded_pixels_many``) for one camera, the
+    column intervals (``raycast.ray_box_intervals`` of the columns' vertical planes and the
+    boxes made infinitely tall) computed for its own instances' boxes only.
 
     Args:
-        t_in, t_out: ``(A, B)`` float32 entry / exit of each column's vertical plane through each
-            candidate box. max_t_col: ``(A,)``. box_inst: each box's instance. z0, height: the
-            boxes' (float64). oz: camera height.
-        col_c, neg_row_s, cumw: the fan's (``-row_s``, increasing). instances: ``(M,)`` unique ids.
+        o, d, c_ ... z1t: ``ray_box_intervals``'s set-up of every camera's columns (rows
+            ``start .. start + A`` are this camera's) against the ``B`` candidate boxes.
+        max_t_col: ``(A,)``. box_inst: each box's instance. z0, height: the boxes' (float64).
+        oz: camera height. col_c, neg_row_s, cumw: the fan's (``-row_s``, increasing).
+        instances: ``(M,)`` unique ids.
 
     Returns:
         ``(M,)`` float64 weighted pixel counts.
     """
-    a_n, b_n = t_in.shape
+    a_n, b_n = max_t_col.shape[0], box_inst.shape[0]
+    io0 = o.shape[0] > 1
     mine = np.zeros(b_n, np.bool_)  # np.isin(box_inst, instances)
     for b in range(b_n):
         for m in range(instances.shape[0]):
@@ -310,10 +309,16 @@ def unoccluded_counts_kernel(t_in, t_out, max_t_col, box_inst, z0, height, oz, c
     cols = np.empty(a_n * b_n, np.int64)
     bis = np.empty(a_n * b_n, np.int64)
     n = 0
+    t_in = np.empty((a_n, b_n), np.float32)
+    t_out = np.empty((a_n, b_n), np.float32)
     for c in range(a_n):
+        i = start + c
         for b in range(b_n):
-            v = t_in[c, b]
-            if np.isfinite(v) and mine[b] and v < max_t_col[c]:
+            if not mine[b]:
+                continue
+            v, w = ray_box_interval(o, d, i if io0 else 0, i, c_[b], s_[b], bx[b], by[b], hl[b], hw[b], z0t[b], z1t[b])
+            t_in[c, b], t_out[c, b] = v, w
+            if np.isfinite(v) and v < max_t_col[c]:
                 cols[n], bis[n] = c, b
                 n += 1
     out = np.zeros(instances.shape[0])
@@ -441,11 +446,12 @@ def cull_kernel(center, radius, active, ox, oy, yaw, half_fov, max_range, max_de
 
 @_njit
 def cast_fan_kernel(center, length, width, z0, height, cos_yaw, sin_yaw, radius, active, ox, oy, oz, yaw, half_fov,
-                    max_range, max_depth, exclude, u, k):  # pragma: no cover
+                    max_range, max_depth, exclude, cos_a, sin_a, k):  # pragma: no cover
     """A sensor's fan against the scene in one call: :func:`cull_kernel`, the culled boxes'
     ``raycast._Prepared`` terms (relative to the origin ``ox, oy``; ``cos_yaw``, ``sin_yaw``: the
-    scene boxes' float64 trig from NumPy) and ``jit.first_hit_fan_kernel`` (``u (A, 2)``,
-    ``k (E, A)`` float32, as ``raycast._fan_setup`` makes them).
+    scene boxes' float64 trig from NumPy) and ``jit.first_hit_fan_kernel`` on the columns'
+    directions ``(cos_a, sin_a)`` (float64 from NumPy) normalized as ``raycast._fan_setup`` does
+    and the slopes ``k (E, A)`` float32.
 
     Returns:
         ``(t (E, A), j (E, A), sel)``: ``first_hit_fan_kernel``'s outputs, ``j`` indexing ``sel``,
@@ -466,7 +472,12 @@ def cast_fan_kernel(center, length, width, z0, height, cos_yaw, sin_yaw, radius,
         by[q] = _F(-s64 * rx + c64 * ry)
         hl[q], hw[q] = _F(0.5 * length[i]), _F(0.5 * width[i])
         za[q], zb[q] = _F(z0[i]), _F(z0[i] + height[i])
-    if n == 0 or u.shape[0] == 0 or k.shape[0] == 0:
+    a_n = cos_a.shape[0]
+    u = np.empty((a_n, 2), _F)
+    for a in range(a_n):
+        norm = np.sqrt(cos_a[a] * cos_a[a] + sin_a[a] * sin_a[a])
+        u[a, 0], u[a, 1] = _F(cos_a[a] / norm), _F(sin_a[a] / norm)
+    if n == 0 or a_n == 0 or k.shape[0] == 0:
         return (np.full(k.shape, np.inf, _F), np.full(k.shape, -1, np.int64), sel)
     t, j = first_hit_fan_kernel(u, k, c, s, bx, by, hl, hw, za, zb, _F(oz))
     return t, j, sel

@@ -219,7 +219,7 @@ class Scene:
         max_range: float,
         exclude: np.ndarray | None,
         max_depth: float | None,
-        u: np.ndarray,
+        azimuths: np.ndarray,
         k: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """A sensor fan's box hits (numba path only): :meth:`cull`, then the box part of
@@ -227,7 +227,7 @@ class Scene:
 
         Args:
             origin, yaw, half_fov, max_range, exclude, max_depth: as :meth:`cull`.
-            u: ``(A, 2)`` float32 unit directions (``raycast.fan_unit_dirs``). k: ``(E, A)``
+            azimuths: ``(A,)`` world azimuths of the fan's columns (rad). k: ``(E, A)``
                 contiguous float32 slopes.
 
         Returns:
@@ -240,7 +240,7 @@ class Scene:
         depth = np.inf if max_depth is None else float(max_depth)
         return cast_fan_kernel(b.center, b.length, b.width, b.z0, b.height, c, s, self.radius, self.active,
                                float(origin[0]), float(origin[1]), float(origin[2]), float(yaw), float(half_fov),
-                               float(max_range), depth, ex, u, k)
+                               float(max_range), depth, ex, np.cos(azimuths), np.sin(azimuths), k)
 
 
 @dataclass(frozen=True)

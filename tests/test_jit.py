@@ -288,8 +288,12 @@ def test_scene_cull_matches_numpy(monkeypatch):
     sc = scene.build_scene(w)
     rng = np.random.default_rng(0)
     kept = 0
-    for k in range(40):
-        o = np.r_[w.table.pos[0] + rng.uniform(-30, 30, 2), 1.8]
+    for k in range(80):
+        if k % 2:  # near the ego
+            o = np.r_[w.table.pos[0] + rng.uniform(-30, 30, 2), 1.8]
+        else:  # next to a box: circles straddling the sensor's plane and the wedge's edges
+            j = rng.integers(len(sc.boxes))
+            o = np.r_[sc.boxes.center[j] + rng.uniform(-1.5, 1.5, 2) * sc.radius[j], 1.8]
         args = (o, rng.uniform(-4, 4), (0.3, 1.0, np.pi)[k % 3], rng.uniform(10, 120),
                 None if k % 2 else np.array([0, 3]), None if k % 5 else 60.0)
         a, b = _both(monkeypatch, lambda args=args: sc.cull(*args))

@@ -504,7 +504,7 @@ def pose_at_kernel(idx, s, points, heading, offset, n_points, gs, base, length):
 
 
 @_njit
-def first_hit_fan_kernel(u, k, c, s, bx, by, hl, hw, z0, z1, oz):  # pragma: no cover
+def first_hit_fan_kernel(u, k, c, s, bx, by, hl, hw, z0, z1, oz, ground, max_t):  # pragma: no cover
     """The box part of ``raycast.first_hit_fan`` in float32: per azimuth column the footprint
     slab test against every box (``_slabs_xy`` with the origin at 0), the boxes the column meets
     ordered by entry distance (stable), then per elevation row the nearest hit among them.
@@ -513,6 +513,11 @@ def first_hit_fan_kernel(u, k, c, s, bx, by, hl, hw, z0, z1, oz):  # pragma: no 
         u: ``(A, 2)`` float32 unit horizontal directions. k: ``(E, A)`` float32 slopes.
         c, s, bx, by, hl, hw, z0, z1: ``(N,)`` float32 box terms (``raycast._Prepared``).
         oz: float32 origin height.
+        ground, max_t: the caller's finishing step (``raycast._finish``, the sensors'
+            ``_finish_ray``): with ``ground`` a descending ray hits ``z = 0`` at ``oz / -k``, and
+            ``max_t (E, A)`` float32 cuts hits farther away (a box wins a tie). A row stops at the
+            first box entered beyond both, which cannot change the finished result; the box part
+            returned for such a ray may be ``inf`` where a farther box was hit.
 
     Returns:
         ``(t (E, A) float32, box (E, A) int64)``: horizontal distance to the first box hit
@@ -562,11 +567,19 @@ def first_hit_fan_kernel(u, k, c, s, bx, by, hl, hw, z0, z1, oz):  # pragma: no 
         if m == 0:
             continue
         for e in range(e_n):
-            invk = one / k[e, a]
+            ke = k[e, a]
+            invk = one / ke
+            cut = max_t[e, a]
+            if ground and ke < zero:
+                tg = oz / -ke
+                if tg < cut:
+                    cut = tg
             best, bj = inf, -1
             for q in range(m):
                 j = cand[q]
                 if bj >= 0 and key[j] >= best:  # sorted by entry: no later box can be nearer
+                    break
+                if key[j] > cut:  # entered beyond the ground / far cut: it loses to them (ties go to boxes)
                     break
                 za = za0[j] * invk
                 zb = za1[j] * invk

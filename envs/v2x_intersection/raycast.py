@@ -494,7 +494,7 @@ def _fan_kernel(origin: np.ndarray, u: np.ndarray, k: np.ndarray, boxes: Boxes) 
     p = _Prepared(boxes, origin[:2])
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         return first_hit_fan_kernel(u.astype(DTYPE), np.ascontiguousarray(k), p.c, p.s, p.bx, p.by, p.hl, p.hw,
-                                    p.z0, p.z1, DTYPE(origin[2]))
+                                    p.z0, p.z1, DTYPE(origin[2]), False, np.broadcast_to(DTYPE(np.inf), k.shape))
 
 
 def first_hit_fan(

@@ -159,7 +159,8 @@ def _cast_into(scene: Scene, spec: CameraSpec, t_world_body: np.ndarray, exclude
     of a batch); returns its fan (ray z and sky colours per pixel)."""
     fan, yaw = fan_for(spec, t_world_body, oversample)
     o = t_world_body[:3, 3].astype(np.float64)
-    t, j, sel = scene.cast_fan(o, yaw, fan.half_az + 0.02, fan.reach, exclude, spec.far, yaw + fan.az, fan.k32)
+    t, j, sel = scene.cast_fan(o, yaw, fan.half_az + 0.02, fan.reach, exclude, spec.far, yaw + fan.az, fan.k32,
+                               fan.max_t32)
     camera_hits_kernel(
         t, j, np.arange(len(sel)), sel, fan.k32, bool(o[2] >= 0), np.float32(o[2]), fan.max_t32, fan.pix,
         fan.dirs, fan.norm, fan.dpt, np.float32(np.cos(yaw)), np.float32(np.sin(yaw)), np.float32(o[0]),

@@ -423,6 +423,11 @@ def cull_kernel(center, radius, active, ox, oy, yaw, half_fov, max_range, max_de
     keep = np.zeros(n, np.bool_)
     ca, sa = np.cos(yaw), np.sin(yaw)
     two_pi = 2 * np.pi
+    # shortcuts for a wedge narrower than a half plane, decided with a margin far above rounding
+    # (1e-9 relative) so that they agree with the exact angle test: a bounding circle wholly
+    # behind the sensor is out; a centre inside the wedge is in
+    narrow = half_fov < np.pi / 2 - 1e-6
+    tan_h = np.tan(half_fov) if narrow else 0.0
     for i in range(n):
         if not active[i]:
             continue
@@ -434,6 +439,13 @@ def cull_kernel(center, radius, active, ox, oy, yaw, half_fov, max_range, max_de
         if max_depth < np.inf and not rx * ca + ry * sa - r < max_depth:
             continue
         if half_fov < np.pi and dist > r:
+            if narrow:
+                fwd = rx * ca + ry * sa
+                if fwd < -r - 1e-9 * dist:
+                    continue
+                if fwd > 0.0 and abs(ry * ca - rx * sa) <= fwd * tan_h * (1.0 - 1e-9) - 1e-9 * dist:
+                    keep[i] = True
+                    continue
             ang = abs((np.arctan2(ry, rx) - yaw + np.pi) % two_pi - np.pi)
             slack = np.arcsin(min(max(r / max(dist, 1e-9), 0.0), 1.0))
             if not ang <= half_fov + slack:
@@ -446,12 +458,13 @@ def cull_kernel(center, radius, active, ox, oy, yaw, half_fov, max_range, max_de
 
 @_njit
 def cast_fan_kernel(center, length, width, z0, height, cos_yaw, sin_yaw, radius, active, ox, oy, oz, yaw, half_fov,
-                    max_range, max_depth, exclude, cos_a, sin_a, k):  # pragma: no cover
+                    max_range, max_depth, exclude, cos_a, sin_a, k, max_t):  # pragma: no cover
     """A sensor's fan against the scene in one call: :func:`cull_kernel`, the culled boxes'
     ``raycast._Prepared`` terms (relative to the origin ``ox, oy``; ``cos_yaw``, ``sin_yaw``: the
     scene boxes' float64 trig from NumPy) and ``jit.first_hit_fan_kernel`` on the columns'
     directions ``(cos_a, sin_a)`` (float64 from NumPy) normalized as ``raycast._fan_setup`` does
-    and the slopes ``k (E, A)`` float32.
+    and the slopes ``k (E, A)`` float32, with the ground (from ``oz >= 0``) and the far cut
+    ``max_t (E, A)`` of the caller's finishing step.
 
     Returns:
         ``(t (E, A), j (E, A), sel)``: ``first_hit_fan_kernel``'s outputs, ``j`` indexing ``sel``,
@@ -479,7 +492,7 @@ def cast_fan_kernel(center, length, width, z0, height, cos_yaw, sin_yaw, radius,
         u[a, 0], u[a, 1] = _F(cos_a[a] / norm), _F(sin_a[a] / norm)
     if n == 0 or a_n == 0 or k.shape[0] == 0:
         return (np.full(k.shape, np.inf, _F), np.full(k.shape, -1, np.int64), sel)
-    t, j = first_hit_fan_kernel(u, k, c, s, bx, by, hl, hw, za, zb, _F(oz))
+    t, j = first_hit_fan_kernel(u, k, c, s, bx, by, hl, hw, za, zb, _F(oz), oz >= 0, max_t)
     return t, j, sel
 
 

@@ -221,6 +221,7 @@ class Scene:
         max_depth: float | None,
         azimuths: np.ndarray,
         k: np.ndarray,
+        max_t: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """A sensor fan's box hits (numba path only): :meth:`cull`, then the box part of
         ``raycast.first_hit_fan`` on the kept boxes, in one kernel call.
@@ -228,7 +229,9 @@ class Scene:
         Args:
             origin, yaw, half_fov, max_range, exclude, max_depth: as :meth:`cull`.
             azimuths: ``(A,)`` world azimuths of the fan's columns (rad). k: ``(E, A)``
-                contiguous float32 slopes.
+                contiguous float32 slopes. max_t: ``(E, A)`` float32 far cut of the finishing
+                step (with the ground plane when ``origin[2] >= 0``); rays stop looking for
+                boxes beyond it (the finished result is the same).
 
         Returns:
             ``(t (E, A), j (E, A), sel)``: horizontal distance to the first box (``inf``: none),
@@ -240,7 +243,7 @@ class Scene:
         depth = np.inf if max_depth is None else float(max_depth)
         return cast_fan_kernel(b.center, b.length, b.width, b.z0, b.height, c, s, self.radius, self.active,
                                float(origin[0]), float(origin[1]), float(origin[2]), float(yaw), float(half_fov),
-                               float(max_range), depth, ex, np.cos(azimuths), np.sin(azimuths), k)
+                               float(max_range), depth, ex, np.cos(azimuths), np.sin(azimuths), k, max_t)
 
 
 @dataclass(frozen=True)

@@ -172,6 +172,10 @@ def _fill_boxes(out, chans, boxes, ex, ey, yaw, mpp) -> None:
     """
     n = out.shape[1]
     c, s = np.cos(yaw), np.sin(yaw)
+    if HAVE_JIT:
+        fill_boxes_kernel(out, np.asarray(chans, np.int64), boxes, float(ex), float(ey), float(c), float(s), float(yaw),
+                          float(mpp))
+        return
     d = boxes[:, :2] - (ex, ey)
     bx, by = c * d[:, 0] + s * d[:, 1], c * d[:, 1] - s * d[:, 0]  # ego frame
     rel = boxes[:, 4] - yaw
@@ -185,10 +189,6 @@ def _fill_boxes(out, chans, boxes, ex, ey, yaw, mpp) -> None:
     r1 = np.clip(np.ceil(n / 2 - 0.5 - (bx - ext[0]) / mpp) + 1, 0, n).astype(int)
     k0 = np.clip(np.floor(n / 2 - 0.5 - (by + ext[1]) / mpp), 0, n).astype(int)
     k1 = np.clip(np.ceil(n / 2 - 0.5 - (by - ext[1]) / mpp) + 1, 0, n).astype(int)
-    if HAVE_JIT:
-        fill_boxes_kernel(out, np.asarray(chans, np.int64), np.flatnonzero((r1 > r0) & (k1 > k0)), r0, r1, k0, k1, bx,
-                          by, rel, hl, hw, float(mpp))
-        return
     for i in np.flatnonzero((r1 > r0) & (k1 > k0)):
         x = (n / 2 - np.arange(r0[i], r1[i]) - 0.5)[:, None] * mpp - bx[i]
         y = (n / 2 - np.arange(k0[i], k1[i]) - 0.5)[None, :] * mpp - by[i]

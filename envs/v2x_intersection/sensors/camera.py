@@ -237,20 +237,28 @@ def render_cameras(
         One dict per camera: ``{"rgb": (H, W, 3) uint8, "depth": (H, W) float32 m,
         "semantic": (H, W) uint8, "instance": (H, W) int32}``.
     """
-    if not specs:
+    return render_camera_jobs(scene, ground, [(sp, po, exclude, oversample) for sp, po in zip(specs, poses)])
+
+
+def render_camera_jobs(scene: Scene, ground: GroundRaster, jobs: list) -> list[dict[str, np.ndarray]]:
+    """:func:`render_cameras` with each camera's own ``exclude`` and ``oversample``: ``jobs`` is
+    ``[(spec, t_world_body, exclude, oversample), ...]`` (e.g. the ego cameras and the RSU
+    camera of a rig, shaded in one batch)."""
+    if not jobs:
         return []
+    specs = [j[0] for j in jobs]
     if HAVE_JIT:
         n = sum(sp.height * sp.width for sp in specs)
         p, dist = np.empty((n, 3), np.float32), np.empty(n, np.float32)
         idx, depth = np.empty(n, np.int64), np.empty(n, np.float32)
         fans, a = [], 0
-        for sp, po in zip(specs, poses):
+        for sp, po, ex, ov in jobs:
             b = a + sp.height * sp.width
-            fans.append(_cast_into(scene, sp, po, exclude, oversample, p[a:b], dist[a:b], idx[a:b], depth[a:b]))
+            fans.append(_cast_into(scene, sp, po, ex, ov, p[a:b], dist[a:b], idx[a:b], depth[a:b]))
             a = b
         dz, sky = _fan_rays(fans)
     else:
-        casts = [_cast(scene, sp, po, exclude, oversample) for sp, po in zip(specs, poses)]
+        casts = [_cast(scene, *job) for job in jobs]
         p, dz, dist, idx, depth, sky = (np.concatenate(x) for x in zip(*casts))
     rgb, sem, inst = shade(scene, ground, p, dz, dist, idx, sky)
     out, a = [], 0
@@ -300,6 +308,7 @@ __all__ = [
     "blank_camera",
     "ego_camera_specs",
     "render_camera",
+    "render_camera_jobs",
     "render_cameras",
     "rsu_camera_spec",
 ]

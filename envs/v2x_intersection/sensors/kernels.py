@@ -375,43 +375,56 @@ def unoccluded_counts_kernel(o, d, start, c_, s_, bx, by, hl, hw, z0t, z1t, max_
 def instance_counts_kernel(instances, values, offset):  # pragma: no cover
     """``groundtruth._count``: how often each of ``instances (M,)`` occurs in ``values`` (1-D
     non-negative instance ids, integer or float; ids >= ``offset`` are static objects)."""
-    max_a = max_s = -1
-    for v in values:
-        if v >= offset:
-            max_s = max(max_s, np.int64(v - offset))
+    max_a = max_s = -1  # tables only as large as the asked ids: other values are skipped
+    for m in range(instances.shape[0]):
+        k = instances[m]
+        if k >= offset:
+            max_s = max(max_s, k - offset)
         else:
-            max_a = max(max_a, np.int64(v))
+            max_a = max(max_a, k)
     ca = np.zeros(max_a + 1, np.int64)
     cs = np.zeros(max_s + 1, np.int64)
     for v in values:
         if v >= offset:
-            cs[np.int64(v - offset)] += 1
+            k = np.int64(v - offset)
+            if k <= max_s:
+                cs[k] += 1
         else:
-            ca[np.int64(v)] += 1
+            k = np.int64(v)
+            if k <= max_a:
+                ca[k] += 1
     out = np.zeros(instances.shape[0], np.int64)
     for m in range(instances.shape[0]):
         k = instances[m]
-        if k >= offset:
-            out[m] = cs[k - offset] if k - offset < cs.shape[0] else 0
-        else:
-            out[m] = ca[k] if k < ca.shape[0] else 0
+        out[m] = cs[k - offset] if k >= offset else ca[k]
     return out
 
 
 @_njit
-def fill_boxes_kernel(out, chans, idx, r0, r1, k0, k1, bx, by, rel, hl, hw, mpp):  # pragma: no cover
-    """The per-box loop of ``bev._fill_boxes``: set ``out[chans[i], r, k]`` for the pixels
-    ``[r0, r1) x [k0, k1)`` of boxes ``idx`` whose centres lie in the box (float64, the NumPy
-    path's operations)."""
+def fill_boxes_kernel(out, chans, boxes, ex, ey, c, s, yaw, mpp):  # pragma: no cover
+    """``bev._fill_boxes``: set ``out[chans[i], r, k]`` for the BEV pixels whose centres lie in box
+    ``i`` (``boxes (N, 5)``: x, y, length, width, yaw; ``c``, ``s``: the ego yaw's cos / sin from
+    NumPy), each box's pixel window from its ego-frame extent (float64, the NumPy path's
+    operations)."""
     n = out.shape[1]
     half = n / 2
-    for i in idx:
-        cr, sr = np.cos(rel[i]), np.sin(rel[i])
-        for r in range(r0[i], r1[i]):
-            x = (half - r - 0.5) * mpp - bx[i]
-            for k in range(k0[i], k1[i]):
-                y = (half - k - 0.5) * mpp - by[i]
-                if abs(cr * x + sr * y) <= hl[i] and abs(cr * y - sr * x) <= hw[i]:
+    for i in range(boxes.shape[0]):
+        d0, d1 = boxes[i, 0] - ex, boxes[i, 1] - ey
+        bx, by = c * d0 + s * d1, c * d1 - s * d0
+        rel = boxes[i, 4] - yaw
+        hl, hw = max(boxes[i, 2], mpp) / 2, max(boxes[i, 3], mpp) / 2
+        cr, sr = np.cos(rel), np.sin(rel)
+        e0 = abs(cr) * hl + abs(sr) * hw
+        e1 = abs(sr) * hl + abs(cr) * hw
+        r0 = int(min(max(np.floor(half - 0.5 - (bx + e0) / mpp), 0), n))
+        r1 = int(min(max(np.ceil(half - 0.5 - (bx - e0) / mpp) + 1, 0), n))
+        k0 = int(min(max(np.floor(half - 0.5 - (by + e1) / mpp), 0), n))
+        k1 = int(min(max(np.ceil(half - 0.5 - (by - e1) / mpp) + 1, 0), n))
+        for r in range(r0, r1):
+            x = (half - r - 0.5) * mpp - bx
+            for k in range(k0, k1):
+                y = (half - k - 0.5) * mpp - by
+                if abs(cr * x + sr * y) <= hl and abs(cr * y - sr * x) <= hw:
                     out[chans[i], r, k] |= 1
 
 

@@ -48,6 +48,7 @@ from .camera import (
     blank_camera,
     ego_camera_specs,
     render_camera,
+    render_camera_jobs,
     render_cameras,
     rsu_camera_spec,
 )
@@ -276,10 +277,17 @@ class SensorRig:
     def capture(self, world) -> dict:
         """Every configured sensor, calibration and ground truth (frame layout: module doc)."""
         scene = self.scene(world)
-        frame: dict = {"tick": int(world.tick), "rsu_unit": active_unit(world)}
-        cams = self.capture_ego_cameras(world, scene)
-        if self.rsu_camera is not None:
-            cams[self.rsu_camera.name] = self.capture_rsu_camera(world, scene)
+        unit = active_unit(world)
+        frame: dict = {"tick": int(world.tick), "rsu_unit": unit}
+        t_we = ego_pose(world)
+        jobs = [(s, t_we @ s.T_parent_body(), _EGO, 1.0) for s in self.ego_cameras]
+        rc = self.rsu_camera
+        if rc is not None and unit >= 0:  # shaded in the ego cameras' batch
+            jobs.append((rc, rsu_pose(world, unit) @ rc.T_parent_body(), None, self.config.rsu_oversample))
+        shots = render_camera_jobs(scene, self.ground(world), jobs)
+        cams = {job[0].name: shot for job, shot in zip(jobs, shots)}
+        if rc is not None and unit < 0:
+            cams[rc.name] = blank_camera(rc)
         frame["cameras"] = cams
         lidars = {}
         if self.config.ego_lidar is not None:

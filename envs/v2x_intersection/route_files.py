@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import functools
 import json
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -178,8 +179,8 @@ def build_episode_from_spec(spec: RouteSpec) -> tuple[Route, list]:
     """The route and placed scenario instances of a route file."""
     from .scenarios import Site, get_scenario
 
-    town = get_town(spec.town)
-    route = route_from_lanes(town, spec.lanes)
+    route = _route_of(spec.town, tuple(spec.lanes))
+    route = dataclasses.replace(route, lanes=list(route.lanes))  # scenarios may replace fields
     out = []
     for inst in spec.scenarios:
         cls = get_scenario(inst.type)
@@ -189,6 +190,16 @@ def build_episode_from_spec(spec: RouteSpec) -> tuple[Route, list]:
         conflict_s = float(route.s[hits[0]] + inst.s_on_key)
         out.append(cls(route, site, conflict_s, inst.params))
     return route, out
+
+
+@functools.lru_cache(maxsize=64)
+def _route_of(town_name: str, lanes: tuple[int, ...]) -> Route:
+    """The dense route along ``lanes`` (deterministic; built once per process, arrays read-only:
+    every episode of a route file starts from it)."""
+    route = route_from_lanes(get_town(town_name), list(lanes))
+    for a in (route.points, route.headings, route.lane_ids, route.commands, route.s):
+        a.setflags(write=False)
+    return route
 
 
 def load_route_file(path: str | Path) -> RouteSpec:

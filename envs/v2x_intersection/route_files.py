@@ -23,9 +23,9 @@ Suites ship with the package in ``suites/`` (``train``, ``val``, ``test50``).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
-import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 

@@ -76,8 +76,8 @@ def _rig(obs_mode: str):
 
     if obs_mode == "bev":
         return SensorRig(SensorConfig(ego_cameras=(), rsu_camera_size=None, ego_lidar=None, rsu_lidar=None,
-                                      groundtruth=False))
-    return SensorRig(SensorConfig(bev=None, groundtruth=False))
+                                      calibration=False, groundtruth=False))
+    return SensorRig(SensorConfig(bev=None, calibration=False, groundtruth=False))
 
 
 def _sensor_spaces(obs_mode: str) -> spaces.Dict:

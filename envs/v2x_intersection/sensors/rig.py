@@ -15,7 +15,7 @@ Frame layout (:meth:`SensorRig.capture`)::
       "cameras": {name: {"rgb", "depth", "semantic", "instance"}}  (ego cameras + "rsu_cam"),
       "lidars": {"lidar": {...}, "rsu_lidar": {...}}  (:mod:`.lidar`),
       "bev": (C, H, W) uint8  (:mod:`.bev`),
-      "calibration": {...}  (:mod:`.calibration`),
+      "calibration": {...}  (:mod:`.calibration`; absent with ``calibration=False``),
       "gt": {"boxes", "ego", "rsu", "fused", "joint"}  (:mod:`.groundtruth`),
     }
 
@@ -74,6 +74,7 @@ class SensorConfig:
         far: far clip of all cameras (m).
         ego_lidar, rsu_lidar: LiDAR specs; ``None`` switches one off.
         bev: BEV spec; ``None`` switches it off.
+        calibration: put the sensors' calibration in the frame.
         groundtruth: compute the three box sets.
         ground_mpp: ground raster resolution (m per pixel).
     """
@@ -86,6 +87,7 @@ class SensorConfig:
     ego_lidar: LidarSpec | None = field(default_factory=ego_lidar_spec)
     rsu_lidar: LidarSpec | None = field(default_factory=rsu_lidar_spec)
     bev: BevSpec | None = field(default_factory=BevSpec)
+    calibration: bool = True
     groundtruth: bool = True
     ground_mpp: float = GROUND_MPP
 
@@ -297,7 +299,8 @@ class SensorRig:
         frame["lidars"] = lidars
         if self.config.bev is not None:
             frame["bev"] = self.capture_bev(world)
-        frame["calibration"] = self.calibration(world)
+        if self.config.calibration:
+            frame["calibration"] = self.calibration(world)
         if self.config.groundtruth:
             frame["gt"] = self.groundtruth(world, frame, scene)
         return frame

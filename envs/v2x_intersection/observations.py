@@ -31,7 +31,7 @@ import functools
 import numpy as np
 from gymnasium import spaces
 
-from .channel import NUM_OBJECT_FIELDS, decode_message, message_space, unpack_objects
+from .channel import message_space
 from .geometry import (
     local_to_world_2d,
     pose_matrix,
@@ -44,6 +44,7 @@ from .jit_perception import route_window_kernel, v2x_rows_kernel, visible_object
 from .rsu import RSU_PITCH
 from .traffic import STOP_LINE_SETBACK
 from .visibility import VISIBLE_THRESHOLD
+from .wire import NUM_OBJECT_FIELDS, decode_message, unpack_objects
 
 EGO_FEATURES = ("speed", "accel", "yaw_rate", "throttle", "steer", "brake", "light_state",
                 "dist_to_stop_line", "route_completion")

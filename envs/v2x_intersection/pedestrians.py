@@ -163,9 +163,12 @@ def ego_in_the_way(t: ActorTable, points: np.ndarray, margin: float = EGO_MARGIN
     return (np.abs(local[:, 0]) < t.length[0] / 2 + margin) & (np.abs(local[:, 1]) < t.width[0] / 2 + margin)
 
 
+_VEHICLE_KINDS = frozenset(int(k) for k in VEHICLE_CLASSES)
+
+
 def _ego_is_vehicle(t: ActorTable) -> bool:
     """Row 0 is an active vehicle (walkers wait only for that)."""
-    return bool(len(t.active) and t.active[0] and t.kind[0] in VEHICLE_CLASSES)
+    return bool(len(t.active) and t.active[0] and int(t.kind[0]) in _VEHICLE_KINDS)
 
 
 def _start_crossing(t: ActorTable, i: int, a: np.ndarray, b: np.ndarray) -> None:

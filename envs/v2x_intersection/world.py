@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from .actors import DRIVER, EGO, PARKED, RIDER, WALKER, ActorTable, draw_size
-from .channel import Channel, ChannelConfig, empty_message, pack_objects, pack_rows
+from .channel import Channel, ChannelConfig, empty_message
 from .classes import (
     BICYCLE,
     CAR,
@@ -46,6 +46,7 @@ from .town import get_town
 from .town.model import DRIVING, RAMP
 from .traffic import free_lane_spot, place_on_lane, step_followers
 from .visibility import VISIBILITY_SAMPLING, VISIBLE_THRESHOLD, visible_fraction
+from .wire import pack_objects, pack_rows
 
 _NO_PAYLOAD = np.zeros(0, np.float32)
 EGO_SENSOR_Z = 1.8  # m, ego camera height (occlusion is judged from here)

@@ -532,6 +532,7 @@ def first_hit_fan_kernel(u, k, c, s, bx, by, hl, hw, z0, z1, oz, ground, max_t):
     g_out = np.empty(n, np.float32)
     key = np.empty(n, np.float32)
     cand = np.empty(n, np.int64)
+    smax = np.empty(n, np.float32)
     za0 = np.empty(n, np.float32)
     za1 = np.empty(n, np.float32)
     cx = np.empty(n)  # box centres relative to the origin, world axes, and bounding radii (broad phase)
@@ -566,6 +567,12 @@ def first_hit_fan_kernel(u, k, c, s, bx, by, hl, hw, z0, z1, oz, ground, max_t):
                 m += 1
         if m == 0:
             continue
+        top = -inf  # suffix maxima of the candidates' tops: a rising ray stops when none is reachable
+        for q in range(m - 1, -1, -1):
+            j = cand[q]
+            if za1[j] > top:
+                top = za1[j]
+            smax[q] = top
         for e in range(e_n):
             ke = k[e, a]
             invk = one / ke
@@ -580,6 +587,10 @@ def first_hit_fan_kernel(u, k, c, s, bx, by, hl, hw, z0, z1, oz, ground, max_t):
                 if bj >= 0 and key[j] >= best:  # sorted by entry: no later box can be nearer
                     break
                 if key[j] > cut:  # entered beyond the ground / far cut: it loses to them (ties go to boxes)
+                    break
+                if ke > zero and key[j] > smax[q] * invk:
+                    # rising: this and every later box is entered (key = entry, sorted) above its top,
+                    # whose crossing z1 * invk is a float32 product, monotonic in z1: all miss
                     break
                 za = za0[j] * invk
                 zb = za1[j] * invk

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from PIL import Image
-from v2xbench.envs.v2x_intersection import render
+from v2xbench.envs.v2x_intersection import video
 from v2xbench.envs.v2x_intersection.classes import PEDESTRIAN
 from v2xbench.envs.v2x_intersection.config import make_config
 from v2xbench.envs.v2x_intersection.render import (
@@ -138,7 +138,7 @@ def test_save_gif_round_trip(tmp_path) -> None:
 
 def test_save_video_errors(tmp_path, monkeypatch) -> None:
     frames = [np.zeros((8, 8, 3), np.uint8)] * 2
-    monkeypatch.setattr(render, "_have_ffmpeg", lambda: False)
+    monkeypatch.setattr(video, "_have_ffmpeg", lambda: False)
     with pytest.raises(RuntimeError, match=r"\.gif"):
         save_video(frames, tmp_path / "clip.mp4")
     with pytest.raises(ValueError, match="no frames"):

@@ -5,7 +5,8 @@ the ego (or the active RSU, the whole map, or a given point). Everything static 
 lanes, markings, crosswalks, parking, buildings, stop signs) is drawn once per town and scale
 into a big cached image; a frame crops that image and draws only what moves on top (signal
 states, the route, RSUs and the active unit's field of view, actors, visibility outlines and a
-text overlay), so a 512 x 512 frame costs a few milliseconds.
+text overlay), so a 512 x 512 frame costs a few milliseconds. The static layer lives in
+:mod:`.render_map`, the colours in :mod:`.render_palette`, video writing in :mod:`.video`.
 
 Colour key (see :func:`render_legend`): ego orange; cars blue; large vehicles purple; pedestrians
 pink; bicycles teal (parked vehicles are shown faded); a cyan outline marks an actor the ego sees,
@@ -18,12 +19,8 @@ ego's remaining route is a blue line.
 from __future__ import annotations
 
 import functools
-import importlib.util
-import os
-from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -31,282 +28,34 @@ from PIL import Image, ImageDraw, ImageFont
 
 from .actors import PARKED, ActorTable
 from .classes import BICYCLE, CAR, LARGE_VEHICLE, PEDESTRIAN
-from .geometry import convex_hull, cut_polyline, dash_polyline, offset_polyline
+from .render_map import StaticMap, static_map
+from .render_palette import (
+    ACTOR_EDGE,
+    BACKGROUND,
+    CLASS_COLORS,
+    EGO_COLOR,
+    EGO_SEEN_COLOR,
+    LIGHT_COLORS,
+    LIGHT_HOUSING,
+    OTHER_COLOR,
+    PARKED_TINT,
+    ROUTE_COLOR,
+    RSU_ACTIVE_COLOR,
+    RSU_COLOR,
+    RSU_FOV_ALPHA,
+    RSU_FOV_EDGE,
+    RSU_FOV_RGB,
+    RSU_SEEN_COLOR,
+    STOP_SIGN,
+    box_quads,
+    mix_rgb,
+)
 from .signals import GREEN, NO_SIGNAL, RED, YELLOW
-from .town.model import CONNECTOR, DRIVING, MERGE, PARKING, RAMP, Town
-from .traffic import STOP_LINE_SETBACK
+from .video import save_video
 
 if TYPE_CHECKING:
     from .world import World
 
-# ----------------------------------------------------------------------------- palette (RGB)
-BACKGROUND = (221, 226, 214)
-SIDEWALK = (226, 212, 182)
-ROAD = (92, 95, 102)
-PARKING_FILL = (122, 124, 130)
-CENTRE_LINE = (112, 115, 123)
-MARK_WHITE = (236, 236, 236)
-MARK_YELLOW = (242, 196, 44)
-CROSSWALK = (238, 238, 238)
-BUILDING_LOW = (204, 202, 197)
-BUILDING_HIGH = (134, 132, 140)
-BUILDING_EDGE = (98, 98, 104)
-STOP_SIGN = (204, 24, 34)
-EGO_COLOR = (255, 136, 0)
-CLASS_COLORS: dict[int, tuple[int, int, int]] = {
-    CAR: (52, 104, 196),
-    LARGE_VEHICLE: (118, 64, 170),
-    PEDESTRIAN: (232, 58, 140),
-    BICYCLE: (0, 150, 136),
-}
-OTHER_COLOR = (90, 90, 90)
-ACTOR_EDGE = (24, 24, 28)
-EGO_SEEN_COLOR = (0, 229, 255)
-RSU_SEEN_COLOR = (255, 0, 255)
-RSU_COLOR = (248, 248, 248)
-RSU_ACTIVE_COLOR = (255, 0, 255)
-RSU_FOV_RGB, RSU_FOV_ALPHA = (236, 64, 255), 0.12
-RSU_FOV_EDGE = (206, 92, 226)
-ROUTE_COLOR = (30, 112, 255)
-PARKED_TINT = (150, 152, 158)
-LIGHT_HOUSING = (28, 28, 32)
-LIGHT_COLORS: dict[int, tuple[int, int, int]] = {
-    GREEN: (36, 204, 72),
-    YELLOW: (255, 204, 0),
-    RED: (232, 28, 28),
-    NO_SIGNAL: (150, 150, 150),
-}
-
-MAX_STATIC_PIXELS = 30_000_000  # cap on a cached static map (beyond it the map is coarser)
-_SUPERSAMPLE_PIXELS = 10_000_000  # static maps up to this size are drawn at 2x and reduced
-_MARGIN_M = 25.0  # m of ground around the town's bounds in the static map
-_CACHE_SIZE = 6  # static maps kept (least recently used dropped first) ...
-_CACHE_BYTES = 320 * 2**20  # ... and at most this many bytes of them
-
-
-# ----------------------------------------------------------------------------- geometry helpers
-def _quads(center: np.ndarray, yaw: np.ndarray, x0, x1, y0, y1) -> np.ndarray:
-    """World corners ``(N, 4, 2)`` of local rectangles ``[x0, x1] x [y0, y1]`` (arrays ``(N,)``)."""
-    lx = np.stack([x1, x0, x0, x1], -1)
-    ly = np.stack([y1, y1, y0, y0], -1)
-    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
-    return np.stack([center[:, :1] + c * lx - s * ly, center[:, 1:] + s * lx + c * ly], -1)
-
-
-def _mix(a: tuple, b: tuple, t: float) -> tuple[int, int, int]:
-    """Linear blend of two RGB colours (``t = 0``: ``a``)."""
-    return tuple(int(round(x + (y - x) * t)) for x, y in zip(a, b))  # type: ignore[return-value]
-
-
-# ----------------------------------------------------------------------------- the static map
-@dataclass
-class StaticMap:
-    """A town's static layer rasterized at a fixed scale.
-
-    Attributes:
-        image: ``(H, W, 3)`` uint8 picture of the whole town (plus a margin).
-        x0: world x (m) of pixel column 0's centre. y1: world y (m) of pixel row 0's centre.
-        mpp: metres per pixel.
-        stop_bars: ``(K, 2, 2)`` world end points of the stop line of each signal-controlled
-            incoming lane; ``stop_lanes (K,)`` are those lanes' ids.
-    """
-
-    image: np.ndarray
-    x0: float
-    y1: float
-    mpp: float
-    stop_bars: np.ndarray
-    stop_lanes: np.ndarray
-
-
-_STATIC_CACHE: OrderedDict[tuple, StaticMap] = OrderedDict()
-
-
-def static_map(town: Town, mpp: float) -> StaticMap:
-    """The cached static map of ``town`` at ``mpp`` metres per pixel (built on first use).
-
-    Building takes 0.1 to 1.5 s per town and scale (drawn at 2x and reduced, for smooth
-    edges); the last few maps are kept (least recently used dropped first).
-
-    Args:
-        town: the road network.
-        mpp: metres per pixel; maps that would exceed :data:`MAX_STATIC_PIXELS` are built
-            coarser (the returned ``mpp`` is then larger than asked and frames are resampled).
-
-    Returns:
-        The :class:`StaticMap`.
-    """
-    xmin, ymin, xmax, ymax = (float(v) for v in town.bounds)
-    w_m, h_m = xmax - xmin + 2 * _MARGIN_M, ymax - ymin + 2 * _MARGIN_M
-    mpp = max(float(mpp), float(np.sqrt(w_m * h_m / MAX_STATIC_PIXELS)))
-    key = (town.name, town.template, town.seed, len(town.lanes), len(town.buildings), round(mpp, 9))
-    hit = _STATIC_CACHE.get(key)
-    if hit is not None:
-        _STATIC_CACHE.move_to_end(key)
-        return hit
-    sm = _build_static(town, mpp)
-    _STATIC_CACHE[key] = sm
-    while len(_STATIC_CACHE) > 1 and (
-        len(_STATIC_CACHE) > _CACHE_SIZE
-        or sum(m.image.nbytes for m in _STATIC_CACHE.values()) > _CACHE_BYTES
-    ):
-        _STATIC_CACHE.popitem(last=False)
-    return sm
-
-
-def _build_static(town: Town, mpp: float) -> StaticMap:
-    """Rasterize a town's static layers (back to front) at ``mpp`` metres per pixel."""
-    xmin, ymin, xmax, ymax = (float(v) for v in town.bounds)
-    x0, y1 = xmin - _MARGIN_M, ymax + _MARGIN_M
-    W = int(np.ceil((xmax - xmin + 2 * _MARGIN_M) / mpp))
-    H = int(np.ceil((ymax - ymin + 2 * _MARGIN_M) / mpp))
-    ss = 2 if W * H <= _SUPERSAMPLE_PIXELS else 1
-    img = Image.new("RGB", (W * ss, H * ss), BACKGROUND)
-    d = ImageDraw.Draw(img)
-    k = ss / mpp  # supersampled pixels per metre
-
-    def px(p: np.ndarray) -> list[tuple[float, float]]:
-        p = np.asarray(p, float).reshape(-1, 2)
-        return list(
-            zip(((p[:, 0] - x0) / mpp + 0.5) * ss - 0.5, ((y1 - p[:, 1]) / mpp + 0.5) * ss - 0.5)
-        )
-
-    def band(points: np.ndarray, width: float, fill: tuple) -> None:
-        poly = np.concatenate([offset_polyline(points, width / 2), offset_polyline(points, -width / 2)[::-1]], 0)
-        d.polygon(px(poly), fill=fill)
-
-    def line(points: np.ndarray, fill: tuple, width_m: float, min_px: float = 1.0) -> None:
-        if len(points) >= 2:
-            d.line(
-                px(points),
-                fill=fill,
-                width=max(int(round(width_m * k)), int(round(min_px * ss))),
-                joint="curve",
-            )
-
-    lanes = town.lanes
-    # sidewalks, with the corners of junctions paved
-    for sw in town.sidewalks:
-        band(sw.points, sw.width, SIDEWALK)
-    for j in town.junctions:
-        if j.control == MERGE:
-            continue
-        ends = [
-            p
-            for sw in town.sidewalks
-            for p in (sw.points[0], sw.points[-1])
-            if np.linalg.norm(p - j.center) < j.radius + 8.0
-        ]
-        if len(ends) >= 3:
-            d.polygon(px(convex_hull(np.array(ends))), fill=SIDEWALK)
-    # drivable area: parking lanes, lanes, junction areas
-    for ln in lanes:
-        if ln.kind == PARKING:
-            band(ln.points, ln.width, PARKING_FILL)
-    for ln in lanes:
-        if ln.kind != PARKING:
-            band(ln.points, ln.width, ROAD)
-    for j in town.junctions:
-        if j.control == MERGE:
-            continue
-        edge = []
-        for lid, ends in [(i, (-1,)) for i in j.incoming] + [(c, (0, -1)) for c in j.connectors]:
-            ln = lanes[lid]
-            for side in (0.5, -0.5):
-                off = offset_polyline(ln.points, side * ln.width)
-                edge.extend(off[e] for e in ends)
-        if len(edge) >= 3:
-            d.polygon(px(convex_hull(np.array(edge))), fill=ROAD)
-    # parking-slot separators
-    if len(town.parking):
-        hl, hw = 3.25, 1.25
-        for x, y, yaw in town.parking:
-            c, s = np.cos(yaw), np.sin(yaw)
-            for e in (-hl, hl):
-                a = np.array([x + c * e - s * hw, y + s * e + c * hw])
-                b = np.array([x + c * e + s * hw, y + s * e - c * hw])
-                line(np.stack([a, b]), MARK_WHITE, 0.12)
-    # faint lane centre lines (connectors show the turning paths)
-    for ln in lanes:
-        if ln.kind in (DRIVING, RAMP, CONNECTOR):
-            line(ln.points, CENTRE_LINE, 0.1)
-    # lane boundary markings, stopped short of junction mouths
-    for ln in lanes:
-        if ln.kind not in (DRIVING, RAMP):
-            continue
-        s0 = STOP_LINE_SETBACK if any(lanes[p].kind == CONNECTOR for p in ln.predecessors) else 0.0
-        s1 = ln.length - (STOP_LINE_SETBACK if ln.junction_ahead >= 0 else 0.0)
-        pts = cut_polyline(ln.points, s0, s1)
-        if len(pts) < 2:
-            continue
-        left, right = offset_polyline(pts, ln.width / 2), offset_polyline(pts, -ln.width / 2)
-        if ln.left >= 0:
-            for dash in dash_polyline(left, 3.0, 6.0):
-                line(dash, MARK_WHITE, 0.15)
-        elif ln.opposite >= 0:
-            line(left, MARK_YELLOW, 0.2)
-        else:
-            line(left, MARK_WHITE, 0.15)
-        if ln.right < 0:
-            line(right, MARK_WHITE, 0.15)
-    # stop lines (signal lanes get a coloured bar on top at render time)
-    bars, bar_lanes = [], []
-    for ln in lanes:
-        if not ln.stop_at_end:
-            continue
-        p, h = town.index.pose_at(np.array([ln.id]), np.array([ln.length - STOP_LINE_SETBACK]))
-        n = np.array([-np.sin(h[0]), np.cos(h[0])]) * ln.width / 2
-        bar = np.stack([p[0] + n, p[0] - n])
-        line(bar, MARK_WHITE, 0.4)
-        bars.append(bar)
-        bar_lanes.append(ln.id)
-    # zebra crossings: bars along the road, repeated across it
-    for cw in town.crosswalks:
-        c = cw.corners
-        e1, e2 = c[1] - c[0], c[2] - c[1]
-        along, across = (e1, e2) if np.linalg.norm(e1) < np.linalg.norm(e2) else (e2, e1)
-        origin = c[0]  # both edge choices start at corner 0 and stay inside the crossing
-        L = float(np.linalg.norm(across))
-        u = across / max(L, 1e-9)
-        for a in np.arange(0.3, L - 0.3, 1.0):
-            q0 = origin + u * a
-            d.polygon(
-                px(np.stack([q0, q0 + u * 0.55, q0 + u * 0.55 + along, q0 + along])), fill=CROSSWALK
-            )
-    # buildings: soft shadow, then the box shaded by height
-    if len(town.buildings):
-        b = town.buildings
-        corners = _quads(b[:, :2], b[:, 4], -b[:, 2] / 2, b[:, 2] / 2, -b[:, 3] / 2, b[:, 3] / 2)
-        heights = town.building_heights
-        for q, h in zip(corners, heights):  # translucent shadow, blended in its own box
-            sq = np.array(px(q + np.array([0.12, -0.12]) * h))
-            b0 = np.maximum(np.floor(sq.min(0)).astype(int) - 1, 0)
-            b1 = np.minimum(np.ceil(sq.max(0)).astype(int) + 2, img.size)
-            if np.all(b1 > b0):
-                mask = Image.new("L", tuple(int(v) for v in b1 - b0), 0)
-                ImageDraw.Draw(mask).polygon([tuple(p) for p in sq - b0], fill=40)
-                img.paste((0, 0, 0), (int(b0[0]), int(b0[1])), mask)
-        for q, h in zip(corners, heights):
-            t = float(np.clip((h - 5.0) / 20.0, 0.0, 1.0))
-            ring = px(q)
-            d.polygon(ring, fill=_mix(BUILDING_LOW, BUILDING_HIGH, t))
-            d.line(ring + ring[:1], fill=BUILDING_EDGE, width=ss)
-    # stop signs
-    r = max(1.2 * k, 5.0 * ss)
-    for x, y, *_ in town.stop_signs:
-        ((cx, cy),) = px(np.array([x, y]))
-        d.regular_polygon((cx, cy, r + 1.2 * ss), 8, rotation=22.5, fill=(255, 255, 255))
-        d.regular_polygon((cx, cy, r), 8, rotation=22.5, fill=STOP_SIGN)
-    if ss > 1:
-        img = img.reduce(ss)
-    return StaticMap(
-        image=np.asarray(img, dtype=np.uint8).copy(),
-        x0=x0,
-        y1=y1,
-        mpp=mpp,
-        stop_bars=np.array(bars, float).reshape(-1, 2, 2),
-        stop_lanes=np.array(bar_lanes, np.int64),
-    )
 
 
 # ----------------------------------------------------------------------------- the view
@@ -636,10 +385,10 @@ def _draw_actors(
     r_rsu = np.where(both, 4.0 * mpp, 2.0 * mpp)
     quads = np.concatenate(
         [
-            _quads(pos, yaw, -L / 2, L / 2, -W / 2, W / 2),
-            _quads(pos, yaw, 0.1 * L, 0.3 * L, -0.36 * W, 0.36 * W),
-            _quads(pos, yaw, -L / 2 - r_ego, L / 2 + r_ego, -W / 2 - r_ego, W / 2 + r_ego),
-            _quads(pos, yaw, -L / 2 - r_rsu, L / 2 + r_rsu, -W / 2 - r_rsu, W / 2 + r_rsu),
+            box_quads(pos, yaw, -L / 2, L / 2, -W / 2, W / 2),
+            box_quads(pos, yaw, 0.1 * L, 0.3 * L, -0.36 * W, 0.36 * W),
+            box_quads(pos, yaw, -L / 2 - r_ego, L / 2 + r_ego, -W / 2 - r_ego, W / 2 + r_ego),
+            box_quads(pos, yaw, -L / 2 - r_rsu, L / 2 + r_rsu, -W / 2 - r_rsu, W / 2 + r_rsu),
         ],
         1,
     )
@@ -650,7 +399,7 @@ def _draw_actors(
     for i, k in enumerate(kind.tolist()):
         col = EGO_COLOR if ego else CLASS_COLORS.get(k, OTHER_COLOR)
         if parked[i]:
-            col = _mix(col, PARKED_TINT, 0.45)
+            col = mix_rgb(col, PARKED_TINT, 0.45)
         q = px[i]
         if k == PEDESTRIAN:
             cx, cy = center[i]
@@ -668,7 +417,7 @@ def _draw_actors(
             d.line([tuple(p) for p in q[8:12] + q[8:9]], fill=EGO_SEEN_COLOR, width=2)
         d.polygon([tuple(p) for p in q[0:4]], fill=col, outline=ACTOR_EDGE)
         if k != BICYCLE:
-            d.polygon([tuple(p) for p in q[4:8]], fill=_mix(col, (255, 255, 255), 0.6))
+            d.polygon([tuple(p) for p in q[4:8]], fill=mix_rgb(col, (255, 255, 255), 0.6))
 
 
 def _nice_length(target: float) -> float:
@@ -786,79 +535,6 @@ def render_legend(width: int = 512) -> np.ndarray:
     return np.asarray(img, dtype=np.uint8)
 
 
-# ----------------------------------------------------------------------------- video
-def _have_ffmpeg() -> bool:
-    return importlib.util.find_spec("imageio_ffmpeg") is not None
-
-
-def save_video(frames: Sequence[np.ndarray], path: str | Path, fps: int = 10) -> Path:
-    """Write frames to an animated GIF (or MP4 when imageio-ffmpeg is installed), atomically.
-
-    The file is written next to ``path`` under a temporary name and renamed into place, so a
-    reader never sees a half-written video.
-
-    Args:
-        frames: ``(H, W, 3)`` uint8 RGB frames, all the same shape (e.g. from
-            :func:`render_topdown`).
-        path: destination ending in ``.gif`` or ``.mp4``.
-        fps: frames per second (the simulator's 10 Hz plays in real time at 10).
-
-    Returns:
-        The written path.
-
-    Raises:
-        ValueError: no frames, frames of different shapes or dtypes, bad ``fps`` or suffix.
-        RuntimeError: ``.mp4`` asked but no ffmpeg backend (imageio-ffmpeg) is installed.
-    """
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in (".gif", ".mp4"):
-        raise ValueError(f"save_video: {path.name!r} must end in .gif or .mp4")
-    if not isinstance(fps, (int, float)) or not fps > 0:
-        raise ValueError(f"save_video: fps={fps!r} must be positive")
-    if len(frames) == 0:
-        raise ValueError("save_video: no frames to write")
-    shape = np.shape(frames[0])
-    for i, f in enumerate(frames):
-        f = np.asarray(f)
-        if f.shape != shape or f.ndim != 3 or f.shape[2] != 3 or f.dtype != np.uint8:
-            raise ValueError(
-                f"save_video: frame {i} is {f.dtype} {f.shape}; all frames must be "
-                f"uint8 (H, W, 3) like frame 0 {shape}"
-            )
-    if suffix == ".mp4" and not _have_ffmpeg():
-        raise RuntimeError(
-            f"save_video: writing {path.name!r} needs an ffmpeg backend (pip install "
-            "imageio-ffmpeg), which is not installed; save as .gif instead"
-        )
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{suffix}")
-    try:
-        if suffix == ".gif":
-            images = [Image.fromarray(np.asarray(f)) for f in frames]
-            images[0].save(
-                tmp,
-                format="GIF",
-                save_all=True,
-                append_images=images[1:],
-                duration=int(round(1000.0 / fps)),
-                loop=0,
-                optimize=False,
-                disposal=1,
-            )
-        else:
-            import imageio.v2 as imageio
-
-            imageio.mimwrite(
-                tmp, [np.asarray(f) for f in frames], fps=fps, format="FFMPEG", macro_block_size=1
-            )
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
-
-
 __all__ = [
     "CLASS_COLORS",
     "EGO_COLOR",
@@ -873,3 +549,4 @@ __all__ = [
     "save_video",
     "static_map",
 ]
+

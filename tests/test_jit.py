@@ -444,3 +444,25 @@ def test_bicycle_step_scalar_matches_numpy():
         got = bicycle_step_scalar(x, y, yaw, v, th, st, br, p.max_accel, p.max_brake, p.drag, p.max_speed,
                                   p.max_steer, p.wheelbase, 0.1)
         assert np.array(got).tobytes() == np.array(want, np.float64).tobytes()
+
+
+def test_expert_travel_time_kernel_matches_numpy(monkeypatch):
+    """``junction.travel_time`` (accelerating, braking, standing, capped, zero distances) on both
+    paths: the same float64 bytes, arrays and scalars."""
+    from v2xbench.agents.expert import junction
+
+    rng = np.random.default_rng(0)
+    n = 20000
+    d, v = rng.uniform(-5, 100, n), rng.uniform(-1, 20, n)
+    a, vmax = rng.uniform(-5, 5, n), rng.uniform(0, 25, n)
+    d[::7], d[::11], v[::5], v[::13] = 0.0, -0.0, 0.0, 0.04
+    a[::3], a[::17], a[::19] = 0.0, 1e-3, -1e-3
+    cases = [(d, v, a, vmax), (d[:50], 3.0, a[:50], 14.0), (40.0, 2.5, 1.2, 10.0), (12.0, 8.0, -4.0, 8.0)]
+    for args in cases:
+        x = junction.travel_time(*args)
+        with monkeypatch.context() as m:
+            m.setattr(junction, "HAVE_JIT", False)
+            y = junction.travel_time(*args)
+        assert x.shape == y.shape and x.tobytes() == y.tobytes()
+    x = junction.travel_time(*cases[0])
+    assert np.isinf(x).any() and (x == 0).any() and ((x > 0) & np.isfinite(x)).any()

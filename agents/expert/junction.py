@@ -25,6 +25,7 @@ from v2xbench.envs.v2x_intersection.town.model import LEFT, MERGE, RIGHT, STOP, 
 from .lanes import LaneMap
 from .objects import Objects
 from .prediction import Forecast
+from .prediction_jit import HAVE_JIT, travel_time_kernel
 from .route_track import RouteTrack
 
 YELLOW_DECEL = 3.5  # m/s^2: stop at yellow when this suffices
@@ -53,6 +54,10 @@ def _end_heading(town, lane: int) -> float:
 def travel_time(d: np.ndarray, v: np.ndarray, a: np.ndarray, vmax: np.ndarray) -> np.ndarray:
     """Time (s) to cover ``d`` m from speed ``v`` at acceleration ``a`` (capped at ``vmax``;
     ``inf`` where a braking actor stops first). Vectorized."""
+    if HAVE_JIT:
+        b = np.broadcast_arrays(np.asarray(d, float), np.asarray(v, float), np.asarray(a, float),
+                                np.asarray(vmax, float))
+        return travel_time_kernel(*(np.ravel(x) for x in b)).reshape(b[0].shape)
     d, v = np.maximum(np.asarray(d, float), 0.0), np.maximum(np.asarray(v, float), 0.0)
     a, vmax = np.asarray(a, float), np.maximum(np.asarray(vmax, float), v)
     out = np.full(np.broadcast(d, v, a).shape, np.inf)
@@ -266,7 +271,8 @@ class JunctionRules:
         # a standing vehicle only matters when it has the right of way and no red light or stop sign
         # holds it before the junction
         stop_lane = np.maximum(self.lmap.br_stop_lane[branch[on]], 0)
-        rule = np.isin(self._signal[stop_lane], (RED, YELLOW)) | self.lmap.br_stop_sign[branch[on]]
+        sig = self._signal[stop_lane]
+        rule = (sig == RED) | (sig == YELLOW) | self.lmap.br_stop_sign[branch[on]]
         held = (stop_s > s0[on] + half_o - 1.0) & (stop_s < d_conf) & rule
         live &= ~still[on] | (prio & ~held)
         hit &= live

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from v2xbench.envs.v2x_intersection.jit import HAVE_JIT, _njit, _np_max, _np_min
 
-__all__ = ["HAVE_JIT", "lane_forecast_kernel"]
+__all__ = ["HAVE_JIT", "lane_forecast_kernel", "travel_time_kernel"]
 
 
 @_njit
@@ -70,3 +70,29 @@ def lane_forecast_kernel(br, s0, lat0, v, accel, length, bike, taus, lat_decay, 
             pos[k, j, 1] = py + lat * dc
             dirn[k, j, 0], dirn[k, j, 1] = dc, ds
     return pos, dirn, stops
+
+
+@_njit
+def travel_time_kernel(d, v, a, vmax):  # pragma: no cover
+    """``junction.travel_time`` element by element on broadcast 1-D float64 inputs (the NumPy
+    path's operations in its order; only IEEE arithmetic and ``sqrt``, so the bits agree)."""
+    out = np.empty(d.shape[0])
+    inf = np.inf
+    for i in range(d.shape[0]):
+        di, vi = _np_max(d[i], 0.0), _np_max(v[i], 0.0)
+        ai, vm = a[i], _np_max(vmax[i], vi)
+        pos = ai > 1e-3
+        t_acc = (vm - vi) / _np_max(ai, 1e-3) if pos else 0.0
+        d_acc = vi * t_acc + 0.5 * ai * (t_acc * t_acc)
+        disc = _np_max(vi * vi + 2.0 * ai * di, 0.0)
+        if pos:
+            t_short = (-vi + np.sqrt(disc)) / _np_max(ai, 1e-3)
+            t = t_short if di <= d_acc else t_acc + (di - d_acc) / _np_max(vm, 1e-3)
+        elif ai < -1e-3:
+            t = (-vi + np.sqrt(disc)) / _np_min(ai, -1e-3) if vi * vi + 2.0 * ai * di >= 0.0 else inf
+        elif vi > 0.05:
+            t = di / _np_max(vi, 1e-6)
+        else:
+            t = 0.0 if di <= 0.0 else inf
+        out[i] = 0.0 if di <= 0.0 else t
+    return out

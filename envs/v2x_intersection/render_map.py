@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 from PIL import Image, ImageDraw
 
-from .geometry import convex_hull, cut_polyline, dash_polyline, offset_polyline
+from .geometry import offset_polyline
 from .render_palette import (
     BACKGROUND,
     BUILDING_EDGE,
@@ -27,8 +27,8 @@ from .render_palette import (
     box_quads,
     mix_rgb,
 )
-from .town.model import CONNECTOR, DRIVING, MERGE, PARKING, RAMP, Town
-from .traffic import STOP_LINE_SETBACK
+from .town.areas import junction_corners, junction_roads, lane_markings, stop_bars
+from .town.model import CONNECTOR, DRIVING, PARKING, RAMP, Town
 
 MAX_STATIC_PIXELS = 30_000_000  # cap on a cached static map (beyond it the map is coarser)
 _SUPERSAMPLE_PIXELS = 10_000_000  # static maps up to this size are drawn at 2x and reduced
@@ -128,17 +128,8 @@ def _build_static(town: Town, mpp: float) -> StaticMap:
     # sidewalks, with the corners of junctions paved
     for sw in town.sidewalks:
         band(sw.points, sw.width, SIDEWALK)
-    for j in town.junctions:
-        if j.control == MERGE:
-            continue
-        ends = [
-            p
-            for sw in town.sidewalks
-            for p in (sw.points[0], sw.points[-1])
-            if np.linalg.norm(p - j.center) < j.radius + 8.0
-        ]
-        if len(ends) >= 3:
-            d.polygon(px(convex_hull(np.array(ends))), fill=SIDEWALK)
+    for hull in junction_corners(town):
+        d.polygon(px(hull), fill=SIDEWALK)
     # drivable area: parking lanes, lanes, junction areas
     for ln in lanes:
         if ln.kind == PARKING:
@@ -146,17 +137,8 @@ def _build_static(town: Town, mpp: float) -> StaticMap:
     for ln in lanes:
         if ln.kind != PARKING:
             band(ln.points, ln.width, ROAD)
-    for j in town.junctions:
-        if j.control == MERGE:
-            continue
-        edge = []
-        for lid, ends in [(i, (-1,)) for i in j.incoming] + [(c, (0, -1)) for c in j.connectors]:
-            ln = lanes[lid]
-            for side in (0.5, -0.5):
-                off = offset_polyline(ln.points, side * ln.width)
-                edge.extend(off[e] for e in ends)
-        if len(edge) >= 3:
-            d.polygon(px(convex_hull(np.array(edge))), fill=ROAD)
+    for hull in junction_roads(town):
+        d.polygon(px(hull), fill=ROAD)
     # parking-slot separators
     if len(town.parking):
         hl, hw = 3.25, 1.25
@@ -171,35 +153,12 @@ def _build_static(town: Town, mpp: float) -> StaticMap:
         if ln.kind in (DRIVING, RAMP, CONNECTOR):
             line(ln.points, CENTRE_LINE, 0.1)
     # lane boundary markings, stopped short of junction mouths
-    for ln in lanes:
-        if ln.kind not in (DRIVING, RAMP):
-            continue
-        s0 = STOP_LINE_SETBACK if any(lanes[p].kind == CONNECTOR for p in ln.predecessors) else 0.0
-        s1 = ln.length - (STOP_LINE_SETBACK if ln.junction_ahead >= 0 else 0.0)
-        pts = cut_polyline(ln.points, s0, s1)
-        if len(pts) < 2:
-            continue
-        left, right = offset_polyline(pts, ln.width / 2), offset_polyline(pts, -ln.width / 2)
-        if ln.left >= 0:
-            for dash in dash_polyline(left, 3.0, 6.0):
-                line(dash, MARK_WHITE, 0.15)
-        elif ln.opposite >= 0:
-            line(left, MARK_YELLOW, 0.2)
-        else:
-            line(left, MARK_WHITE, 0.15)
-        if ln.right < 0:
-            line(right, MARK_WHITE, 0.15)
+    for pts, colour, width in lane_markings(town):
+        line(pts, MARK_WHITE if colour == "white" else MARK_YELLOW, width)
     # stop lines (signal lanes get a coloured bar on top at render time)
-    bars, bar_lanes = [], []
-    for ln in lanes:
-        if not ln.stop_at_end:
-            continue
-        p, h = town.index.pose_at(np.array([ln.id]), np.array([ln.length - STOP_LINE_SETBACK]))
-        n = np.array([-np.sin(h[0]), np.cos(h[0])]) * ln.width / 2
-        bar = np.stack([p[0] + n, p[0] - n])
+    bars, bar_lanes = stop_bars(town)
+    for bar in bars:
         line(bar, MARK_WHITE, 0.4)
-        bars.append(bar)
-        bar_lanes.append(ln.id)
     # zebra crossings: bars along the road, repeated across it
     for cw in town.crosswalks:
         c = cw.corners
@@ -244,8 +203,8 @@ def _build_static(town: Town, mpp: float) -> StaticMap:
         x0=x0,
         y1=y1,
         mpp=mpp,
-        stop_bars=np.array(bars, float).reshape(-1, 2, 2),
-        stop_lanes=np.array(bar_lanes, np.int64),
+        stop_bars=bars,
+        stop_lanes=bar_lanes,
     )
 
 

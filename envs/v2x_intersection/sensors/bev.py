@@ -31,7 +31,7 @@ from PIL import Image, ImageDraw
 from ..classes import BICYCLE, CAR, LARGE_VEHICLE, PEDESTRIAN
 from ..jit import HAVE_JIT
 from ..signals import GREEN, NO_SIGNAL, RED, YELLOW
-from ..traffic import STOP_LINE_SETBACK
+from ..town.areas import stop_bars
 from .ground import GroundRaster
 from .kernels import bev_ground_kernel, fill_boxes_kernel
 from .semantics import (
@@ -122,26 +122,6 @@ def _grid(size: int, mpp: float) -> tuple[np.ndarray, np.ndarray]:
     return np.ascontiguousarray(np.broadcast_to(-off[:, None], (size, size))), np.ascontiguousarray(
         np.broadcast_to(-off[None, :], (size, size))
     )
-
-
-_BARS: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
-
-
-def stop_bars(town) -> tuple[np.ndarray, np.ndarray]:
-    """``(bars (K, 2, 2), lanes (K,))``: stop-line end points (m) of every lane with a stop line."""
-    key = (town.name, town.template, town.seed, len(town.lanes))
-    if key not in _BARS:
-        bars, lanes = [], []
-        for ln in town.lanes:
-            if ln.stop_at_end:
-                p, h = town.index.pose_at(
-                    np.array([ln.id]), np.array([ln.length - STOP_LINE_SETBACK])
-                )
-                n = np.array([-np.sin(h[0]), np.cos(h[0])]) * ln.width / 2
-                bars.append(np.stack([p[0] + n, p[0] - n]))
-                lanes.append(ln.id)
-        _BARS[key] = (np.array(bars, float).reshape(-1, 2, 2), np.array(lanes, np.int64))
-    return _BARS[key]
 
 
 _DILATED: dict[tuple[int, int], tuple[GroundRaster, np.ndarray]] = {}

@@ -22,9 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 from PIL import Image, ImageDraw
 
-from ..geometry import convex_hull, cut_polyline, dash_polyline, offset_polyline
-from ..town.model import CONNECTOR, DRIVING, MERGE, PARKING, RAMP, Town
-from ..traffic import STOP_LINE_SETBACK
+from ..geometry import offset_polyline
+from ..town.areas import junction_corners, junction_roads, lane_markings, stop_bars
+from ..town.model import CONNECTOR, DRIVING, PARKING, RAMP, Town
 from .semantics import (
     CENTRE_BIT,
     M_CROSS_GAP,
@@ -178,34 +178,16 @@ def _build(town: Town, mpp: float) -> GroundRaster:
     lanes = town.lanes
     for sw in town.sidewalks:  # sidewalks with a curb outline, paved junction corners
         band(sw.points, sw.width, M_SIDEWALK, M_CURB)
-    for j in town.junctions:
-        if j.control == MERGE:
-            continue
-        ends = [
-            p
-            for sw in town.sidewalks
-            for p in (sw.points[0], sw.points[-1])
-            if np.linalg.norm(p - j.center) < j.radius + 8.0
-        ]
-        if len(ends) >= 3:
-            d.polygon(px(convex_hull(np.array(ends))), fill=M_SIDEWALK)
+    for hull in junction_corners(town):
+        d.polygon(px(hull), fill=M_SIDEWALK)
     for ln in lanes:
         if ln.kind == PARKING:
             band(ln.points, ln.width, M_PARKING)
     for ln in lanes:
         if ln.kind != PARKING:
             band(ln.points, ln.width, M_ROAD)
-    for j in town.junctions:
-        if j.control == MERGE:
-            continue
-        edge = []
-        for lid, ends in [(i, (-1,)) for i in j.incoming] + [(c, (0, -1)) for c in j.connectors]:
-            ln = lanes[lid]
-            for side in (0.5, -0.5):
-                off = offset_polyline(ln.points, side * ln.width)
-                edge.extend(off[e] for e in ends)
-        if len(edge) >= 3:
-            d.polygon(px(convex_hull(np.array(edge))), fill=M_ROAD)
+    for hull in junction_roads(town):
+        d.polygon(px(hull), fill=M_ROAD)
     for x, y, yaw in town.parking:  # slot separators
         c, s = np.cos(yaw), np.sin(yaw)
         for e in (-3.25, 3.25):
@@ -215,29 +197,10 @@ def _build(town: Town, mpp: float) -> GroundRaster:
     for ln in lanes:  # centre lines (BEV only)
         if ln.kind in (DRIVING, RAMP, CONNECTOR):
             line(ln.points, 1, 0.5, dc)
-    for ln in lanes:  # lane boundary markings, stopped short of junction mouths
-        if ln.kind not in (DRIVING, RAMP):
-            continue
-        s0 = STOP_LINE_SETBACK if any(lanes[p].kind == CONNECTOR for p in ln.predecessors) else 0.0
-        s1 = ln.length - (STOP_LINE_SETBACK if ln.junction_ahead >= 0 else 0.0)
-        pts = cut_polyline(ln.points, s0, s1)
-        if len(pts) < 2:
-            continue
-        left, right = offset_polyline(pts, ln.width / 2), offset_polyline(pts, -ln.width / 2)
-        if ln.left >= 0:
-            for dash in dash_polyline(left, 3.0, 6.0):
-                line(dash, M_MARK_WHITE, 0.15)
-        elif ln.opposite >= 0:
-            line(left, M_MARK_YELLOW, 0.2)
-        else:
-            line(left, M_MARK_WHITE, 0.15)
-        if ln.right < 0:
-            line(right, M_MARK_WHITE, 0.15)
-    for ln in lanes:  # stop lines
-        if ln.stop_at_end:
-            p, hd = town.index.pose_at(np.array([ln.id]), np.array([ln.length - STOP_LINE_SETBACK]))
-            n = np.array([-np.sin(hd[0]), np.cos(hd[0])]) * ln.width / 2
-            line(np.stack([p[0] + n, p[0] - n]), M_STOP_LINE, 0.4)
+    for pts, colour, width in lane_markings(town):  # lane boundary markings
+        line(pts, M_MARK_WHITE if colour == "white" else M_MARK_YELLOW, width)
+    for bar in stop_bars(town)[0]:  # stop lines
+        line(bar, M_STOP_LINE, 0.4)
     code = np.array(img, dtype=np.uint8)
     for cw in town.crosswalks:
         _zebra(code, cw.corners, xmin, ymin, mpp)

@@ -162,7 +162,7 @@ def _cast_into(scene: Scene, spec: CameraSpec, t_world_body: np.ndarray, exclude
     t, j, sel = scene.cast_fan(o, yaw, fan.half_az + 0.02, fan.reach, exclude, spec.far, yaw + fan.az, fan.k32,
                                fan.max_t32)
     camera_hits_kernel(
-        t, j, np.arange(len(sel)), sel, fan.k32, bool(o[2] >= 0), np.float32(o[2]), fan.max_t32, fan.pix,
+        t, j, sel, fan.k32, bool(o[2] >= 0), np.float32(o[2]), fan.max_t32, fan.pix,
         fan.dirs, fan.norm, fan.dpt, np.float32(np.cos(yaw)), np.float32(np.sin(yaw)), np.float32(o[0]),
         np.float32(o[1]), np.float32(spec.far), NO_HIT, GROUND, p, dist, idx, depth)
     return fan

@@ -1,7 +1,13 @@
-"""numba kernels of the sensors: camera rays finished into hit points (:func:`camera_hits_kernel`,
-``camera._cast``), shading (:func:`shade_kernel`, all of ``shading.shade`` but the fog's ``exp``
-and the sky's power, which stay NumPy calls so that both paths use the same transcendental
-functions) and LiDAR returns (:func:`lidar_returns_kernel`).
+"""numba kernels of the sensors, each repeating a NumPy path of its module:
+
+- ray casting: :func:`cull_kernel` (``Scene.cull``) and :func:`cast_fan_kernel` (cull, prepared
+  boxes and ``jit.first_hit_fan_kernel`` in one call, ``Scene.cast_fan``);
+- cameras: :func:`camera_hits_kernel` (rays finished into hit points, ``camera._cast``) and
+  :func:`shade_kernel` (all of ``shading.shade`` but the fog's ``exp`` and the sky's power, which
+  stay NumPy calls so that both paths use the same transcendental functions);
+- LiDAR: :func:`lidar_points_kernel` and :func:`lidar_returns_kernel`;
+- ground truth: :func:`unoccluded_counts_kernel` and :func:`instance_counts_kernel`;
+- BEV: :func:`bev_ground_kernel` (map channels) and :func:`fill_boxes_kernel` (objects).
 
 Every operation is repeated in float32 as NumPy does it: Python-float constants are cast to
 float32 first (NumPy treats them as weak scalars, numba would promote to float64), comparisons
@@ -41,7 +47,8 @@ def _face(geo, j, x, y, z):  # pragma: no cover
 
 @_njit_inline
 def _ground_cell(x, y, xmin, ymin, inv, h, w):  # pragma: no cover
-    """``GroundRaster.flat_index`` for one float32 point: ``(row, col)``, ``(-1, -1)`` outside."""
+    """``GroundRaster.flat_index`` for one point (float32 or float64, as the caller's path):
+    ``(row, col)``, ``(-1, -1)`` outside."""
     cx = np.int64(np.floor((x - xmin) * inv))
     ry = np.int64(np.floor((y - ymin) * inv))
     if 0 <= cx < w and 0 <= ry < h:
@@ -164,11 +171,12 @@ def shade_kernel(p, dz, keep, idx, sky, geo, style, colors, light, sem_box, inst
 
 
 @_njit_inline
-def _finish_ray(tt, jj, box_ids, kk, mt, ground, oz, no_hit, ground_id):  # pragma: no cover
-    """One fan ray after ``raycast._finish``: ``(t, index into the cast boxes' ids)`` from the fan
-    kernel's ``tt``, ``jj`` and the ray's slope ``kk`` and far cut ``mt``, with the ground plane (a
-    box wins a tie) and the far cut applied."""
-    ii = box_ids[jj] if jj >= 0 else no_hit
+def _finish_ray(tt, jj, sel, kk, mt, ground, oz, no_hit, ground_id):  # pragma: no cover
+    """One fan ray after ``raycast._finish``: ``(t, scene box index, ground_id or no_hit)`` from
+    the fan kernel's ``tt``, ``jj`` (a position in ``sel``, the scene indices of the boxes cast
+    against) and the ray's slope ``kk`` and far cut ``mt``, with the ground plane (a box wins a
+    tie) and the far cut applied."""
+    ii = sel[jj] if jj >= 0 else no_hit
     if np.isinf(tt):
         ii = no_hit
     if ground:
@@ -181,7 +189,7 @@ def _finish_ray(tt, jj, box_ids, kk, mt, ground, oz, no_hit, ground_id):  # prag
 
 
 @_njit
-def lidar_points_kernel(t, j, box_ids, sel, k, ground, oz, max_t, k64, norm64, cs, c, s, ox, oy, no_hit, ground_id,
+def lidar_points_kernel(t, j, sel, k, ground, oz, max_t, k64, norm64, cs, c, s, ox, oy, no_hit, ground_id,
                         geo, normals, sem_box, inst_box, class_refl, code, xmin, ymin, inv, terrain, material_sem,
                         material_refl):  # pragma: no cover
     """The end of ``lidar.capture_lidar`` on the numba path: the fan's rays finished
@@ -206,9 +214,7 @@ def lidar_points_kernel(t, j, box_ids, sel, k, ground, oz, max_t, k64, norm64, c
     for e in range(e_n):
         for a in range(a_n):
             f = e * a_n + a
-            tt, ii = _finish_ray(t[f], j[f], box_ids, k[f], max_t[f], ground, oz, no_hit, ground_id)
-            if ii >= 0:
-                ii = sel[ii]
+            tt, ii = _finish_ray(t[f], j[f], sel, k[f], max_t[f], ground, oz, no_hit, ground_id)
             if ii != no_hit:
                 th[n], ei[n], ai[n], idx[n] = tt, e, a, ii
                 n += 1
@@ -236,13 +242,13 @@ def lidar_points_kernel(t, j, box_ids, sel, k, ground, oz, max_t, k64, norm64, c
 
 
 @_njit
-def camera_hits_kernel(t, j, box_ids, sel, k, ground, oz, max_t, pix, dirs, norm, dpt, c, s, ox, oy, far, no_hit,
+def camera_hits_kernel(t, j, sel, k, ground, oz, max_t, pix, dirs, norm, dpt, c, s, ox, oy, far, no_hit,
                        ground_id, p, dist, idx, depth):  # pragma: no cover
     """The end of ``camera._cast`` on the numba path: the fan's box hits (:func:`cast_fan_kernel`:
-    ``t``, ``j``, ``box_ids``, slopes ``k``) with the ground plane (when
-    ``ground``: sensor height ``oz`` >= 0) and the far cut ``max_t (E, A)`` applied as
-    ``raycast._finish`` does, gathered per pixel (``pix``) and turned into scene box indices
-    (``sel``), hit points and depths (all float32 as the NumPy path).
+    ``t``, ``j``, ``sel``, slopes ``k``) with the ground plane (when ``ground``: sensor height
+    ``oz`` >= 0) and the far cut ``max_t (E, A)`` applied as ``raycast._finish`` does, gathered
+    per pixel (``pix``) and turned into scene box indices, hit points and depths (all float32 as
+    the NumPy path).
 
     Writes ``p (P, 3)``, ``dist (P,)``, ``idx (P,)``, ``depth (P,)`` (the caller's buffers, e.g.
     one camera's rows of a batch).
@@ -252,9 +258,7 @@ def camera_hits_kernel(t, j, box_ids, sel, k, ground, oz, max_t, pix, dirs, norm
     zero = _F(0.0)
     for q in range(n_pix):
         f = pix[q]
-        tt, ii = _finish_ray(t[f], j[f], box_ids, k[f], max_t[f], ground, oz, no_hit, ground_id)
-        if ii >= 0:
-            ii = sel[ii]
+        tt, ii = _finish_ray(t[f], j[f], sel, k[f], max_t[f], ground, oz, no_hit, ground_id)
         hit = ii != no_hit
         if not hit:
             tt = zero
@@ -522,9 +526,8 @@ def bev_ground_kernel(bits, lx, ly, ex, ey, c, s, half, xmin, ymin, inv, n_chann
         for q in range(n_c):
             x = ex + c * lx[r, q] - s * ly[r, q] - half
             y = ey + s * lx[r, q] + c * ly[r, q] - half
-            col = np.int64(np.floor((x - xmin) * inv))
-            row = np.int64(np.floor((y - ymin) * inv))
-            if 0 <= col < w and 0 <= row < h:
+            row, col = _ground_cell(x, y, xmin, ymin, inv, h, w)
+            if row >= 0:
                 px[r, q] = bits[row, col]
     out = np.empty((n_channels, n_r, n_c), np.uint8)
     for ch in range(n_channels):

@@ -131,7 +131,7 @@ def capture_lidar(
     if HAVE_JIT:
         t, j, sel = scene.cast_fan(o, yaw, half, spec.max_range, exclude, None, a, k32, max_t32)
         pts, rng = lidar_points_kernel(
-            t, j, np.arange(len(sel)), sel, k32, bool(o[2] >= 0), np.float32(o[2]), max_t32, k, norm, cs, c,
+            t, j, sel, k32, bool(o[2] >= 0), np.float32(o[2]), max_t32, k, norm, cs, c,
             s, np.float32(o[0]), np.float32(o[1]), NO_HIT, GROUND, scene.geo, scene.normals, scene.sem, scene.inst,
             CLASS_REFLECTIVITY, ground.code, np.float32(ground.xmin), np.float32(ground.ymin),
             np.float32(1.0 / ground.mpp), M_TERRAIN, MATERIAL_SEMANTIC, MATERIAL_REFLECTIVITY)

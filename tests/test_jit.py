@@ -205,6 +205,7 @@ def test_world_tick_kernels_match_numpy(monkeypatch, town):
             out.append((_table_bytes(w.table), events, {key: np.asarray(v).tobytes() for key, v in obs.items()
                                                         if not isinstance(v, dict)}))
         assert out[0][0] == out[1][0], f"tick {k}: actor tables differ"
+        assert worlds[0].rng.bit_generator.state == worlds[1].rng.bit_generator.state, f"tick {k}: draws differ"
         assert out[0][1] == out[1][1] and out[0][2] == out[1][2], f"tick {k}: events/observations differ"
     assert worlds[1].table.wait.max() > 0.0  # someone queued: the stop rules ran
 

@@ -1,12 +1,12 @@
 """numba kernels for the NPC tick: car-following, stop lines, junction yielding and the pose
 update of vehicles and bicycles (``traffic.step_followers``), and pedestrians walking their
-sidewalks or crossings (``pedestrians.step_walkers``).
+sidewalks or crossings (``pedestrians.step_walkers``) are in :mod:`.jit_walkers`.
 
 Like :mod:`.jit`, each kernel repeats the NumPy path's float operations in the same order and
 dtype, so both paths give bit-identical results (``tests/test_jit.py``). What draws random
 numbers (lane transitions at a lane's end, lane changes, a walker's choice at a sidewalk's end,
-jaywalking) stays in Python, so the world's one generator is drawn in the same order with or
-without numba.
+jaywalking) draws from the world's generator itself (:mod:`.jit_rng`), in the NumPy path's order,
+so the generator is in the same state after a tick with or without numba.
 """
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ from .actors import EGO as _EGO
 from .actors import PARKED as _PARKED
 from .actors import RIDER as _RIDER
 from .actors import STATIC as _STATIC
-from .actors import WALKER as _WALKER
 from .jit import _njit, _np_max, _np_min, idm_kernel, leaders_kernel, pose_at_kernel
+from .jit_rng import integers, next_double
 from .town.model import PRIORITY as _PRIORITY
 from .town.model import STOP as _STOP
 
@@ -200,108 +200,71 @@ def pose_kernel(idx, lane, s, bike, v_new, lane_arr, s_arr, lat_arr, pos, yaw, l
 
 
 @_njit
-def crossing_kernel(crossing, pos, yaw, speed, cross_from, cross_to, scenario, ego_ok, ego_x, ego_y, ego_yaw,
-                    ego_hl, ego_hw, lookahead, dt):  # pragma: no cover
-    """Walkers ``crossing`` move along their crossing segment (``pedestrians.step_walkers``); a
-    background walker waits while the point ``lookahead`` m ahead of it is inside the ego's box
-    (half extents ``ego_hl``/``ego_hw``, margin included; ``ego_ok``: the ego is a vehicle).
-    In place on ``pos``, ``yaw`` and ``speed`` (scenario walkers stop at the end).
+def followers_tick_kernel(words, buf, plan_lanes, plan_start, plan_len, succ, succ_start, n_succ, active, hold,
+                          behaviour, pos, yaw, length, width, speed, lane_arr, s_arr, v0_arr, stopped_at_sign,
+                          ignore_rules, wait, accel, scenario, plan, plan_pos, lat_arr, lane_signal, speed_limit,
+                          lane_length, stop_at_end, junction_ahead, stop_lane, major, jcenter, jradius, jcontrol,
+                          idm_car, idm_bike, lookahead, setback, dt, blocked_s, stuck_s, left, right, kind,
+                          lane_width, change_rate, points, heading, offset, n_points, gs, base):  # pragma: no cover
+    """``traffic.step_followers`` in one call, in place on the table's columns: car-following
+    (:func:`followers_kernel`), lane transitions at a lane's end (the plan's next lane, else a
+    random successor drawn from ``words``/``buf``, :mod:`.jit_rng`), lane changes (one draw per
+    follower) and the pose update (:func:`pose_kernel`).
+
+    ``plan_lanes[plan_start[p]:plan_start[p] + plan_len[p]]`` is ``World.plans[p]``;
+    ``succ[succ_start[l]:succ_start[l] + n_succ[l]]`` are lane ``l``'s successors.
 
     Returns:
-        ``(M,)`` bool: background walkers that reached the end of their crossing.
-    """
-    m = crossing.shape[0]
-    done = np.zeros(m, np.bool_)
-    c, s = np.cos(ego_yaw), np.sin(ego_yaw)
-    for k in range(m):
-        i = crossing[k]
-        g0 = cross_to[i, 0] - cross_from[i, 0]
-        g1 = cross_to[i, 1] - cross_from[i, 1]
-        l0 = cross_to[i, 0] - pos[i, 0]
-        l1 = cross_to[i, 1] - pos[i, 1]
-        dist = np.sqrt(l0 * l0 + l1 * l1)
-        norm = _np_max(np.sqrt(g0 * g0 + g1 * g1), 1e-9)
-        u0 = g0 / norm
-        u1 = g1 / norm
-        blocked = False
-        if ego_ok and scenario[i] < 0:
-            d0 = (pos[i, 0] + u0 * lookahead) - ego_x
-            d1 = (pos[i, 1] + u1 * lookahead) - ego_y
-            blocked = abs(c * d0 + s * d1) < ego_hl and abs(-s * d0 + c * d1) < ego_hw
-        step = 0.0 if blocked else speed[i] * dt
-        move = _np_min(step, dist)
-        pos[i, 0] += u0 * move
-        pos[i, 1] += u1 * move
-        yaw[i] = np.arctan2(u1, u0)
-        if dist <= step:
-            if scenario[i] < 0:
-                done[k] = True
-            else:
-                speed[i] = 0.0
-    return done
-
-
-@_njit
-def walking_kernel(walking, path, path_s, path_dir, speed, lat, pos, yaw, dt, points, heading, offset, n_points, gs,
-                   base, length):  # pragma: no cover
-    """Walkers ``walking`` advance along their sidewalk polyline (``pedestrians.step_walkers``),
-    in place on ``path_s``, ``pos`` and ``yaw``.
-
-    Returns:
-        ``(M,)`` bool: the walker reached an end of its sidewalk (its arc length was clipped).
-    """
-    m = walking.shape[0]
-    at_end = np.zeros(m, np.bool_)
-    sw = np.empty(m, np.int64)
-    s = np.empty(m)
-    for k in range(m):
-        i = walking[k]
-        sw[k] = path[i]
-        v = path_s[i] + path_dir[i] * speed[i] * dt
-        top = length[sw[k]]
-        at_end[k] = v < 0.0 or v > top
-        v = v if (v > 0.0 or v != v) else 0.0  # np.clip
-        v = v if (v < top or v != v) else top
-        s[k] = v
-        path_s[i] = v
-    p, h = pose_at_kernel(sw, s, points, heading, offset, n_points, gs, base, length)
-    for k in range(m):
-        i = walking[k]
-        pos[i, 0] = p[k, 0] + lat[i] * -np.sin(h[k])
-        pos[i, 1] = p[k, 1] + lat[i] * np.cos(h[k])
-        yaw[i] = h[k] if path_dir[i] > 0 else h[k] + np.pi
-    return at_end
-
-
-@_njit
-def walkers_kernel(active, hold, behaviour, path, path_s, path_dir, speed, lat, pos, yaw, cross_from, cross_to,
-                   scenario, ego_ok, ego_x, ego_y, ego_yaw, ego_hl, ego_hw, lookahead, dt, points, heading, offset,
-                   n_points, gs, base, length):  # pragma: no cover
-    """The deterministic part of ``pedestrians.step_walkers`` in one call: pick the free walkers,
-    move the crossing ones (:func:`crossing_kernel`) and the walking ones
-    (:func:`walking_kernel`).
-
-    Returns:
-        ``(walking rows, crossing rows that finished their crossing, at_end (len(walking),))``.
+        the rows to respawn (dead end or stuck), sorted and unique.
     """
     n = active.shape[0]
-    walking = np.empty(n, np.int64)
-    crossing = np.empty(n, np.int64)
-    nw = nc = 0
+    idx = np.empty(n, np.int64)
+    m = 0
     for i in range(n):
-        if active[i] and not hold[i] and behaviour[i] == _WALKER:
-            if path[i] >= 0:
-                walking[nw] = i
-                nw += 1
+        if active[i] and not hold[i] and (behaviour[i] == _DRIVER or behaviour[i] == _RIDER):
+            idx[m] = i
+            m += 1
+    idx = idx[:m]
+    if m == 0:
+        return idx
+    lane = np.empty(m, np.int64)
+    bike = np.empty(m, np.bool_)
+    for k in range(m):
+        lane[k] = lane_arr[idx[k]]
+        bike[k] = behaviour[idx[k]] == _RIDER
+    gap, dv, s, v_new, stuck, over = followers_kernel(
+        idx, active, hold, behaviour, pos, yaw, length, width, speed, lane_arr, s_arr, v0_arr, stopped_at_sign,
+        ignore_rules, wait, accel, scenario, lane_signal, speed_limit, lane_length, stop_at_end, junction_ahead,
+        stop_lane, major, jcenter, jradius, jcontrol, idm_car, idm_bike, lookahead, setback, dt, blocked_s, stuck_s)
+    respawn = np.empty(over.shape[0] + stuck.shape[0], np.int64)
+    nr = 0
+    for k in over:  # traffic._lane_transitions
+        i = idx[k]
+        while s[k] > lane_length[lane[k]]:
+            p = plan[i]
+            if p >= 0 and plan_pos[i] + 1 < plan_len[p]:
+                plan_pos[i] += 1
+                nxt = plan_lanes[plan_start[p] + plan_pos[i]]
+            elif n_succ[lane[k]] > 0 and p < 0:
+                nxt = succ[succ_start[lane[k]] + integers(words, buf, n_succ[lane[k]])]
             else:
-                crossing[nc] = i
-                nc += 1
-    walking, crossing = walking[:nw], crossing[:nc]
-    done = crossing[crossing_kernel(crossing, pos, yaw, speed, cross_from, cross_to, scenario, ego_ok, ego_x, ego_y,
-                                    ego_yaw, ego_hl, ego_hw, lookahead, dt)]
-    at_end = walking_kernel(walking, path, path_s, path_dir, speed, lat, pos, yaw, dt, points, heading, offset,
-                            n_points, gs, base, length)
-    return walking, done, at_end
+                respawn[nr] = i
+                nr += 1
+                break
+            s[k] -= lane_length[lane[k]]
+            lane[k] = nxt
+            stopped_at_sign[i] = False
+    for i in stuck:
+        respawn[nr] = i
+        nr += 1
+    draws = np.empty(m)
+    for k in range(m):
+        draws[k] = next_double(words)
+    lane_change_kernel(idx, lane, s, gap, dv, bike, draws, lat_arr, active, lane_arr, s_arr, left, right, kind,
+                       lane_length, lane_width)
+    pose_kernel(idx, lane, s, bike, v_new, lane_arr, s_arr, lat_arr, pos, yaw, lane_width, change_rate, dt, points,
+                heading, offset, n_points, gs, base, lane_length)
+    return np.unique(respawn[:nr])
 
 
 @_njit

@@ -15,7 +15,8 @@ from .classes import VEHICLE_CLASSES
 from .draws import signs
 from .geometry import world_to_local_2d
 from .jit import HAVE_JIT
-from .jit_traffic import walkers_kernel
+from .jit_rng import state_views
+from .jit_walkers import walkers_tick_kernel
 from .town.model import PolylineIndex, Town
 
 
@@ -98,18 +99,16 @@ def step_walkers(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, 
 
 def _step_walkers_jit(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, dt: float,
                       jaywalk_prob: float) -> None:
-    """:func:`step_walkers` with the movement in one kernel (the random choices stay here, in the
-    NumPy path's order)."""
+    """:func:`step_walkers` in one kernel, random choices included (drawn from ``rng``'s own
+    state in the NumPy path's order, :mod:`.jit_rng`)."""
     ix = net.index
-    walking, done, at_end = walkers_kernel(
-        t.active, t.hold, t.behaviour, t.path, t.path_s, t.path_dir, t.speed, t.lat, t.pos, t.yaw, t.cross_from,
-        t.cross_to, t.scenario, _ego_is_vehicle(t), float(t.pos[0, 0]), float(t.pos[0, 1]), float(t.yaw[0]),
-        float(t.length[0] / 2 + EGO_MARGIN), float(t.width[0] / 2 + EGO_MARGIN), PED_LOOKAHEAD, dt, ix.points,
-        ix.heading, ix.offset, ix.n_points, ix.gs, ix.base, ix.length)
-    if len(done):
-        _back_on_sidewalk(t, net, rng, done)
-    if len(walking):
-        _ends_and_jaywalk(t, net, rng, dt, jaywalk_prob, walking, at_end)
+    words, buf = state_views(rng)
+    walkers_tick_kernel(
+        words, buf, t.active, t.hold, t.behaviour, t.path, t.path_s, t.path_dir, t.speed, t.lat, t.pos, t.yaw,
+        t.cross_from, t.cross_to, t.scenario, _ego_is_vehicle(t), float(t.pos[0, 0]), float(t.pos[0, 1]),
+        float(t.yaw[0]), float(t.length[0] / 2 + EGO_MARGIN), float(t.width[0] / 2 + EGO_MARGIN), PED_LOOKAHEAD, dt,
+        jaywalk_prob * dt, net.crossings, net.opposite, ix.points, ix.heading, ix.offset, ix.n_points, ix.gs,
+        ix.base, ix.length, ix.owner)
 
 
 def _back_on_sidewalk(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, done: np.ndarray) -> None:

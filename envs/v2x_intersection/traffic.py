@@ -11,7 +11,8 @@ from .draws import pick
 from .dynamics import IDMParams, idm_accel
 from .geometry import row_norms
 from .jit import HAVE_JIT, leaders_kernel
-from .jit_traffic import followers_kernel, lane_change_kernel, pose_kernel
+from .jit_rng import state_views
+from .jit_traffic import followers_tick_kernel
 from .signals import RED, YELLOW
 from .town.model import PRIORITY, STOP, Town
 
@@ -114,27 +115,23 @@ def step_followers(t: ActorTable, town: Town, lane_signal: np.ndarray, rng: np.r
         indices of followers that must be respawned (dead end or stuck).
     """
     ix = town.index
+    if HAVE_JIT:
+        a = _town_arrays(town)
+        words, buf = state_views(rng)
+        plan_lanes, plan_start, plan_len = _flat_plans(plans)
+        return followers_tick_kernel(
+            words, buf, plan_lanes, plan_start, plan_len, a["succ"], a["succ_start"], a["n_succ"], t.active,
+            t.hold, t.behaviour, t.pos, t.yaw, t.length, t.width, t.speed, t.lane, t.s, t.v0, t.stopped_at_sign,
+            t.ignore_rules, t.wait, t.accel, t.scenario, t.plan, t.plan_pos, t.lat, lane_signal, ix.speed_limit,
+            ix.length, ix.stop_at_end, ix.junction_ahead, a["stop_lane"], a["major"], a["center"], a["radius"],
+            a["control"], _IDM_TUPLE, _IDM_BIKE_TUPLE, LOOKAHEAD, STOP_LINE_SETBACK, dt, BLOCKED_RESPAWN_S,
+            STUCK_RESPAWN_S, ix.left, ix.right, ix.kind, ix.width, LANE_CHANGE_RATE, ix.points, ix.heading,
+            ix.offset, ix.n_points, ix.gs, ix.base)
     idx = np.flatnonzero(t.active & ~t.hold & ((t.behaviour == DRIVER) | (t.behaviour == RIDER)))
     if len(idx) == 0:
         return idx
     lane = t.lane[idx]
     bike = t.behaviour[idx] == RIDER
-    if HAVE_JIT:
-        a = _town_arrays(town)
-        gap, dv, s, v_new, stuck, over = followers_kernel(
-            idx, t.active, t.hold, t.behaviour, t.pos, t.yaw, t.length, t.width, t.speed, t.lane, t.s, t.v0,
-            t.stopped_at_sign, t.ignore_rules, t.wait, t.accel, t.scenario, lane_signal, ix.speed_limit,
-            ix.length, ix.stop_at_end, ix.junction_ahead, a["stop_lane"], a["major"], a["center"], a["radius"],
-            a["control"], _IDM_TUPLE, _IDM_BIKE_TUPLE, LOOKAHEAD, STOP_LINE_SETBACK, dt, BLOCKED_RESPAWN_S,
-            STUCK_RESPAWN_S)
-        respawn = _lane_transitions(t, town, idx, lane, s, rng, plans, over) if len(over) else []
-        if len(stuck):
-            respawn.extend(stuck.tolist())
-        lane_change_kernel(idx, lane, s, gap, dv, bike, rng.random(len(idx)), t.lat, t.active, t.lane, t.s, ix.left,
-                           ix.right, ix.kind, ix.length, ix.width)
-        pose_kernel(idx, lane, s, bike, v_new, t.lane, t.s, t.lat, t.pos, t.yaw, ix.width, LANE_CHANGE_RATE, dt,
-                    ix.points, ix.heading, ix.offset, ix.n_points, ix.gs, ix.base, ix.length)
-        return np.unique(np.array(respawn, np.int64)) if respawn else np.zeros(0, np.int64)
     gap, dv, s, v_new, stuck = _follow(t, town, lane_signal, dt, idx, lane, bike)
     respawn = _lane_transitions(t, town, idx, lane, s, rng, plans, np.flatnonzero(s > ix.length[lane]))
     respawn.extend(idx[stuck].tolist())
@@ -227,8 +224,9 @@ def _lane_transitions(t: ActorTable, town: Town, idx: np.ndarray, lane: np.ndarr
 
 def _town_arrays(town: Town) -> dict[str, np.ndarray]:
     """Junction tables for the kernels, cached on the town: ``stop_lane (L,)`` (the lane has a stop
-    sign at its junction ahead), ``major (J, L + 1)`` (``_major_mask`` rows), and the junctions'
-    ``center``, ``radius``, ``control``."""
+    sign at its junction ahead), ``major (J, L + 1)`` (``_major_mask`` rows), the junctions'
+    ``center``, ``radius``, ``control``, and the lane graph's successors as ``succ`` /
+    ``succ_start`` / ``n_succ`` (lane ``l``'s: ``succ[succ_start[l]:succ_start[l] + n_succ[l]]``)."""
     a = town.cache("traffic_arrays")
     if not a:
         ix = town.index
@@ -237,11 +235,27 @@ def _town_arrays(town: Town) -> dict[str, np.ndarray]:
         nj = len(town.junctions)
         major = (np.stack([_major_mask(town, j) for j in range(nj)]) if nj
                  else np.zeros((1, len(town.lanes) + 1), bool))
-        a.update(stop_lane=stop_lane, major=major,
+        n_succ = np.array([len(ln.successors) for ln in town.lanes], np.int64)
+        succ = np.array([k for ln in town.lanes for k in ln.successors], np.int64)
+        a.update(stop_lane=stop_lane, major=major, succ=succ, n_succ=n_succ,
+                 succ_start=np.concatenate([[0], np.cumsum(n_succ)[:-1]]).astype(np.int64),
                  center=np.array([j.center for j in town.junctions], np.float64).reshape(-1, 2),
                  radius=np.array([j.radius for j in town.junctions], np.float64),
                  control=np.array([j.control for j in town.junctions], np.int64))
     return a
+
+
+_NO_PLANS = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64))
+
+
+def _flat_plans(plans: list[list[int]] | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``World.plans`` for the kernel: ``(lanes, start, length)`` with plan ``p`` =
+    ``lanes[start[p]:start[p] + length[p]]``."""
+    if not plans:
+        return _NO_PLANS
+    n = np.array([len(p) for p in plans], np.int64)
+    lanes = np.array([k for p in plans for k in p], np.int64)
+    return lanes, np.concatenate([[0], np.cumsum(n)[:-1]]).astype(np.int64), n
 
 
 def _lane_changes(t, town, idx, lane, s, gap, dv, bike, rng, dt) -> None:

@@ -19,7 +19,7 @@ from .actors import PARKED as _PARKED
 from .actors import RIDER as _RIDER
 from .actors import STATIC as _STATIC
 from .jit import _njit, _np_max, _np_min, idm_kernel, leaders_kernel, pose_at_kernel
-from .jit_rng import integers, next_double
+from .jit_rng import integers, next_double, uniform
 from .town.model import PRIORITY as _PRIORITY
 from .town.model import STOP as _STOP
 
@@ -265,6 +265,62 @@ def followers_tick_kernel(words, buf, plan_lanes, plan_start, plan_len, succ, su
     pose_kernel(idx, lane, s, bike, v_new, lane_arr, s_arr, lat_arr, pos, yaw, lane_width, change_rate, dt, points,
                 heading, offset, n_points, gs, base, lane_length)
     return np.unique(respawn[:nr])
+
+
+@_njit
+def free_lane_spot_kernel(words, buf, lanes, active, pos, ax, ay, min_avoid, clearance, tries, points, heading,
+                          offset, n_points, gs, base, length):  # pragma: no cover
+    """``traffic.free_lane_spot``: a random ``(lane, s)`` on ``lanes`` at least ``clearance`` m
+    from active actors and ``min_avoid`` m from ``(ax, ay)``, drawn from ``words``/``buf``;
+    ``(-1, 0.0)`` when ``tries`` draws found none."""
+    one = np.empty(1, np.int64)
+    at = np.empty(1)
+    for _ in range(tries):
+        lane = lanes[integers(words, buf, lanes.shape[0])]
+        hi = length[lane] - 2.0
+        s = uniform(words, 2.0, hi if not 2.5 > hi else 2.5)  # Python's max(length - 2, 2.5)
+        one[0], at[0] = lane, s
+        p, _ = pose_at_kernel(one, at, points, heading, offset, n_points, gs, base, length)
+        dx, dy = p[0, 0] - ax, p[0, 1] - ay
+        if np.sqrt(dx * dx + dy * dy) < min_avoid:
+            continue
+        busy = False
+        for i in range(active.shape[0]):
+            if active[i]:
+                dx, dy = pos[i, 0] - p[0, 0], pos[i, 1] - p[0, 1]
+                if np.sqrt(dx * dx + dy * dy) < clearance:
+                    busy = True
+                    break
+        if not busy:
+            return lane, s
+    return -1, 0.0
+
+
+@_njit
+def respawn_kernel(words, buf, rows, lanes, active, pos, yaw, speed, lane_arr, s_arr, lat, stopped_at_sign, wait,
+                   scenario, min_avoid, clearance, tries, points, heading, offset, n_points, gs, base,
+                   length):  # pragma: no cover
+    """Step 5 of ``World.step``: each of ``rows`` in order leaves the world (a scenario actor, or no
+    free spot found) or is put back at rest on a free lane spot (:func:`free_lane_spot_kernel`
+    away from the ego, ``traffic.place_on_lane``)."""
+    one = np.empty(1, np.int64)
+    at = np.empty(1)
+    for i in rows:
+        if scenario[i] >= 0:
+            active[i] = False
+            continue
+        lane, s = free_lane_spot_kernel(words, buf, lanes, active, pos, pos[0, 0], pos[0, 1], min_avoid, clearance,
+                                        tries, points, heading, offset, n_points, gs, base, length)
+        if lane < 0:
+            active[i] = False
+            continue
+        one[0], at[0] = lane, s
+        p, h = pose_at_kernel(one, at, points, heading, offset, n_points, gs, base, length)
+        lane_arr[i], s_arr[i], lat[i] = lane, s, 0.0
+        pos[i, 0], pos[i, 1], yaw[i] = p[0, 0], p[0, 1], h[0]
+        stopped_at_sign[i] = False
+        wait[i] = 0.0
+        speed[i] = 0.0
 
 
 @_njit

@@ -12,7 +12,7 @@ from .dynamics import IDMParams, idm_accel
 from .geometry import row_norms
 from .jit import HAVE_JIT, leaders_kernel
 from .jit_rng import state_views
-from .jit_traffic import followers_tick_kernel
+from .jit_traffic import followers_tick_kernel, free_lane_spot_kernel, respawn_kernel
 from .signals import RED, YELLOW
 from .town.model import PRIORITY, STOP, Town
 
@@ -292,12 +292,44 @@ def place_on_lane(t: ActorTable, town: Town, i: int, lane: int, s: float) -> Non
     t.wait[i] = 0.0
 
 
+def respawn_followers(t: ActorTable, town: Town, lanes: np.ndarray, rng: np.random.Generator, rows: np.ndarray,
+            min_avoid: float = 60.0) -> None:
+    """Rows ``rows`` (in order) leave the world, or come back at rest on a free spot of ``lanes``
+    at least ``min_avoid`` m from the ego: scenario actors leave, background NPCs are placed with
+    :func:`free_lane_spot` (and leave when it finds none)."""
+    if HAVE_JIT and len(lanes):
+        ix = town.index
+        words, buf = state_views(rng)
+        respawn_kernel(words, buf, np.asarray(rows, np.int64), np.asarray(lanes, np.int64), t.active, t.pos, t.yaw,
+                       t.speed, t.lane, t.s, t.lat, t.stopped_at_sign, t.wait, t.scenario, float(min_avoid), 10.0, 50,
+                       ix.points, ix.heading, ix.offset, ix.n_points, ix.gs, ix.base, ix.length)
+        return
+    for i in rows:
+        if t.scenario[i] >= 0:
+            t.active[i] = False
+            continue
+        spot = free_lane_spot(t, town, lanes, rng, t.pos[0], min_avoid)
+        if spot is None:
+            t.active[i] = False
+        else:
+            place_on_lane(t, town, int(i), *spot)
+            t.speed[i] = 0.0
+
+
 def free_lane_spot(t: ActorTable, town: Town, lanes: np.ndarray, rng: np.random.Generator,
                    avoid: np.ndarray, min_avoid: float, clearance: float = 10.0,
                    tries: int = 50) -> tuple[int, float] | None:
     """A random ``(lane, s)`` on ``lanes`` at least ``clearance`` m from actors and ``min_avoid`` m
     from ``avoid (2,)``; ``None`` if none found in ``tries`` draws."""
     ix = town.index
+    if HAVE_JIT:
+        if len(lanes) == 0:
+            raise ValueError("cannot pick from an empty sequence")
+        words, buf = state_views(rng)
+        lane, s = free_lane_spot_kernel(words, buf, np.asarray(lanes, np.int64), t.active, t.pos, float(avoid[0]),
+                                        float(avoid[1]), float(min_avoid), float(clearance), int(tries), ix.points,
+                                        ix.heading, ix.offset, ix.n_points, ix.gs, ix.base, ix.length)
+        return None if lane < 0 else (int(lane), float(s))
     for _ in range(tries):
         lane = int(pick(rng, lanes))
         s = float(rng.uniform(2.0, max(ix.length[lane] - 2.0, 2.5)))

@@ -44,7 +44,7 @@ from .rsu import RSUSet, deploy, select_active
 from .signals import SignalPlan
 from .town import get_town
 from .town.model import DRIVING, RAMP
-from .traffic import free_lane_spot, place_on_lane, step_followers
+from .traffic import free_lane_spot, place_on_lane, respawn_followers, step_followers
 from .visibility import VISIBILITY_SAMPLING, VISIBLE_THRESHOLD, visible_fraction
 from .wire import pack_objects, pack_rows
 
@@ -304,16 +304,8 @@ class World:
         for sc in self.scenarios:
             sc.tick(self)
         # 5. respawn (scenario actors that reach the end of their plan leave the world)
-        for i in respawn:
-            if t.scenario[i] >= 0:
-                t.active[i] = False
-                continue
-            spot = free_lane_spot(t, self.town, self._drive_lanes, self.rng, t.pos[0], 60.0)
-            if spot is None:
-                t.active[i] = False
-            else:
-                place_on_lane(t, self.town, int(i), *spot)
-                t.speed[i] = 0.0
+        if len(respawn):
+            respawn_followers(t, self.town, self._drive_lanes, self.rng, respawn, 60.0)
         # 6. collisions and events
         contacts = self.collisions.ego_contacts(t)
         moved = float(np.linalg.norm(t.pos[0] - old))

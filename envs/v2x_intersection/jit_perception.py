@@ -182,6 +182,33 @@ def perceive_kernel(pos, length, width, yaw, height, active, static_boxes, stati
 
 
 @_njit
+def perceive_all_kernel(rsu_pose, rsu_kind, trigger_kind, preference, max_angle, slots, pos, length, width, yaw,
+                        height, active, static_boxes, static_heights, static_cos, static_sin, ego_z, ego_r2, ego_range,
+                        rsu_r2, rsu_range, half_fov, levels, pattern, shrink, lo, hi):  # pragma: no cover
+    """``world.World._perceive`` in one call: the RSU selection (:func:`select_active_kernel`;
+    all ``-1`` without units), then :func:`perceive_kernel` from the selected units' poses.
+
+    Returns:
+        ``(active_rsu (slots,), ego_vis (N,), rsu_vis (slots, N))``.
+    """
+    if rsu_pose.shape[0] == 0:
+        active_rsu = np.full(slots, -1, np.int64)
+    else:
+        active_rsu = select_active_kernel(rsu_pose, rsu_kind, trigger_kind, pos[0, 0], pos[0, 1], yaw[0], rsu_range,
+                                          slots, preference, max_angle)
+    pose = np.full((slots, 4), np.nan)
+    for k in range(slots):
+        u = active_rsu[k]
+        if u >= 0:
+            for j in range(4):
+                pose[k, j] = rsu_pose[u, j]
+    ego_vis, rsu_vis = perceive_kernel(pos, length, width, yaw, height, active, static_boxes, static_heights,
+                                       static_cos, static_sin, ego_z, ego_r2, ego_range, pose, rsu_r2, rsu_range,
+                                       half_fov, levels, pattern, shrink, lo, hi)
+    return active_rsu, ego_vis, rsu_vis
+
+
+@_njit
 def route_monitor_kernel(route_points, progress, ex, ey, points, pid, owner, offset, n_points, gs, base, heading,
                          length):  # pragma: no cover
     """The geometric part of ``infractions.EventMonitor.update``: the new route progress (the

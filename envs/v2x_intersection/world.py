@@ -16,6 +16,8 @@ The adapters (PettingZoo, Gymnasium, TorchRL) only turn this state into observat
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .actors import DRIVER, EGO, PARKED, RIDER, WALKER, ActorTable, draw_size
@@ -35,12 +37,12 @@ from .dynamics import VehicleParams, bicycle_step, bicycle_step_scalar
 from .geometry import row_norms, world_to_local_2d
 from .infractions import EventMonitor
 from .jit import HAVE_JIT
-from .jit_perception import object_rows_kernel, perceive_kernel
+from .jit_perception import object_rows_kernel, perceive_all_kernel
 from .pedestrians import SidewalkNetwork, step_walkers
 from .physics import CollisionWorld
 from .raycast import Boxes
 from .routes import Route, random_route
-from .rsu import RSUSet, deploy, select_active
+from .rsu import KIND_TRIGGER, TRIGGER_PREFERENCE_M, RSUSet, deploy, select_active
 from .signals import SignalPlan
 from .town import get_town
 from .town.model import DRIVING, RAMP
@@ -52,6 +54,8 @@ _NO_PAYLOAD = np.zeros(0, np.float32)
 EGO_SENSOR_Z = 1.8  # m, ego camera height (occlusion is judged from here)
 EGO_LENGTH, EGO_WIDTH, EGO_HEIGHT = 4.7, 1.9, 1.5  # m
 RSU_HFOV = np.deg2rad(120.0)  # rad, RSU LiDAR horizontal field of view
+_TRIGGER_PREFERENCE = float(TRIGGER_PREFERENCE_M)
+_FACING = float(np.deg2rad(100.0))  # rad, rsu.select_active's facing test
 
 
 class StepError(RuntimeError):
@@ -64,6 +68,9 @@ class World:
     def __init__(self, config: EnvConfig) -> None:
         self.config = config
         self.params = VehicleParams()
+        pr = self.params
+        self._bicycle_params = (pr.max_accel, pr.max_brake, pr.drag, pr.max_speed, pr.max_steer, pr.wheelbase,
+                                config.dt)
         self.channel_config = ChannelConfig(
             latency_ticks=config.latency_ticks, loss_prob=config.loss_prob,
             bandwidth_bytes_per_s=config.bandwidth_bytes_per_s,
@@ -286,10 +293,9 @@ class World:
         throttle, steer, brake = (float(c) for c in control)
         old = t.pos[0].copy()
         if HAVE_JIT:
-            pr = self.params
-            x, y, yaw, v, a = bicycle_step_scalar(
-                t.pos[0, 0], t.pos[0, 1], t.yaw[0], t.speed[0], throttle, steer, brake, pr.max_accel, pr.max_brake,
-                pr.drag, pr.max_speed, pr.max_steer, pr.wheelbase, cfg.dt)
+            x0, y0 = float(old[0]), float(old[1])
+            x, y, yaw, v, a = bicycle_step_scalar(x0, y0, t.yaw[0], t.speed[0], throttle, steer, brake,
+                                                  *self._bicycle_params)
         else:
             x, y, yaw, v, a = bicycle_step(t.pos[0, 0], t.pos[0, 1], t.yaw[0], t.speed[0], throttle, steer, brake,
                                            self.params, cfg.dt)
@@ -308,7 +314,11 @@ class World:
             respawn_followers(t, self.town, self._drive_lanes, self.rng, respawn, 60.0)
         # 6. collisions and events
         contacts = self.collisions.ego_contacts(t)
-        moved = float(np.linalg.norm(t.pos[0] - old))
+        if HAVE_JIT:  # np.linalg.norm of the (2,) step: sqrt of the dot product, the same float
+            dx, dy = float(t.pos[0, 0]) - x0, float(t.pos[0, 1]) - y0
+            moved = math.sqrt(dx * dx + dy * dy)
+        else:
+            moved = float(np.linalg.norm(t.pos[0] - old))
         self.last_events = self.monitor.update(self.tick + 1, t, contacts, self.lane_signal, moved)
         for sc in self.scenarios:  # the progress just moved: a route's last scenario may be passed
             sc.check_passed(self)
@@ -335,17 +345,14 @@ class World:
     def _perceive(self) -> None:
         """Visible fraction of every actor from the ego and from each active RSU."""
         cfg, t = self.config, self.table
-        self.active_rsu = select_active(self.rsus, t.pos[0], float(t.yaw[0]), cfg.rsu_range, cfg.rsu_slots)
         if HAVE_JIT:
-            pose = np.full((cfg.rsu_slots, 4), np.nan)
-            for k, u in enumerate(self.active_rsu):
-                if u >= 0:
-                    pose[k] = self.rsus.pose[u]
-            self.ego_vis, self.rsu_vis = perceive_kernel(
-                t.pos, t.length, t.width, t.yaw, t.height, t.active, self.static_boxes, self.static_heights,
-                *self._static_trig, EGO_SENSOR_Z, float(cfg.ego_range) ** 2, float(cfg.ego_range), pose,
+            self.active_rsu, self.ego_vis, self.rsu_vis = perceive_all_kernel(
+                self.rsus.pose, self.rsus.kind, KIND_TRIGGER, _TRIGGER_PREFERENCE, _FACING, int(cfg.rsu_slots), t.pos,
+                t.length, t.width, t.yaw, t.height, t.active, self.static_boxes, self.static_heights,
+                *self._static_trig, EGO_SENSOR_Z, float(cfg.ego_range) ** 2, float(cfg.ego_range),
                 float(cfg.rsu_range) ** 2, float(cfg.rsu_range), 0.5 * RSU_HFOV, *VISIBILITY_SAMPLING)
             return
+        self.active_rsu = select_active(self.rsus, t.pos[0], float(t.yaw[0]), cfg.rsu_range, cfg.rsu_slots)
         boxes = self.occluders()
         n = len(t)
         targets = np.flatnonzero(t.active)

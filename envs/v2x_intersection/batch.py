@@ -15,7 +15,8 @@ A batch of ``N`` worlds gives exactly the observations, rewards and flags of ``N
 (``tests/test_batch.py``).
 
 What is vectorized across worlds in this version: action validation, the reward/flag arrays and
-the observation buffers. The world tick itself (traffic, pedestrians, scenarios, perception) runs
+the observation buffers (with numba, in ``objects`` mode, each world's observation kernel writes
+straight into its row). The world tick itself (traffic, pedestrians, scenarios, perception) runs
 world after world; ``benchmarks/`` measures where the time goes.
 """
 
@@ -30,7 +31,8 @@ from gymnasium.vector.utils import batch_space
 
 from .config import make_config
 from .episode import EpisodeTracker
-from .observations import ego_action_space, ego_observation, ego_space
+from .jit import HAVE_JIT
+from .observations import ego_action_space, ego_observation, ego_space, fill_objects_observation
 from .world import StepError, World
 
 _LOW = np.array([0.0, -1.0, 0.0])
@@ -96,13 +98,23 @@ class WorldBatch:
         self.truncated = np.zeros(num_worlds, bool)
         self.infos: list[dict] = [{} for _ in range(num_worlds)]
         self.with_infos = with_infos  # False: step() leaves ``infos`` as they were (TorchRL reads none)
+        # objects mode with numba: the observation kernel writes straight into row views of the buffers
+        direct = HAVE_JIT and self.config.obs_mode == "objects"
+        self._rows = [{k: v[i] for k, v in self.obs.items()} for i in range(num_worlds)] if direct else None
+
+    def _observe(self, i: int) -> None:
+        """Write world ``i``'s observation into row ``i`` of the buffers."""
+        if self._rows is not None:
+            fill_objects_observation(self.worlds[i], self._rows[i])
+        else:
+            _write(self.obs, ego_observation(self.worlds[i]), i)
 
     def reset_world(self, i: int, seed: int | None = None, **episode: Any) -> None:
         """Reset world ``i`` (``episode``: ``route``/``scenarios``/``spec`` of ``World.reset``)."""
         w = self.worlds[i]
         w.reset(seed=seed, **episode)
         self.trackers[i] = EpisodeTracker(w)
-        _write(self.obs, ego_observation(w), i)
+        self._observe(i)
         self.reward[i], self.terminated[i], self.truncated[i] = 0.0, False, False
         self.infos[i] = self.trackers[i].info()
 
@@ -132,7 +144,7 @@ class WorldBatch:
             self.reward[i], self.terminated[i], self.truncated[i] = r, te, tc
             if info is not None:
                 self.infos[i] = info
-            _write(self.obs, ego_observation(w), i)
+            self._observe(i)
 
     def copy_obs(self) -> dict:
         """A copy of the observation buffers (the buffers are overwritten by the next step)."""

@@ -40,7 +40,7 @@ from .geometry import (
     wrap_angle,
 )
 from .jit import HAVE_JIT
-from .jit_perception import route_window_kernel, v2x_rows_kernel, visible_objects_kernel
+from .jit_observations import ego_obs_kernel
 from .rsu import RSU_PITCH
 from .traffic import STOP_LINE_SETBACK
 from .visibility import VISIBLE_THRESHOLD
@@ -177,19 +177,27 @@ def _rows(objs: np.ndarray, vis: np.ndarray, m: int) -> np.ndarray:
 
 def ego_observation(world) -> dict[str, np.ndarray]:
     """Fill the ego observation (see module docstring)."""
-    cfg, t = world.config, world.table
+    cfg = world.config
+    if HAVE_JIT:
+        m = cfg.max_objects
+        out = {"ego": np.empty(len(EGO_FEATURES), np.float32), "route": np.empty((cfg.route_points, 3), np.float32),
+               "v2x_objects": np.empty((m, len(OBJECT_FEATURES)), np.float32),
+               "v2x_info": np.empty(len(V2X_INFO_FEATURES), np.float32)}
+        if cfg.obs_mode == "objects":
+            out["objects"] = np.empty((m, len(OBJECT_FEATURES)), np.float32)
+            fill_objects_observation(world, out)
+            return out
+        fill_objects_observation(world, out)
+        return _sensor_keys(world, out)
+    t = world.table  # NumPy path
     ego_xy, ego_yaw = t.pos[0], float(t.yaw[0])
     # route ahead
     r = world.route
     k0 = world.monitor.progress
-    if HAVE_JIT:
-        route = route_window_kernel(r.points, r.commands, k0, cfg.route_points, cfg.route_step, float(ego_xy[0]),
-                                    float(ego_xy[1]), ego_yaw)
-    else:
-        ks = np.minimum(k0 + np.arange(cfg.route_points) * cfg.route_step, len(r.points) - 1)
-        route = np.zeros((cfg.route_points, 3), np.float32)
-        route[:, :2] = world_to_local_2d(r.points[ks], ego_xy, ego_yaw)
-        route[:, 2] = r.commands[ks]
+    ks = np.minimum(k0 + np.arange(cfg.route_points) * cfg.route_step, len(r.points) - 1)
+    route = np.zeros((cfg.route_points, 3), np.float32)
+    route[:, :2] = world_to_local_2d(r.points[ks], ego_xy, ego_yaw)
+    route[:, 2] = r.commands[ks]
     # traffic light of the current route lane
     ix = world.town.index
     lane = int(r.lane_ids[min(k0, len(r.lane_ids) - 1)])
@@ -207,23 +215,71 @@ def ego_observation(world) -> dict[str, np.ndarray]:
     v2x, info = _v2x(world, ego_xy, ego_yaw)
     out = {"ego": ego, "route": route, "v2x_objects": v2x, "v2x_info": info}
     if cfg.obs_mode == "objects":
-        if HAVE_JIT:
-            out["objects"] = visible_objects_kernel(
-                world.ego_vis, VISIBLE_THRESHOLD, t.pos, t.yaw, t.speed, t.kind, t.length, t.width, t.height,
-                t.actor_id, float(ego_xy[0]), float(ego_xy[1]), ego_yaw, cfg.max_objects)
-        else:
-            from .world import object_rows  # (world imports this module)
+        from .world import object_rows  # (world imports this module)
 
-            objs = object_rows(t, np.flatnonzero(world.ego_vis >= VISIBLE_THRESHOLD), ego_xy, ego_yaw)
-            vis = world.ego_vis[objs[:, 9].astype(np.int64)] if len(objs) else np.zeros(0)
-            out["objects"] = _rows(objs, vis, cfg.max_objects)
-    elif cfg.obs_mode == "sensors":
+        objs = object_rows(t, np.flatnonzero(world.ego_vis >= VISIBLE_THRESHOLD), ego_xy, ego_yaw)
+        vis = world.ego_vis[objs[:, 9].astype(np.int64)] if len(objs) else np.zeros(0)
+        out["objects"] = _rows(objs, vis, cfg.max_objects)
+        return out
+    return _sensor_keys(world, out)
+
+
+def _sensor_keys(world, out: dict) -> dict:
+    """Add the ``sensors`` / ``bev`` mode keys to ``out``."""
+    if world.config.obs_mode == "sensors":
         s = sensor_observation(world)
         out["cameras"] = {k: v for k, v in s["cameras"].items() if k != "rsu_cam"}
         out["lidar"] = s["lidars"]["lidar"]
     else:
         out["bev"] = sensor_observation(world)["bev"]
     return out
+
+
+def fill_objects_observation(world, out: dict) -> None:
+    """Write the ego observation's ``ego``, ``route``, ``v2x_objects``, ``v2x_info`` (and
+    ``objects``, when ``out`` has it) into the arrays of ``out``, in one kernel call (numba path of
+    :func:`ego_observation`; ``batch.WorldBatch`` passes rows of its buffers)."""
+    cfg, t, r, ix = world.config, world.table, world.route, world.town.index
+    k0 = world.monitor.progress
+    lane = int(r.lane_ids[min(k0, len(r.lane_ids) - 1)])
+    inbox = world.inbox
+    has_msg = inbox is not None and world.tick - inbox[1] < cfg.latency_ticks + V2X_HOLD_TICKS
+    if has_msg:
+        sender, sent_tick, payload = inbox
+        rx, ry, _, ryaw = world.rsus.pose[sender]
+        age = world.tick - sent_tick
+    else:
+        payload, rx, ry, ryaw, age = _NO_PAYLOAD, 0.0, 0.0, 0.0, 0
+    objects = out.get("objects")
+    dist_line = ego_obs_kernel(
+        out["route"], out["v2x_objects"] if objects is None else objects, out["v2x_objects"], out["v2x_info"],
+        objects is not None, r.points, r.commands, k0, cfg.route_step, world.ego_vis, VISIBLE_THRESHOLD, t.pos, t.yaw,
+        t.speed, t.kind, t.length, t.width, t.height, t.actor_id, lane, ix.stop_at_end, ix.length,
+        STOP_LINE_SETBACK, ix.points, ix.owner, ix.offset, ix.n_points, ix.gs, ix.base, has_msg, payload, float(rx),
+        float(ry), float(ryaw), age)
+    light = float(world.lane_signal[lane])
+    if light < 0 and _stop_lanes(world.town)[lane]:
+        light = float(LIGHT_STOP_SIGN)
+    control = world.last_control
+    speed = t.speed[0]
+    yaw_rate = speed * np.tan(control[1] * world.params.max_steer) / world.params.wheelbase
+    out["ego"][:] = (speed, t.accel[0], yaw_rate, control[0], control[1], control[2], light, dist_line,
+                     world.monitor.route_completion)
+
+
+_NO_PAYLOAD = np.zeros(0, np.float32)
+
+
+def _stop_lanes(town) -> np.ndarray:
+    """``(L,)`` bool: the lane ends at a stop sign of its junction (cached on the town)."""
+    store = town.cache("lanes")
+    mask = store.get("stop_sign_lanes")
+    if mask is None:
+        ja = town.index.junction_ahead
+        mask = np.array([j >= 0 and k in town.junctions[j].stop_lanes for k, j in enumerate(ja)], bool)
+        mask.setflags(write=False)
+        store["stop_sign_lanes"] = mask
+    return mask
 
 
 def _v2x(world, ego_xy: np.ndarray, ego_yaw: float) -> tuple[np.ndarray, np.ndarray]:
@@ -234,20 +290,16 @@ def _v2x(world, ego_xy: np.ndarray, ego_yaw: float) -> tuple[np.ndarray, np.ndar
     sender, sent_tick, payload = world.inbox
     x, y, _, yaw = world.rsus.pose[sender]  # float64 scalars (a float32 row + yaw stays float64)
     n_rows = len(payload) // NUM_OBJECT_FIELDS
-    if HAVE_JIT:
-        rows_obs = v2x_rows_kernel(payload, n_rows, float(x), float(y), float(yaw), float(ego_xy[0]),
-                                   float(ego_xy[1]), ego_yaw, cfg.max_objects)
-    else:
-        rows = unpack_objects(payload, n_rows * NUM_OBJECT_FIELDS)
-        if n_rows:
-            xy = local_to_world_2d(rows[:, 1:3].astype(np.float64), np.array([x, y]), yaw)
-            rows = rows.copy()
-            rows[:, 1:3] = world_to_local_2d(xy, ego_xy, ego_yaw)
-            rows[:, 3] = wrap_angle(rows[:, 3] + yaw - ego_yaw)
-            c, s = np.cos(yaw - ego_yaw), np.sin(yaw - ego_yaw)
-            vx, vy = rows[:, 7].copy(), rows[:, 8].copy()
-            rows[:, 7], rows[:, 8] = c * vx - s * vy, s * vx + c * vy
-        rows_obs = _rows(rows, np.ones(n_rows), cfg.max_objects)
+    rows = unpack_objects(payload, n_rows * NUM_OBJECT_FIELDS)
+    if n_rows:
+        xy = local_to_world_2d(rows[:, 1:3].astype(np.float64), np.array([x, y]), yaw)
+        rows = rows.copy()
+        rows[:, 1:3] = world_to_local_2d(xy, ego_xy, ego_yaw)
+        rows[:, 3] = wrap_angle(rows[:, 3] + yaw - ego_yaw)
+        c, s = np.cos(yaw - ego_yaw), np.sin(yaw - ego_yaw)
+        vx, vy = rows[:, 7].copy(), rows[:, 8].copy()
+        rows[:, 7], rows[:, 8] = c * vx - s * vy, s * vx + c * vy
+    rows_obs = _rows(rows, np.ones(n_rows), cfg.max_objects)
     c, s = np.cos(ego_yaw), np.sin(ego_yaw)  # the unit in the ego frame (world_to_local_2d's operations)
     d0, d1 = x - ego_xy[0], y - ego_xy[1]
     info[:] = (1.0, world.tick - sent_tick, n_rows, c * d0 + s * d1, -s * d0 + c * d1, wrap_angle(yaw - ego_yaw))

@@ -1,0 +1,55 @@
+"""numba kernel for the ego observation of ``objects`` mode (``observations.ego_observation``).
+
+One call fills the route window, the visible objects, the received V2X objects with their info
+vector, and returns the distance to the stop line, writing into the caller's arrays (fresh ones
+for a single env, rows of the batch buffers for ``batch.WorldBatch``). The operations are those of
+the NumPy path, in the same order and dtype, so both give the same bytes (``tests/test_jit.py``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .jit import _njit, project_kernel
+from .jit_perception import route_window_kernel, v2x_rows_kernel, visible_objects_kernel
+
+
+@_njit
+def ego_obs_kernel(route_out, objects_out, v2x_out, info_out, with_objects, route_points, commands, k0, route_step,
+                   vis, threshold, pos, yaw, speed, kind, length, width, height, actor_id, lane, stop_at_end,
+                   lane_length, setback, points, owner, offset, n_points, gs, base, has_msg, payload, rx, ry, ryaw,
+                   age):  # pragma: no cover
+    """Fill ``route_out (P, 3)``, ``objects_out (M, 11)`` (when ``with_objects``), ``v2x_out
+    (M, 11)`` and ``info_out (6,)`` (zeros unless ``has_msg``: the ``payload`` sent by the unit at
+    ``(rx, ry, ryaw)`` ``age`` ticks ago) for the ego in row 0.
+
+    Returns:
+        the distance (m) along route lane ``lane`` to its stop line (-1 where it has none).
+    """
+    ex, ey, eyaw = pos[0, 0], pos[0, 1], yaw[0]
+    route_out[:] = route_window_kernel(route_points, commands, k0, route_out.shape[0], route_step, ex, ey, eyaw)
+    m = v2x_out.shape[0]
+    if with_objects:
+        objects_out[:] = visible_objects_kernel(vis, threshold, pos, yaw, speed, kind, length, width, height, actor_id,
+                                                ex, ey, eyaw, m)
+    if has_msg:
+        n_rows = payload.shape[0] // 10
+        v2x_out[:] = v2x_rows_kernel(payload, n_rows, rx, ry, ryaw, ex, ey, eyaw, m)
+        c, s = np.cos(eyaw), np.sin(eyaw)  # the unit in the ego frame (world_to_local_2d's operations)
+        d0, d1 = rx - ex, ry - ey
+        info_out[0] = 1.0
+        info_out[1] = age
+        info_out[2] = n_rows
+        info_out[3] = c * d0 + s * d1
+        info_out[4] = -s * d0 + c * d1
+        info_out[5] = (ryaw - eyaw + np.pi) % (2.0 * np.pi) - np.pi
+    else:
+        v2x_out[:] = 0.0
+        info_out[:] = 0.0
+    if not stop_at_end[lane]:
+        return -1.0
+    q = np.empty((1, 2))
+    q[0, 0], q[0, 1] = ex, ey
+    _, s_lane, _ = project_kernel(q, points, np.arange(offset[lane], offset[lane] + n_points[lane]), owner, offset,
+                                  n_points, gs, base)
+    return lane_length[lane] - setback - s_lane[0]

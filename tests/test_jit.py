@@ -171,8 +171,9 @@ def _table_bytes(t) -> dict:
 @pytest.mark.parametrize("town", ["Town01", "Town03", "Town12"])
 def test_world_tick_kernels_match_numpy(monkeypatch, town):
     """Two worlds from one seed and one action sequence, one on the NumPy paths of the tick
-    (traffic, pedestrians, monitor, observations), one on the kernels: identical actor tables,
-    events and observations every tick (signed zeros included: the bytes are compared)."""
+    (traffic, pedestrians, monitor, observations, the built-in RSU message), one on the kernels:
+    identical actor tables, generator states, events, observations and channel statistics every
+    tick (signed zeros included: the bytes are compared)."""
     from v2xbench.envs.v2x_intersection import (
         infractions,
         observations,
@@ -200,13 +201,15 @@ def test_world_tick_kernels_match_numpy(monkeypatch, town):
             with monkeypatch.context() as m:
                 for mod in modules:
                     m.setattr(mod, "HAVE_JIT", jit)
-                events = w.step(a, w.default_rsu_message())
+                # odd ticks: the gym/batch path (the world packs its own message)
+                events = w.step_builtin(a) if k % 2 else w.step(a, w.default_rsu_message())
                 obs = ego_observation(w)
             out.append((_table_bytes(w.table), events, {key: np.asarray(v).tobytes() for key, v in obs.items()
-                                                        if not isinstance(v, dict)}))
+                                                        if not isinstance(v, dict)}, w.channel.stats()))
         assert out[0][0] == out[1][0], f"tick {k}: actor tables differ"
         assert worlds[0].rng.bit_generator.state == worlds[1].rng.bit_generator.state, f"tick {k}: draws differ"
         assert out[0][1] == out[1][1] and out[0][2] == out[1][2], f"tick {k}: events/observations differ"
+        assert out[0][3] == out[1][3], f"tick {k}: channel statistics differ"
     assert worlds[1].table.wait.max() > 0.0  # someone queued: the stop rules ran
 
 

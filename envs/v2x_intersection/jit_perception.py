@@ -274,6 +274,17 @@ def visible_objects_kernel(vis, threshold, pos, yaw, speed, kind, length, width,
 
 
 @_njit
+def seen_rows_kernel(vis, threshold, pos, yaw, speed, kind, length, width, height, actor_id, ox, oy,
+                     oyaw):  # pragma: no cover
+    """``world.World.rsu_objects``: the actors with ``vis >= threshold`` as
+    :func:`object_rows_kernel` rows in the frame at ``(ox, oy, oyaw)``, sorted by distance."""
+    idx = np.flatnonzero(vis >= threshold)
+    if idx.shape[0] == 0:
+        return np.zeros((0, 10), np.float32)
+    return object_rows_kernel(idx, pos, yaw, speed, kind, length, width, height, actor_id, ox, oy, oyaw)
+
+
+@_njit
 def route_window_kernel(points, commands, k0, count, step, ex, ey, eyaw):  # pragma: no cover
     """``observations.ego_observation``'s route: ``count`` route points every ``step`` from
     ``k0`` (clamped to the last point) in the ego frame, with their commands; ``(count, 3)``

@@ -48,6 +48,7 @@ __all__ = [
     "pack_objects",
     "pack_rows",
     "unpack_objects",
+    "wrap_track_ids",
 ]
 
 MAGIC = b"VX"
@@ -282,9 +283,15 @@ def pack_rows(a: np.ndarray, max_payload_floats: int, encoding: str) -> tuple[in
         rows = a[:k]
         if encoding == "float16":
             rows = rows.copy()
-            rows[:, _TRACK_ID_COL] = np.mod(rows[:, _TRACK_ID_COL], FLOAT16_TRACK_ID_MODULUS)
+            wrap_track_ids(rows)
         payload[:length] = rows.reshape(-1)
     return length, payload
+
+
+def wrap_track_ids(rows: np.ndarray) -> None:
+    """In place on ``(K, NUM_OBJECT_FIELDS)`` rows: track ids modulo
+    :data:`FLOAT16_TRACK_ID_MODULUS`, as float16 messages carry them."""
+    rows[:, _TRACK_ID_COL] = np.mod(rows[:, _TRACK_ID_COL], FLOAT16_TRACK_ID_MODULUS)
 
 
 def unpack_objects(payload: np.ndarray, length: int) -> np.ndarray:

@@ -37,7 +37,7 @@ from .dynamics import VehicleParams, bicycle_step, bicycle_step_scalar
 from .geometry import row_norms, world_to_local_2d
 from .infractions import EventMonitor
 from .jit import HAVE_JIT
-from .jit_perception import object_rows_kernel, perceive_all_kernel
+from .jit_perception import object_rows_kernel, perceive_all_kernel, seen_rows_kernel
 from .pedestrians import SidewalkNetwork, step_walkers
 from .physics import CollisionWorld
 from .raycast import Boxes
@@ -48,7 +48,7 @@ from .town import get_town
 from .town.model import DRIVING, RAMP
 from .traffic import free_lane_spot, place_on_lane, respawn_followers, step_followers
 from .visibility import VISIBILITY_SAMPLING, VISIBLE_THRESHOLD, visible_fraction
-from .wire import pack_objects, pack_rows
+from .wire import NUM_OBJECT_FIELDS, max_objects, pack_objects, pack_rows, wrap_track_ids
 
 _NO_PAYLOAD = np.zeros(0, np.float32)
 EGO_SENSOR_Z = 1.8  # m, ego camera height (occlusion is judged from here)
@@ -69,6 +69,7 @@ class World:
         self.config = config
         self.params = VehicleParams()
         pr = self.params
+        self._max_rows = max_objects(config.max_payload_floats)  # object rows that fit a message
         self._bicycle_params = (pr.max_accel, pr.max_brake, pr.drag, pr.max_speed, pr.max_steer, pr.wheelbase,
                                 config.dt)
         self.channel_config = ChannelConfig(
@@ -275,7 +276,15 @@ class World:
         objs = self._builtin_objects()
         length = 0
         if objs is not None:
-            length, payload = pack_rows(objs, self.config.max_payload_floats, self.config.encoding)
+            cfg = self.config
+            if HAVE_JIT:  # pack_rows's payload without its zero padding (objs is the kernel's own array)
+                k = min(len(objs), self._max_rows)
+                rows = objs[:k]
+                if cfg.encoding == "float16":
+                    wrap_track_ids(rows)
+                length, payload = k * NUM_OBJECT_FIELDS, rows.reshape(-1)
+            else:
+                length, payload = pack_rows(objs, cfg.max_payload_floats, cfg.encoding)
         if length:
             self.channel.send_valid(self.tick, sender, length, payload)
         else:
@@ -385,8 +394,11 @@ class World:
         t = self.table
         if u < 0:
             return np.zeros((0, 10), np.float32)
-        seen = np.flatnonzero(self.rsu_vis[slot] >= VISIBLE_THRESHOLD)
         x, y, _, yaw = self.rsus.pose[u]
+        if HAVE_JIT:
+            return seen_rows_kernel(self.rsu_vis[slot], VISIBLE_THRESHOLD, t.pos, t.yaw, t.speed, t.kind, t.length,
+                                    t.width, t.height, t.actor_id, float(x), float(y), float(yaw))
+        seen = np.flatnonzero(self.rsu_vis[slot] >= VISIBLE_THRESHOLD)
         return object_rows(t, seen, np.array([x, y]), yaw)
 
     def default_rsu_message(self) -> dict:

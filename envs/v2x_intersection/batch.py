@@ -5,8 +5,9 @@
 ``gym.make_vec("V2XIntersection-v0", num_envs=N)`` returns). Per tick it
 
 1. validates all ``(N, 3)`` actions at once (same checks and clipping as the single env);
-2. advances every world by one tick with its built-in RSU policy (``World.step``, the fixed step
-   order of :mod:`.world`);
+2. advances every world by one tick with its built-in RSU policy (``World.step_builtin``, the
+   fixed step order of :mod:`.world`), stage by stage: each stage runs over all worlds before the
+   next, which keeps each kernel's code and the town's tables in the CPU's caches;
 3. writes each world's observation into row ``i`` of the batch buffers (no per-step stacking of
    dicts) and fills ``(N,)`` reward / terminated / truncated arrays.
 
@@ -33,9 +34,10 @@ from .config import make_config
 from .episode import EpisodeTracker
 from .jit import HAVE_JIT
 from .observations import ego_action_space, ego_observation, ego_space, fill_objects_observation
-from .world import StepError, World
+from .world import TICK_STAGES, StepError, World
 
 _LOW = np.array([0.0, -1.0, 0.0])
+
 _HIGH = np.array([1.0, 1.0, 1.0])
 
 
@@ -133,14 +135,24 @@ class WorldBatch:
                 that has ended; the episode tracker's own end is left to the caller's resets).
         """
         controls = validate_controls(actions, self.n)
-        idx = range(self.n) if active is None else np.flatnonzero(np.asarray(active, bool))
-        for i in idx:
-            tr = self.trackers[i]
-            if tr is None:
+        idx = range(self.n) if active is None else [int(i) for i in np.flatnonzero(np.asarray(active, bool))]
+        for i in idx:  # check them all first: a bad world raises before any world has moved
+            if self.trackers[i] is None:
                 raise StepError(f"world {i}: step() called before reset()")
-            w = self.worlds[i]
-            events = w.step_builtin(controls[i])
-            r, te, tc, info = tr.after_step(events, self.with_infos)
+            self.worlds[i]._check_running()
+        # World.step_builtin stage by stage, each stage over all worlds before the next: the same
+        # kernel back to back stays in the CPU's caches (the worlds are independent, so each one
+        # sees exactly the order of its own step)
+        worlds = [self.worlds[i] for i in idx]
+        for w in worlds:
+            w.send_builtin()
+        for i, w in zip(idx, worlds):
+            w.move_ego(controls[i])
+        for stage in TICK_STAGES:
+            for w in worlds:
+                stage(w)
+        for i, w in zip(idx, worlds):
+            r, te, tc, info = self.trackers[i].after_step(w.deliver(), self.with_infos)
             self.reward[i], self.terminated[i], self.truncated[i] = r, te, tc
             if info is not None:
                 self.infos[i] = info

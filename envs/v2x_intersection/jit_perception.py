@@ -119,7 +119,7 @@ def rsu_to_ego_kernel(rows, x, y, yaw, ex, ey, eyaw):  # pragma: no cover
 def perceive_kernel(pos, length, width, yaw, height, active, static_boxes, static_heights, static_cos, static_sin,
                     ego_z, ego_r2, ego_range, rsu_pose, rsu_r2, rsu_range, half_fov, levels, pattern, shrink, lo,
                     hi):  # pragma: no cover
-    """``world.World._perceive`` after the RSU selection: visible fraction of every active actor
+    """``world.World.perceive`` after the RSU selection: visible fraction of every active actor
     (rows >= 1) from the ego's sensor and from each selected RSU (``rsu_pose (slots, 4)``, NaN
     rows for empty slots), against all actors and static boxes as occluders.
 
@@ -185,7 +185,7 @@ def perceive_kernel(pos, length, width, yaw, height, active, static_boxes, stati
 def perceive_all_kernel(rsu_pose, rsu_kind, trigger_kind, preference, max_angle, slots, pos, length, width, yaw,
                         height, active, static_boxes, static_heights, static_cos, static_sin, ego_z, ego_r2, ego_range,
                         rsu_r2, rsu_range, half_fov, levels, pattern, shrink, lo, hi):  # pragma: no cover
-    """``world.World._perceive`` in one call: the RSU selection (:func:`select_active_kernel`;
+    """``world.World.perceive`` in one call: the RSU selection (:func:`select_active_kernel`;
     all ``-1`` without units), then :func:`perceive_kernel` from the selected units' poses.
 
     Returns:

@@ -185,7 +185,7 @@ class World:
         self.inbox: tuple | None = None  # (sender, sent_tick, payload) last delivered message
         self.ended = False
         self.lane_signal = self.signals.lane_states(0.0)
-        self._perceive()
+        self.perceive()
 
     def _spawn_drivers(self, row: int, count: int) -> int:
         t, rng = self.table, self.rng
@@ -272,6 +272,11 @@ class World:
         packed by the world itself and so sent without being checked again (the gym and batched
         envs step this way)."""
         self._check_running()
+        self.send_builtin()
+        return self._advance(control)
+
+    def send_builtin(self) -> None:
+        """Step 2 of :meth:`step_builtin`: the built-in policy's message goes on the channel."""
         sender = int(max(self.active_rsu[0], 0))
         objs = self._builtin_objects()
         length = 0
@@ -289,52 +294,74 @@ class World:
             self.channel.send_valid(self.tick, sender, length, payload)
         else:
             self.channel.send(self.tick, sender, 0, _NO_PAYLOAD)  # sends nothing, as an empty message
-        return self._advance(control)
 
     def _check_running(self) -> None:
         if self.ended:
             raise StepError("step() called on a world that has ended or was never reset; call reset()")
 
     def _advance(self, control: np.ndarray) -> list:
-        """Steps 3-8 of the tick (after the message is on the channel)."""
+        """Steps 3-8 of the tick (after the message is on the channel), stage by stage: the
+        stages are separate methods so that ``batch.WorldBatch`` can run each one over all its
+        worlds before the next (the same kernel back to back stays in the CPU's caches)."""
+        self.move_ego(control)
+        for stage in TICK_STAGES:
+            stage(self)
+        return self.deliver()
+
+    def move_ego(self, control: np.ndarray) -> None:
+        """Step 3: the ego's kinematic bicycle under ``control``."""
         cfg, t = self.config, self.table
-        # 3. ego
         throttle, steer, brake = (float(c) for c in control)
-        old = t.pos[0].copy()
+        self._old_pos = old = t.pos[0].copy()
         if HAVE_JIT:
-            x0, y0 = float(old[0]), float(old[1])
-            x, y, yaw, v, a = bicycle_step_scalar(x0, y0, t.yaw[0], t.speed[0], throttle, steer, brake,
-                                                  *self._bicycle_params)
+            x, y, yaw, v, a = bicycle_step_scalar(float(old[0]), float(old[1]), t.yaw[0], t.speed[0], throttle,
+                                                  steer, brake, *self._bicycle_params)
         else:
             x, y, yaw, v, a = bicycle_step(t.pos[0, 0], t.pos[0, 1], t.yaw[0], t.speed[0], throttle, steer, brake,
                                            self.params, cfg.dt)
         t.pos[0] = (x, y)
         t.yaw[0], t.speed[0], t.accel[0] = yaw, v, a
         self.last_control = np.array([throttle, steer, brake])
-        # 4. traffic
-        time_s = (self.tick + 1) * cfg.dt
-        self.lane_signal = self.signals.lane_states(time_s)
-        respawn = step_followers(t, self.town, self.lane_signal, self.rng, cfg.dt, t.pos[0], self.plans)
-        step_walkers(t, self.sidewalks, self.rng, cfg.dt, cfg.jaywalk_prob)
+
+    def update_signals(self) -> None:
+        """Step 4a: the traffic lights' state at the end of this tick."""
+        self.lane_signal = self.signals.lane_states((self.tick + 1) * self.config.dt)
+
+    def move_followers(self) -> None:
+        """Step 4b: NPC vehicles and bicycles (the rows to respawn are kept for step 5)."""
+        t = self.table
+        self._respawn = step_followers(t, self.town, self.lane_signal, self.rng, self.config.dt, t.pos[0], self.plans)
+
+    def move_walkers(self) -> None:
+        """Step 4c: pedestrians."""
+        cfg = self.config
+        step_walkers(self.table, self.sidewalks, self.rng, cfg.dt, cfg.jaywalk_prob)
+
+    def run_scenarios(self) -> None:
+        """Step 4d: each scenario's hook; step 5: respawns (scenario actors that reach the end of
+        their plan leave the world)."""
         for sc in self.scenarios:
             sc.tick(self)
-        # 5. respawn (scenario actors that reach the end of their plan leave the world)
-        if len(respawn):
-            respawn_followers(t, self.town, self._drive_lanes, self.rng, respawn, 60.0)
-        # 6. collisions and events
+        if len(self._respawn):
+            respawn_followers(self.table, self.town, self._drive_lanes, self.rng, self._respawn, 60.0)
+
+    def check_events(self) -> None:
+        """Step 6: collisions, infraction and route-progress events (``last_events``); then the
+        tick counter moves on."""
+        t, old = self.table, self._old_pos
         contacts = self.collisions.ego_contacts(t)
         if HAVE_JIT:  # np.linalg.norm of the (2,) step: sqrt of the dot product, the same float
-            dx, dy = float(t.pos[0, 0]) - x0, float(t.pos[0, 1]) - y0
+            dx, dy = float(t.pos[0, 0]) - float(old[0]), float(t.pos[0, 1]) - float(old[1])
             moved = math.sqrt(dx * dx + dy * dy)
         else:
             moved = float(np.linalg.norm(t.pos[0] - old))
         self.last_events = self.monitor.update(self.tick + 1, t, contacts, self.lane_signal, moved)
         for sc in self.scenarios:  # the progress just moved: a route's last scenario may be passed
             sc.check_passed(self)
-        # 7. perception
         self.tick += 1
-        self._perceive()
-        # 8. delivery
+
+    def deliver(self) -> list:
+        """Step 8: the channel delivers what is due into the ego's inbox; returns ``last_events``."""
         for msg in self.channel.receive(self.tick):
             self.inbox = msg
         return self.last_events
@@ -351,8 +378,8 @@ class World:
             np.zeros(n + len(s)), np.concatenate([np.where(t.active, t.height, 0.0), self.static_heights]),
         )
 
-    def _perceive(self) -> None:
-        """Visible fraction of every actor from the ego and from each active RSU."""
+    def perceive(self) -> None:
+        """Step 7: visible fraction of every actor from the ego and from each active RSU."""
         cfg, t = self.config, self.table
         if HAVE_JIT:
             self.active_rsu, self.ego_vis, self.rsu_vis = perceive_all_kernel(
@@ -420,6 +447,11 @@ class World:
         return self.monitor.progress >= len(self.route.points) - 3
 
 
+#: the stages of a tick between the ego's move (step 3) and the delivery (step 8), in order
+TICK_STAGES = (World.update_signals, World.move_followers, World.move_walkers, World.run_scenarios,
+               World.check_events, World.perceive)
+
+
 def object_rows(t: ActorTable, idx: np.ndarray, origin: np.ndarray, yaw: float) -> np.ndarray:
     """Rows ``(K, 10)`` of ``channel.OBJECT_FIELDS`` for actors ``idx``, in the frame at
     ``origin (2,)`` / ``yaw``, sorted by distance."""
@@ -437,4 +469,4 @@ def object_rows(t: ActorTable, idx: np.ndarray, origin: np.ndarray, yaw: float) 
                      t.height[idx], vel[:, 0], vel[:, 1], t.actor_id[idx]], -1).astype(np.float32)
 
 
-__all__ = ["World", "StepError", "object_rows"]
+__all__ = ["World", "StepError", "TICK_STAGES", "object_rows"]

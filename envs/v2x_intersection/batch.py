@@ -151,11 +151,13 @@ class WorldBatch:
         for stage in TICK_STAGES:
             for w in worlds:
                 stage(w)
-        for i, w in zip(idx, worlds):
-            r, te, tc, info = self.trackers[i].after_step(w.deliver(), self.with_infos)
+        events = [w.deliver() for w in worlds]
+        for i, ev in zip(idx, events):
+            r, te, tc, info = self.trackers[i].after_step(ev, self.with_infos)
             self.reward[i], self.terminated[i], self.truncated[i] = r, te, tc
             if info is not None:
                 self.infos[i] = info
+        for i in idx:
             self._observe(i)
 
     def copy_obs(self) -> dict:

@@ -31,3 +31,16 @@ def test_signs_match_choice():
 def test_pick_from_empty_raises():
     with pytest.raises(ValueError, match="empty"):
         pick(np.random.default_rng(0), [])
+
+
+def test_draw_size_draws_three_scalar_uniforms():
+    """``draw_size`` draws its three sizes in one call; the numbers and the generator's state
+    are those of three scalar ``uniform`` calls (what it did before)."""
+    from v2xbench.envs.v2x_intersection.actors import SIZES, draw_size
+
+    for seed in range(20):
+        a, b = np.random.default_rng(seed), np.random.default_rng(seed)
+        for kind, ((l0, l1), (w0, w1), (h0, h1)) in SIZES.items():
+            assert draw_size(kind, a) == (float(b.uniform(l0, l1)), float(b.uniform(w0, w1)),
+                                          float(b.uniform(h0, h1)))
+        assert a.bit_generator.state == b.bit_generator.state

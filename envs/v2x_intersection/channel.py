@@ -464,6 +464,11 @@ class Channel:
         return len(self._pending)
 
     # ---------------------------------------------------------------------------------- stats
+    @property
+    def bytes_sent_total(self) -> int:
+        """``stats()["bytes_sent_total"]`` without building the dict."""
+        return self._bytes_sent
+
     def stats(self) -> dict[str, float | int]:
         """Counters since :meth:`reset` (all numbers; see the class docstring for definitions).
 

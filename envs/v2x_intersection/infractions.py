@@ -112,27 +112,29 @@ class EventMonitor:
             heading = float(ix.pose_at(np.array([lane]), np.array([s]))[1][0])
         if dev > ROUTE_DEVIATION_M and not self.counts[ROUTE_DEVIATION]:
             self.emit(ROUTE_DEVIATION, tick, -1, dev)
-        width = ix.width[lane]
-        outside = dist > width / 2.0 + 0.3
+        lanes = _lane_lists(self.town)  # Python numbers: the same values, cheaper scalar tests
+        half = lanes["width"][lane] / 2.0
+        outside = dist > half + 0.3
         if outside:
             self.outside_m += moved
         if outside and not self._outside_active:
             self.emit(OUTSIDE_LANES, tick, -1, dist)
-        off_road = dist > width / 2.0 + 2.0
+        off_road = dist > half + 2.0
         if off_road and not self._off_road_active:
             self.emit(OFF_ROAD, tick, -1, dist)
         self._outside_active, self._off_road_active = outside, off_road
         wrong = v > 1.0 and not outside and abs(((yaw - heading + np.pi) % (2 * np.pi)) - np.pi) > 2.1
-        wrong &= self.town.index.kind[lane] != CONNECTOR
+        wrong = wrong and lanes["kind"][lane] != CONNECTOR
         if wrong and not self._wrong_way_active:
             self.emit(WRONG_WAY, tick, -1, float(lane))
         self._wrong_way_active = wrong
         # stop lines: red lights and stop signs, when crossing the line of the current lane
+        stop_at_end = lanes["stop_at_end"][lane]
         if lane == self._lane:
-            line = ix.length[lane] - STOP_LINE_SETBACK
-            if ix.stop_at_end[lane] and line - STOP_CHECK_M < s:
+            line = lanes["length"][lane] - STOP_LINE_SETBACK
+            if stop_at_end and line - STOP_CHECK_M < s:
                 self._min_speed_near_line = min(self._min_speed_near_line, v)
-            if ix.stop_at_end[lane] and self._s_on_lane < line <= s:
+            if stop_at_end and self._s_on_lane < line <= s:
                 if lane_signal[lane] == RED:
                     self.emit(RED_LIGHT, tick, -1, float(lane))
                 elif lane_signal[lane] == -1 and self._is_stop_lane(lane) and self._min_speed_near_line > STOP_SPEED:
@@ -142,7 +144,7 @@ class EventMonitor:
         self._lane, self._s_on_lane = lane, s
         # blocked
         self.still_s = self.still_s + self.dt if v < 0.1 else 0.0
-        red_ahead = ix.stop_at_end[lane] and lane_signal[lane] == RED
+        red_ahead = stop_at_end and lane_signal[lane] == RED
         self.held_by_red = bool(red_ahead and v < HELD_SPEED)
         if self.still_s >= BLOCKED_S and not red_ahead:
             self.emit(BLOCKED, tick, -1, self.still_s)
@@ -152,6 +154,18 @@ class EventMonitor:
     def _is_stop_lane(self, lane: int) -> bool:
         j = self.town.index.junction_ahead[lane]
         return j >= 0 and lane in self.town.junctions[j].stop_lanes
+
+
+def _lane_lists(town: Town) -> dict[str, list]:
+    """Per-lane ``width``, ``length``, ``kind`` and ``stop_at_end`` as Python lists (cached on the
+    town): the monitor's scalar tests on them cost a fraction of NumPy scalar operations."""
+    store = town.cache("lanes")
+    lists = store.get("lists")
+    if lists is None:
+        ix = town.index
+        lists = {k: getattr(ix, k).tolist() for k in ("width", "length", "kind", "stop_at_end")}
+        store["lists"] = lists
+    return lists
 
 
 def _driving_point_ids(town: Town) -> np.ndarray:

@@ -76,11 +76,12 @@ class V2XTorchEnv(EnvBase):
         return self.batch.worlds
 
     def _outputs(self, rows) -> dict:
+        rc, bps = self._extra["route_completion"], self._extra["v2x_bps"]
+        worlds = self.batch.worlds
         for i in rows:
-            w = self.batch.worlds[i]
-            self._extra["route_completion"][i, 0] = w.monitor.route_completion
-            bytes_sent = w.channel.stats()["bytes_sent_total"]
-            self._extra["v2x_bps"][i, 0] = bytes_sent / (w.tick * w.config.dt) if w.tick else 0.0
+            w = worlds[i]
+            rc[i, 0] = w.monitor.route_completion
+            bps[i, 0] = w.channel.bytes_sent_total / (w.tick * w.config.dt) if w.tick else 0.0
         return _tensors({**self.batch.obs, **self._extra}, self.device)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:

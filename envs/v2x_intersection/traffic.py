@@ -248,14 +248,25 @@ def _town_arrays(town: Town) -> dict[str, np.ndarray]:
 _NO_PLANS = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64))
 
 
+_PLANS: dict[int, tuple] = {}  # id(plans) -> (plans, len(plans), flat arrays); holding plans keeps its id
+
+
 def _flat_plans(plans: list[list[int]] | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``World.plans`` for the kernel: ``(lanes, start, length)`` with plan ``p`` =
-    ``lanes[start[p]:start[p] + length[p]]``."""
+    ``lanes[start[p]:start[p] + length[p]]``. Scenarios only append plans (copies of their lane
+    lists), so the arrays are rebuilt only when the list grew (cached for the last few lists)."""
     if not plans:
         return _NO_PLANS
+    hit = _PLANS.get(id(plans))
+    if hit is not None and hit[0] is plans and hit[1] == len(plans):
+        return hit[2]
     n = np.array([len(p) for p in plans], np.int64)
     lanes = np.array([k for p in plans for k in p], np.int64)
-    return lanes, np.concatenate([[0], np.cumsum(n)[:-1]]).astype(np.int64), n
+    flat = (lanes, np.concatenate([[0], np.cumsum(n)[:-1]]).astype(np.int64), n)
+    if len(_PLANS) >= 64 and id(plans) not in _PLANS:
+        del _PLANS[next(iter(_PLANS))]
+    _PLANS[id(plans)] = (plans, len(plans), flat)
+    return flat
 
 
 def _lane_changes(t, town, idx, lane, s, gap, dv, bike, rng, dt) -> None:

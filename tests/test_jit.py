@@ -102,6 +102,34 @@ def test_leaders_matches_numpy(monkeypatch):
         np.testing.assert_array_equal(u, v)
 
 
+@pytest.mark.parametrize("town", ["Town01", "Town12"])
+def test_grid_projection_matches_scan(town):
+    """``jit_grid.project_grid_kernel`` gives what the full scan (``project_kernel``) gives:
+    queries on the roads, far off the grid on every side, exactly on vertices, halfway between two
+    (ties) and NaN."""
+    from v2xbench.envs.v2x_intersection.infractions import _driving_grid, _driving_point_ids
+    from v2xbench.envs.v2x_intersection.jit import project_kernel
+    from v2xbench.envs.v2x_intersection.jit_grid import project_grid_kernel
+    from v2xbench.envs.v2x_intersection.town import get_town
+
+    t = get_town(town)
+    ix, pid, grid = t.index, _driving_point_ids(t), _driving_grid(t)
+    rng = np.random.default_rng(0)
+    on = ix.points[rng.choice(pid, 300)]
+    lo, hi = ix.points.min(0), ix.points.max(0)
+    queries = np.concatenate([
+        on + rng.normal(0, 4, on.shape), on[:50],  # near the roads; exactly on vertices
+        0.5 * (ix.points[pid[:60]] + ix.points[pid[1:61]]),  # halfway along segments
+        rng.uniform(lo - 300, hi + 300, (200, 2)),  # anywhere, off the grid too
+        [[np.nan, 0.0], [lo[0] - 5000, hi[1] + 5000]],
+    ])
+    args = (ix.points, pid, ix.owner, ix.offset, ix.n_points, ix.gs, ix.base)
+    ref = project_kernel(queries, *args)
+    for k, (x, y) in enumerate(queries):
+        got = project_grid_kernel(x, y, *args, *grid)
+        np.testing.assert_array_equal(np.array(got, float), [ref[0][k], ref[1][k], ref[2][k]], err_msg=str(k))
+
+
 def test_lane_assign_matches_numpy():
     from v2xbench.agents.expert.lanes import LaneMap
     from v2xbench.envs.v2x_intersection.town import get_town

@@ -13,6 +13,7 @@ from .actors import ActorTable
 from .classes import BICYCLE, CAR, LARGE_VEHICLE, PEDESTRIAN
 from .geometry import row_norms
 from .jit import HAVE_JIT
+from .jit_grid import point_grid
 from .jit_perception import route_monitor_kernel
 from .routes import Route
 from .signals import RED
@@ -61,6 +62,7 @@ class EventMonitor:
         self._outside_active = False
         self._off_road_active = False
         self._driving_pts = _driving_point_ids(town)
+        self._driving_grid = _driving_grid(town)
 
     def emit(self, code: int, tick: int, other: int = -1, value: float = 0.0) -> None:
         """Record an event (scenarios emit ``SCENARIO_TIMEOUT`` and ``YIELD_EMERGENCY`` here)."""
@@ -98,7 +100,7 @@ class EventMonitor:
         if HAVE_JIT:
             self.progress, dev, lane, s, dist, heading = route_monitor_kernel(
                 r.points, self.progress, float(ego[0]), float(ego[1]), ix.points, self._driving_pts, ix.owner,
-                ix.offset, ix.n_points, ix.gs, ix.base, ix.heading, ix.length)
+                ix.offset, ix.n_points, ix.gs, ix.base, ix.heading, ix.length, *self._driving_grid)
         else:
             hi = min(self.progress + 40, len(r.points))
             d = row_norms(r.points[self.progress:hi] - ego)
@@ -166,6 +168,14 @@ def _lane_lists(town: Town) -> dict[str, list]:
         lists = {k: getattr(ix, k).tolist() for k in ("width", "length", "kind", "stop_at_end")}
         store["lists"] = lists
     return lists
+
+
+def _driving_grid(town: Town) -> tuple:
+    """``jit_grid.point_grid`` of :func:`_driving_point_ids` (cached on the town)."""
+    store = town.cache("lanes")
+    if "driving_grid" not in store:
+        store["driving_grid"] = point_grid(town.index.points, _driving_point_ids(town))
+    return store["driving_grid"]
 
 
 def _driving_point_ids(town: Town) -> np.ndarray:

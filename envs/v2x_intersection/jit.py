@@ -290,7 +290,6 @@ def project_kernel(xy, points, pid, owner, offset, n_points, gs, base):  # pragm
         ``(polyline (Q,), s (Q,), dist (Q,))``.
     """
     nq = xy.shape[0]
-    npts = points.shape[0]
     out_o = np.empty(nq, np.int64)
     out_s = np.empty(nq, np.float64)
     out_d = np.empty(nq, np.float64)
@@ -306,32 +305,40 @@ def project_kernel(xy, points, pid, owner, offset, n_points, gs, base):  # pragm
             if d2 < best:
                 best = d2
                 j = p
-        o = owner[j]
-        first = offset[o]
-        last = first + n_points[o] - 1
-        best_s = gs[j] - base[o]
-        dx = x - points[j, 0]
-        dy = y - points[j, 1]
-        best_d = np.sqrt(dx * dx + dy * dy)
-        for a, b in ((j, j + 1), (j - 1, j)):
-            ok = (a >= first) and (b <= last)
-            a = min(max(a, 0), npts - 1)
-            b = min(max(b, 0), npts - 1)
-            sx = points[b, 0] - points[a, 0]
-            sy = points[b, 1] - points[a, 1]
-            seg_len2 = max(sx * sx + sy * sy, 1e-12)
-            t = ((x - points[a, 0]) * sx + (y - points[a, 1]) * sy) / seg_len2
-            t = min(max(t, 0.0), 1.0)
-            qx = points[a, 0] + t * sx
-            qy = points[a, 1] + t * sy
-            ex, ey = x - qx, y - qy
-            d = np.sqrt(ex * ex + ey * ey)
-            s = gs[a] - base[o] + t * np.sqrt(seg_len2)
-            if ok and d < best_d:
-                best_d = d
-                best_s = s
-        out_o[qi], out_s[qi], out_d[qi] = o, best_s, best_d
+        out_o[qi], out_s[qi], out_d[qi] = project_refine(x, y, j, points, owner, offset, n_points, gs, base)
     return out_o, out_s, out_d
+
+
+@_njit_inline
+def project_refine(x, y, j, points, owner, offset, n_points, gs, base):  # pragma: no cover
+    """The end of :func:`project_kernel` for one query ``(x, y)`` whose nearest vertex is ``j``:
+    the nearer of the two segments beside it (within its polyline), as ``(polyline, s, dist)``."""
+    npts = points.shape[0]
+    o = owner[j]
+    first = offset[o]
+    last = first + n_points[o] - 1
+    best_s = gs[j] - base[o]
+    dx = x - points[j, 0]
+    dy = y - points[j, 1]
+    best_d = np.sqrt(dx * dx + dy * dy)
+    for a, b in ((j, j + 1), (j - 1, j)):
+        ok = (a >= first) and (b <= last)
+        a = min(max(a, 0), npts - 1)
+        b = min(max(b, 0), npts - 1)
+        sx = points[b, 0] - points[a, 0]
+        sy = points[b, 1] - points[a, 1]
+        seg_len2 = max(sx * sx + sy * sy, 1e-12)
+        t = ((x - points[a, 0]) * sx + (y - points[a, 1]) * sy) / seg_len2
+        t = min(max(t, 0.0), 1.0)
+        qx = points[a, 0] + t * sx
+        qy = points[a, 1] + t * sy
+        ex, ey = x - qx, y - qy
+        d = np.sqrt(ex * ex + ey * ey)
+        s = gs[a] - base[o] + t * np.sqrt(seg_len2)
+        if ok and d < best_d:
+            best_d = d
+            best_s = s
+    return o, best_s, best_d
 
 
 @_njit

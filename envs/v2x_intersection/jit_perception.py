@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .jit import _njit, pose_at_kernel, project_kernel, visible_fraction_kernel
+from .jit import _njit, pose_at_kernel, visible_fraction_kernel
+from .jit_grid import project_grid_kernel
 
 
 @_njit
@@ -210,10 +211,11 @@ def perceive_all_kernel(rsu_pose, rsu_kind, trigger_kind, preference, max_angle,
 
 @_njit
 def route_monitor_kernel(route_points, progress, ex, ey, points, pid, owner, offset, n_points, gs, base, heading,
-                         length):  # pragma: no cover
+                         length, x0, y0, cell, nx, ny, cell_start, order):  # pragma: no cover
     """The geometric part of ``infractions.EventMonitor.update``: the new route progress (the
     furthest route point within 3 m among the next 40), the distance to the route around it, and
-    the nearest drivable lane (``project`` over ``pid``) with its heading there.
+    the nearest drivable lane (``project`` over ``pid``, its nearest vertex found on the
+    ``jit_grid.point_grid`` of ``pid``) with its heading there.
 
     Returns:
         ``(progress, deviation, lane, s, dist, heading)``.
@@ -235,11 +237,11 @@ def route_monitor_kernel(route_points, progress, ex, ey, points, pid, owner, off
         d = np.sqrt(dx * dx + dy * dy)
         if d < dev:
             dev = d
-    q = np.empty((1, 2))
-    q[0, 0], q[0, 1] = ex, ey
-    lane, s, dist = project_kernel(q, points, pid, owner, offset, n_points, gs, base)
-    _, h = pose_at_kernel(lane, s, points, heading, offset, n_points, gs, base, length)
-    return progress, dev, lane[0], s[0], dist[0], h[0]
+    lane, s, dist = project_grid_kernel(ex, ey, points, pid, owner, offset, n_points, gs, base, x0, y0, cell, nx, ny,
+                                        cell_start, order)
+    one, at = np.full(1, lane, np.int64), np.full(1, s)
+    _, h = pose_at_kernel(one, at, points, heading, offset, n_points, gs, base, length)
+    return progress, dev, lane, s, dist, h[0]
 
 
 @_njit

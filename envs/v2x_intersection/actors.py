@@ -106,10 +106,10 @@ class ActorTable:
 
 def draw_size(kind: int, rng: np.random.Generator) -> tuple[float, float, float]:
     """Random ``(length, width, height)`` for a class (m)."""
-    lo, hi = _SIZE_BOUNDS[kind]
+    lo, hi = SIZE_BOUNDS[kind]
     size = rng.uniform(lo, hi)  # three draws in order: the numbers of three scalar uniform() calls
     return float(size[0]), float(size[1]), float(size[2])
 
 
 #: per class, ``(low (3,), high (3,))`` of :data:`SIZES`
-_SIZE_BOUNDS = {k: (np.array([r[0] for r in v]), np.array([r[1] for r in v])) for k, v in SIZES.items()}
+SIZE_BOUNDS = {k: (np.array([r[0] for r in v]), np.array([r[1] for r in v])) for k, v in SIZES.items()}

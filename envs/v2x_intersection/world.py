@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from .actors import DRIVER, EGO, PARKED, RIDER, WALKER, ActorTable, draw_size
+from .actors import DRIVER, EGO, PARKED, RIDER, SIZE_BOUNDS, WALKER, ActorTable, draw_size
 from .channel import Channel, ChannelConfig, empty_message
 from .classes import (
     BICYCLE,
@@ -38,6 +38,8 @@ from .geometry import row_norms, world_to_local_2d
 from .infractions import EventMonitor
 from .jit import HAVE_JIT
 from .jit_perception import object_rows_kernel, perceive_all_kernel, seen_rows_kernel
+from .jit_rng import state_views
+from .jit_spawn import spawn_followers_kernel, spawn_walkers_kernel
 from .pedestrians import SidewalkNetwork, step_walkers
 from .physics import CollisionWorld
 from .raycast import Boxes
@@ -56,6 +58,11 @@ EGO_LENGTH, EGO_WIDTH, EGO_HEIGHT = 4.7, 1.9, 1.5  # m
 RSU_HFOV = np.deg2rad(120.0)  # rad, RSU LiDAR horizontal field of view
 _TRIGGER_PREFERENCE = float(TRIGGER_PREFERENCE_M)
 _FACING = float(np.deg2rad(100.0))  # rad, rsu.select_active's facing test
+
+
+_FOLLOWER_KINDS = np.array([CAR, LARGE_VEHICLE, BICYCLE], np.int64)
+#: ``(low (3, 3), high (3, 3))`` size bounds of the follower kinds, in ``_FOLLOWER_KINDS`` order
+_FOLLOWER_SIZES = tuple(np.stack([SIZE_BOUNDS[k][j] for k in _FOLLOWER_KINDS]) for j in (0, 1))
 
 
 class StepError(RuntimeError):
@@ -187,7 +194,20 @@ class World:
         self.lane_signal = self.signals.lane_states(0.0)
         self.perceive()
 
+    def _spawn_followers_jit(self, row: int, count: int, riders: bool) -> int:
+        """:meth:`_spawn_drivers` / :meth:`_spawn_riders` in one kernel (same draws, same actors)."""
+        t, ix = self.table, self.town.index
+        words, buf = state_views(self.rng)
+        lo, hi = _FOLLOWER_SIZES
+        return spawn_followers_kernel(
+            words, buf, row, count, riders, self._drive_lanes, float(self.config.large_vehicle_fraction),
+            _FOLLOWER_KINDS, RIDER if riders else DRIVER, lo, hi, t.kind, t.behaviour, t.active, t.length, t.width,
+            t.height, t.v0, t.speed, t.lane, t.s, t.lat, t.pos, t.yaw, t.stopped_at_sign, t.wait, ix.speed_limit,
+            ix.points, ix.heading, ix.offset, ix.n_points, ix.gs, ix.base, ix.length)
+
     def _spawn_drivers(self, row: int, count: int) -> int:
+        if HAVE_JIT and len(self._drive_lanes):
+            return self._spawn_followers_jit(row, count, False)
         t, rng = self.table, self.rng
         for _ in range(count):
             spot = free_lane_spot(t, self.town, self._drive_lanes, rng, t.pos[0], 25.0, clearance=12.0)
@@ -219,6 +239,14 @@ class World:
         t, rng, net = self.table, self.rng, self.sidewalks
         if net.index is None:
             return row
+        if HAVE_JIT:
+            ix = net.index
+            words, buf = state_views(rng)
+            lo, hi = SIZE_BOUNDS[PEDESTRIAN]
+            return spawn_walkers_kernel(words, buf, row, count, PEDESTRIAN, WALKER, lo, hi, t.kind, t.behaviour,
+                                        t.active, t.length, t.width, t.height, t.path, t.path_s, t.path_dir, t.lat,
+                                        t.speed, t.pos, t.yaw, ix.points, ix.heading, ix.offset, ix.n_points, ix.gs,
+                                        ix.base, ix.length)
         for _ in range(count):
             sw = int(rng.integers(len(net.index.length)))
             t.kind[row], t.behaviour[row], t.active[row] = PEDESTRIAN, WALKER, True
@@ -234,6 +262,8 @@ class World:
         return row
 
     def _spawn_riders(self, row: int, count: int) -> int:
+        if HAVE_JIT and len(self._drive_lanes):
+            return self._spawn_followers_jit(row, count, True)
         t, rng = self.table, self.rng
         for _ in range(count):
             spot = free_lane_spot(t, self.town, self._drive_lanes, rng, t.pos[0], 25.0, clearance=10.0)

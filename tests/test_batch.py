@@ -67,8 +67,10 @@ def test_torchrl_batched_env_matches_single_worlds():
         a = _actions(rng, N)
         td = env.step(TensorDict({"action": torch.from_numpy(a)}, batch_size=[N]))["next"]
         for i, e in enumerate(singles):
-            single_obs[i], r, *_ = e.step(a[i])
+            single_obs[i], r, *_, info = e.step(a[i])
             assert td["reward"][i, 0].item() == np.float32(r)
+            assert td["route_completion"][i, 0].item() == np.float32(info["route_completion"])
+            assert td["v2x_bps"][i, 0].item() == np.float32(info["v2x_bps"])
 
 
 def test_world_batch_partial_reset_leaves_other_worlds_alone():

@@ -82,6 +82,8 @@ class WorldBatch:
             first reset). obs: nested dict of ``(N, ...)`` arrays (``observations.ego_space``
             layout), row ``i`` = world ``i``'s observation of its current tick.
         reward, terminated, truncated: ``(N,)`` results of the last :meth:`step`.
+        route_completion, v2x_bps: ``(N,)`` float32 route completion (%) and V2X bytes per
+            simulated second of each world's episode so far (after the last reset or step).
         infos: per-world info dicts of the last reset/step (``episode.EpisodeTracker.info``;
             with ``with_infos=False`` only resets refresh them).
     """
@@ -98,6 +100,8 @@ class WorldBatch:
         self.reward = np.zeros(num_worlds, np.float64)
         self.terminated = np.zeros(num_worlds, bool)
         self.truncated = np.zeros(num_worlds, bool)
+        self.route_completion = np.zeros(num_worlds, np.float32)  # percent, after the last reset/step
+        self.v2x_bps = np.zeros(num_worlds, np.float32)  # bytes sent / simulated seconds of the episode
         self.infos: list[dict] = [{} for _ in range(num_worlds)]
         self.with_infos = with_infos  # False: step() leaves ``infos`` as they were (TorchRL reads none)
         # objects mode with numba: the observation kernel writes straight into row views of the buffers
@@ -119,6 +123,12 @@ class WorldBatch:
         self._observe(i)
         self.reward[i], self.terminated[i], self.truncated[i] = 0.0, False, False
         self.infos[i] = self.trackers[i].info()
+        self._progress(i)
+
+    def _progress(self, i: int) -> None:
+        w = self.worlds[i]
+        self.route_completion[i] = w.monitor.route_completion
+        self.v2x_bps[i] = w.channel.bytes_sent_total / (w.tick * w.config.dt) if w.tick else 0.0
 
     def reset(self, seeds, mask=None) -> None:
         """Reset the worlds where ``mask (N,)`` is true (all by default) with ``seeds[i]``."""
@@ -157,6 +167,7 @@ class WorldBatch:
             self.reward[i], self.terminated[i], self.truncated[i] = r, te, tc
             if info is not None:
                 self.infos[i] = info
+            self._progress(i)
         for i in idx:
             self._observe(i)
 

@@ -75,14 +75,11 @@ class V2XTorchEnv(EnvBase):
         """The ``N`` worlds (``self.batch.worlds``)."""
         return self.batch.worlds
 
-    def _outputs(self, rows) -> dict:
-        rc, bps = self._extra["route_completion"], self._extra["v2x_bps"]
-        worlds = self.batch.worlds
-        for i in rows:
-            w = worlds[i]
-            rc[i, 0] = w.monitor.route_completion
-            bps[i, 0] = w.channel.bytes_sent_total / (w.tick * w.config.dt) if w.tick else 0.0
-        return _tensors({**self.batch.obs, **self._extra}, self.device)
+    def _outputs(self) -> dict:
+        b = self.batch
+        self._extra["route_completion"][:, 0] = b.route_completion
+        self._extra["v2x_bps"][:, 0] = b.v2x_bps
+        return _tensors({**b.obs, **self._extra}, self.device)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         n = self.batch_size[0]
@@ -94,7 +91,7 @@ class V2XTorchEnv(EnvBase):
         for i in rows:
             self.batch.reset_world(int(i), int(self._seed_rng.integers(2**31)))
         self._started |= mask
-        out = self._outputs(rows)
+        out = self._outputs()
         false = torch.zeros(n, 1, dtype=torch.bool, device=self.device)
         return TensorDict({**out, "done": false, "terminated": false.clone(), "truncated": false.clone()},
                           batch_size=self.batch_size, device=self.device)
@@ -104,7 +101,7 @@ class V2XTorchEnv(EnvBase):
         actions = tensordict.get("action").detach().cpu().numpy()
         b = self.batch
         b.step(validate_controls(actions, n))
-        out = self._outputs(range(n))
+        out = self._outputs()
         t = lambda a: torch.as_tensor(a, device=self.device)  # noqa: E731
         term, trunc = b.terminated.reshape(n, 1).copy(), b.truncated.reshape(n, 1).copy()
         return TensorDict({**out, "reward": t(b.reward.astype(np.float32).reshape(n, 1)), "done": t(term | trunc),

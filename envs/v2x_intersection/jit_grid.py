@@ -57,23 +57,12 @@ def nearest_in_grid(x, y, points, pid, x0, y0, cell, nx, ny, cell_start, order):
     best_d2, best_pos = np.inf, pid.shape[0]
     r = 0
     while True:
-        if r == 0:
-            best_d2, best_pos = _scan_cell(cy * nx + cx, x, y, points, pid, cell_start, order, best_d2, best_pos)
-        else:
-            for i in range(cx - r, cx + r + 1):
-                if i < 0 or i >= nx:
-                    continue
-                for j in (cy - r, cy + r):
-                    if 0 <= j < ny:
-                        best_d2, best_pos = _scan_cell(j * nx + i, x, y, points, pid, cell_start, order, best_d2,
-                                                       best_pos)
-            for j in range(cy - r + 1, cy + r):
-                if j < 0 or j >= ny:
-                    continue
-                for i in (cx - r, cx + r):
-                    if 0 <= i < nx:
-                        best_d2, best_pos = _scan_cell(j * nx + i, x, y, points, pid, cell_start, order, best_d2,
-                                                       best_pos)
+        for j in range(max(cy - r, 0), min(cy + r, ny - 1) + 1):  # the cells of ring r, row by row
+            edge_row = j == cy - r or j == cy + r
+            for i in range(max(cx - r, 0), min(cx + r, nx - 1) + 1):
+                if edge_row or i == cx - r or i == cx + r:
+                    best_d2, best_pos = _scan_cell(j * nx + i, x, y, points, pid, cell_start, order, best_d2,
+                                                   best_pos)
         # the searched cells form the rectangle [cx - r, cx + r] x [cy - r, cy + r]; a point outside
         # it is at least as far as the nearest of its sides that is not the grid's border
         bound = np.inf

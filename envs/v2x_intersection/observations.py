@@ -185,10 +185,8 @@ def ego_observation(world) -> dict[str, np.ndarray]:
                "v2x_info": np.empty(len(V2X_INFO_FEATURES), np.float32)}
         if cfg.obs_mode == "objects":
             out["objects"] = np.empty((m, len(OBJECT_FEATURES)), np.float32)
-            fill_objects_observation(world, out)
-            return out
         fill_objects_observation(world, out)
-        return _sensor_keys(world, out)
+        return out if cfg.obs_mode == "objects" else _sensor_keys(world, out)
     t = world.table  # NumPy path
     ego_xy, ego_yaw = t.pos[0], float(t.yaw[0])
     # route ahead

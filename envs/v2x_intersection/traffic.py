@@ -304,7 +304,7 @@ def place_on_lane(t: ActorTable, town: Town, i: int, lane: int, s: float) -> Non
 
 
 def respawn_followers(t: ActorTable, town: Town, lanes: np.ndarray, rng: np.random.Generator, rows: np.ndarray,
-            min_avoid: float = 60.0) -> None:
+                      min_avoid: float = 60.0) -> None:
     """Rows ``rows`` (in order) leave the world, or come back at rest on a free spot of ``lanes``
     at least ``min_avoid`` m from the ego: scenario actors leave, background NPCs are placed with
     :func:`free_lane_spot` (and leave when it finds none)."""

@@ -38,7 +38,7 @@ _ONE = np.uint64(1)
 _ZERO = np.uint64(0)
 _INV53 = 1.0 / 9007199254740992.0
 _VIEWS: dict[int, tuple] = {}  # id(rng) -> (rng, words, buf); holding rng keeps its id unique
-_MAX_VIEWS = 64
+_MAX_VIEWS = 256  # generators: more than the worlds of one process (~12 kB each with their views)
 
 
 def generator_state(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:

@@ -263,7 +263,7 @@ def _flat_plans(plans: list[list[int]] | None) -> tuple[np.ndarray, np.ndarray, 
     n = np.array([len(p) for p in plans], np.int64)
     lanes = np.array([k for p in plans for k in p], np.int64)
     flat = (lanes, np.concatenate([[0], np.cumsum(n)[:-1]]).astype(np.int64), n)
-    if len(_PLANS) >= 64 and id(plans) not in _PLANS:
+    if len(_PLANS) >= 256 and id(plans) not in _PLANS:
         del _PLANS[next(iter(_PLANS))]
     _PLANS[id(plans)] = (plans, len(plans), flat)
     return flat

@@ -1,6 +1,6 @@
-"""numba kernels for the NPC tick: car-following, stop lines, junction yielding and the pose
-update of vehicles and bicycles (``traffic.step_followers``), and pedestrians walking their
-sidewalks or crossings (``pedestrians.step_walkers``) are in :mod:`.jit_walkers`.
+"""numba kernels for NPC vehicles and bicycles (``traffic.step_followers``): car-following, stop
+lines, junction yielding, lane transitions and lane changes, the pose update; respawns and free
+lane spots; and the traffic lights' states. The pedestrians' kernels are in :mod:`.jit_walkers`.
 
 Like :mod:`.jit`, each kernel repeats the NumPy path's float operations in the same order and
 dtype, so both paths give bit-identical results (``tests/test_jit.py``). What draws random

@@ -18,7 +18,7 @@ A batch of ``N`` worlds gives exactly the observations, rewards and flags of ``N
 What is vectorized across worlds in this version: action validation, the reward/flag arrays and
 the observation buffers (with numba, in ``objects`` mode, each world's observation kernel writes
 straight into its row). The world tick itself (traffic, pedestrians, scenarios, perception) runs
-world after world; ``benchmarks/`` measures where the time goes.
+world after world within each stage; ``benchmarks/`` measures where the time goes.
 """
 
 from __future__ import annotations
@@ -31,13 +31,12 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from .config import make_config
-from .episode import EpisodeTracker
+from .episode import EpisodeTracker, v2x_bps
 from .jit import HAVE_JIT
 from .observations import ego_action_space, ego_observation, ego_space, fill_objects_observation
 from .world import TICK_STAGES, StepError, World
 
 _LOW = np.array([0.0, -1.0, 0.0])
-
 _HIGH = np.array([1.0, 1.0, 1.0])
 
 
@@ -126,9 +125,10 @@ class WorldBatch:
         self._progress(i)
 
     def _progress(self, i: int) -> None:
+        """Refresh world ``i``'s ``route_completion`` and ``v2x_bps``."""
         w = self.worlds[i]
         self.route_completion[i] = w.monitor.route_completion
-        self.v2x_bps[i] = w.channel.bytes_sent_total / (w.tick * w.config.dt) if w.tick else 0.0
+        self.v2x_bps[i] = v2x_bps(w)
 
     def reset(self, seeds, mask=None) -> None:
         """Reset the worlds where ``mask (N,)`` is true (all by default) with ``seeds[i]``."""

@@ -34,6 +34,12 @@ def time_budget_steps(world) -> int:
     return int(np.ceil((world.route.length / 2.5 + 30.0) / world.config.dt))
 
 
+def v2x_bps(world) -> float:
+    """Bytes counted by the channel / simulated seconds of this episode (the channel's own ``bps``
+    also counts the interval of the tick in progress); 0 before the first tick."""
+    return world.channel.bytes_sent_total / (world.tick * world.config.dt) if world.tick else 0.0
+
+
 class EpisodeTracker:
     """Turns a world's events into reward, termination flags and a numeric info dict."""
 
@@ -80,9 +86,7 @@ class EpisodeTracker:
             "driven_m": w.monitor.driven_m,
             "active_rsu": int(w.active_rsu[0]),
             "v2x_bytes_total": int(stats["bytes_sent_total"]),
-            # bytes counted by the channel / simulated seconds of this episode (the channel's own
-            # ``bps`` also counts the interval of the tick in progress)
-            "v2x_bps": float(stats["bytes_sent_total"]) / max(w.tick * w.config.dt, 1e-9) if w.tick else 0.0,
+            "v2x_bps": v2x_bps(w),
             "v2x_peak_bps": float(stats["peak_bps"]),
             "v2x_messages_lost": int(stats["messages_lost"]),
             "v2x_messages_dropped": int(stats["messages_dropped_bandwidth"]),

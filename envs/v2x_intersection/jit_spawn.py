@@ -10,43 +10,33 @@ import numpy as np
 
 from .jit import _njit, pose_at_kernel
 from .jit_rng import integers, next_double, uniform
-from .jit_traffic import free_lane_spot_kernel
+from .jit_traffic import free_lane_spot_kernel, place_kernel
 
 _SIGNS = (-1.0, 1.0)
 
 
 @_njit
-def _place(row, lane, s, lane_arr, s_arr, lat, pos, yaw, stopped_at_sign, wait, points, heading, offset, n_points,
-           gs, base, length):  # pragma: no cover
-    """``traffic.place_on_lane`` for one row."""
-    p, h = pose_at_kernel(np.full(1, lane, np.int64), np.full(1, s), points, heading, offset, n_points, gs, base,
-                          length)
-    lane_arr[row], s_arr[row], lat[row] = lane, s, 0.0
-    pos[row, 0], pos[row, 1], yaw[row] = p[0, 0], p[0, 1], h[0]
-    stopped_at_sign[row] = False
-    wait[row] = 0.0
-
-
-@_njit
-def spawn_followers_kernel(words, buf, row, count, riders, lanes, large_fraction, kinds, behaviour_code, size_lo,
-                           size_hi, kind, behaviour, active, box_l, box_w, box_h, v0, speed, lane_arr, s_arr, lat, pos,
-                           yaw, stopped_at_sign, wait, speed_limit, points, heading, offset, n_points, gs, base,
-                           length):  # pragma: no cover
+def spawn_followers_kernel(words, buf, row, count, riders, lanes, min_avoid, clearance, tries, large_fraction, kinds,
+                           behaviour_code, size_lo, size_hi, v0_lo, v0_hi, start_fraction, kind, behaviour, active,
+                           box_l, box_w, box_h, v0, speed, lane_arr, s_arr, lat, pos, yaw, stopped_at_sign, wait,
+                           speed_limit, points, heading, offset, n_points, gs, base, length):  # pragma: no cover
     """``World._spawn_drivers`` (``riders`` false) or ``World._spawn_riders``: up to ``count``
-    followers from row ``row`` on free spots of ``lanes`` (stopping at the first spot not found),
-    away from the ego in row 0.
+    followers from row ``row`` on free spots of ``lanes`` (``free_lane_spot_kernel`` with
+    ``min_avoid`` from the ego in row 0, ``clearance`` and ``tries``; stopping at the first spot not
+    found), starting at ``start_fraction`` of their desired speed (times the speed limit for
+    vehicles).
 
     ``kinds``: ``(car, large vehicle, bicycle)`` class ids; ``size_lo``/``size_hi``: ``(3, 3)``
-    ``actors.SIZES`` bounds (length, width, height) in that order; ``box_l``, ``box_w``,
-    ``box_h``: the table's size columns.
+    ``actors.SIZES`` bounds (length, width, height) and ``v0_lo``/``v0_hi``: ``(3,)`` desired
+    speed ranges, in that order; ``box_l``, ``box_w``, ``box_h``: the table's size columns.
 
     Returns:
         the next free row.
     """
     ax, ay = pos[0, 0], pos[0, 1]
     for _ in range(count):
-        lane, s = free_lane_spot_kernel(words, buf, lanes, active, pos, ax, ay, 25.0, 10.0 if riders else 12.0, 50,
-                                        points, heading, offset, n_points, gs, base, length)
+        lane, s = free_lane_spot_kernel(words, buf, lanes, active, pos, ax, ay, min_avoid, clearance, tries, points,
+                                        heading, offset, n_points, gs, base, length)
         if lane < 0:
             break
         if riders:
@@ -57,25 +47,21 @@ def spawn_followers_kernel(words, buf, row, count, riders, lanes, large_fraction
         box_l[row] = uniform(words, size_lo[c, 0], size_hi[c, 0])  # actors.draw_size
         box_w[row] = uniform(words, size_lo[c, 1], size_hi[c, 1])
         box_h[row] = uniform(words, size_lo[c, 2], size_hi[c, 2])
-        if riders:
-            v0[row] = uniform(words, 3.5, 5.5)
-        elif c == 0:
-            v0[row] = uniform(words, 0.75, 1.05)
-        else:
-            v0[row] = uniform(words, 0.65, 0.9)
-        _place(row, lane, s, lane_arr, s_arr, lat, pos, yaw, stopped_at_sign, wait, points, heading, offset, n_points,
-               gs, base, length)
-        speed[row] = v0[row] * 0.8 if riders else 0.5 * v0[row] * speed_limit[lane]
+        v0[row] = uniform(words, v0_lo[c], v0_hi[c])
+        place_kernel(row, lane, s, lane_arr, s_arr, lat, pos, yaw, stopped_at_sign, wait, points, heading, offset,
+                     n_points, gs, base, length)
+        speed[row] = v0[row] * start_fraction if riders else start_fraction * v0[row] * speed_limit[lane]
         row += 1
     return row
 
 
 @_njit
-def spawn_walkers_kernel(words, buf, row, count, kind_code, behaviour_code, size_lo, size_hi, kind, behaviour, active,
-                         box_l, box_w, box_h, path, path_s, path_dir, lat, speed, pos, yaw, points, heading, offset,
-                         n_points, gs, base, length):  # pragma: no cover
+def spawn_walkers_kernel(words, buf, row, count, kind_code, behaviour_code, size_lo, size_hi, lat_lo, lat_hi,
+                         speed_lo, speed_hi, kind, behaviour, active, box_l, box_w, box_h, path, path_s, path_dir, lat,
+                         speed, pos, yaw, points, heading, offset, n_points, gs, base, length):  # pragma: no cover
     """``World._spawn_walkers``: ``count`` pedestrians from row ``row`` at random places of random
-    sidewalks (the sidewalk index's arrays), random direction, lateral offset and speed.
+    sidewalks (the sidewalk index's arrays), with a random direction, a lateral offset drawn in
+    ``[lat_lo, lat_hi)`` and a speed in ``[speed_lo, speed_hi)``.
 
     Returns:
         the next free row.
@@ -90,8 +76,8 @@ def spawn_walkers_kernel(words, buf, row, count, kind_code, behaviour_code, size
         box_h[row] = uniform(words, size_lo[2], size_hi[2])
         path[row], path_s[row] = sw, uniform(words, 0.0, length[sw])
         path_dir[row] = _SIGNS[integers(words, buf, 2)]
-        lat[row] = uniform(words, -0.8, 0.8)
-        speed[row] = uniform(words, 1.0, 1.6)
+        lat[row] = uniform(words, lat_lo, lat_hi)
+        speed[row] = uniform(words, speed_lo, speed_hi)
         one[0], at[0] = sw, path_s[row]
         p, h = pose_at_kernel(one, at, points, heading, offset, n_points, gs, base, length)
         pos[row, 0] = p[0, 0] + lat[row] * -np.sin(h[0])

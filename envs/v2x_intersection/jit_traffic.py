@@ -303,8 +303,6 @@ def respawn_kernel(words, buf, rows, lanes, active, pos, yaw, speed, lane_arr, s
     """Step 5 of ``World.step``: each of ``rows`` in order leaves the world (a scenario actor, or no
     free spot found) or is put back at rest on a free lane spot (:func:`free_lane_spot_kernel`
     away from the ego, ``traffic.place_on_lane``)."""
-    one = np.empty(1, np.int64)
-    at = np.empty(1)
     for i in rows:
         if scenario[i] >= 0:
             active[i] = False
@@ -314,13 +312,21 @@ def respawn_kernel(words, buf, rows, lanes, active, pos, yaw, speed, lane_arr, s
         if lane < 0:
             active[i] = False
             continue
-        one[0], at[0] = lane, s
-        p, h = pose_at_kernel(one, at, points, heading, offset, n_points, gs, base, length)
-        lane_arr[i], s_arr[i], lat[i] = lane, s, 0.0
-        pos[i, 0], pos[i, 1], yaw[i] = p[0, 0], p[0, 1], h[0]
-        stopped_at_sign[i] = False
-        wait[i] = 0.0
+        place_kernel(i, lane, s, lane_arr, s_arr, lat, pos, yaw, stopped_at_sign, wait, points, heading, offset,
+                     n_points, gs, base, length)
         speed[i] = 0.0
+
+
+@_njit
+def place_kernel(row, lane, s, lane_arr, s_arr, lat, pos, yaw, stopped_at_sign, wait, points, heading, offset,
+                 n_points, gs, base, length):  # pragma: no cover
+    """``traffic.place_on_lane`` for one row."""
+    p, h = pose_at_kernel(np.full(1, lane, np.int64), np.full(1, s), points, heading, offset, n_points, gs, base,
+                          length)
+    lane_arr[row], s_arr[row], lat[row] = lane, s, 0.0
+    pos[row, 0], pos[row, 1], yaw[row] = p[0, 0], p[0, 1], h[0]
+    stopped_at_sign[row] = False
+    wait[row] = 0.0
 
 
 @_njit

@@ -31,6 +31,7 @@ TRIGGER_AHEAD = 14.0  # m past a scenario's hazard point where its unit stands
 SNAP_M = 8.0  # m: poles move to the nearest sidewalk point within this distance
 KIND_STRAIGHT, KIND_JUNCTION, KIND_TRIGGER = 0, 1, 2
 TRIGGER_PREFERENCE_M = 40.0  # m: active-unit selection favours scenario units by this much
+FACING_MAX_ANGLE = float(np.deg2rad(100.0))  # rad: a unit faces the ego within this angle
 
 
 @dataclass
@@ -173,12 +174,12 @@ def select_active(rsus: RSUSet, ego_xy: np.ndarray, ego_yaw: float, max_range: f
     if HAVE_JIT:
         return select_active_kernel(rsus.pose, rsus.kind, KIND_TRIGGER, float(ego_xy[0]), float(ego_xy[1]),
                                     float(ego_yaw), float(max_range), int(slots), float(TRIGGER_PREFERENCE_M),
-                                    float(np.deg2rad(100.0)))
+                                    FACING_MAX_ANGLE)
     d = rsus.pose[:, :2] - ego_xy
     dist = np.linalg.norm(d, axis=1)
     ahead = d @ np.array([np.cos(ego_yaw), np.sin(ego_yaw)]) > -10.0
     to_ego = np.arctan2(-d[:, 1], -d[:, 0])
-    facing = np.abs(wrap_angle(to_ego - rsus.pose[:, 3])) < np.deg2rad(100.0)
+    facing = np.abs(wrap_angle(to_ego - rsus.pose[:, 3])) < FACING_MAX_ANGLE
     ok = ahead & facing & (dist < max_range)
     # a unit placed for a scenario's conflict point wins over nearer general-purpose units
     key = dist - TRIGGER_PREFERENCE_M * (rsus.kind == KIND_TRIGGER)

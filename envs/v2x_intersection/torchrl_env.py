@@ -23,7 +23,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from .batch import WorldBatch, validate_controls
+from .batch import WorldBatch
 from .config import make_config
 from .observations import ego_space
 
@@ -58,7 +58,6 @@ class V2XTorchEnv(EnvBase):
         self._seed_rng = np.random.default_rng(self.config.seed)
         self._started = np.zeros(num_worlds, bool)
         n = num_worlds
-        self._extra = {k: np.zeros((n, 1), np.float32) for k in _EXTRA}
         obs = _spec(ego_space(self.config), n, self.device)
         for k in _EXTRA:
             obs[k] = Unbounded(shape=(n, 1), dtype=torch.float32, device=self.device)
@@ -77,9 +76,7 @@ class V2XTorchEnv(EnvBase):
 
     def _outputs(self) -> dict:
         b = self.batch
-        self._extra["route_completion"][:, 0] = b.route_completion
-        self._extra["v2x_bps"][:, 0] = b.v2x_bps
-        return _tensors({**b.obs, **self._extra}, self.device)
+        return _tensors({**b.obs, **{k: getattr(b, k)[:, None] for k in _EXTRA}}, self.device)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         n = self.batch_size[0]
@@ -100,7 +97,7 @@ class V2XTorchEnv(EnvBase):
         n = self.batch_size[0]
         actions = tensordict.get("action").detach().cpu().numpy()
         b = self.batch
-        b.step(validate_controls(actions, n))
+        b.step(actions)  # checked and clipped there
         out = self._outputs()
         t = lambda a: torch.as_tensor(a, device=self.device)  # noqa: E731
         term, trunc = b.terminated.reshape(n, 1).copy(), b.truncated.reshape(n, 1).copy()

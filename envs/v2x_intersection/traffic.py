@@ -24,6 +24,8 @@ STUCK_RESPAWN_S = 40.0  # s stopped (not at a red light) before an NPC is respaw
 #: drive around obstacles, and one queued at a scenario's obstacle would block the ego behind it
 #: (CARLA's background activity likewise clears the lanes of an active scenario)
 BLOCKED_RESPAWN_S = 5.0
+#: :func:`free_lane_spot`'s defaults: distance to every active actor (m) and draws before giving up
+SPOT_CLEARANCE_M, SPOT_TRIES = 10.0, 50
 IDM = IDMParams()
 IDM_BIKE = IDMParams(accel=1.0, decel=2.0, time_headway=1.0, min_gap=1.5)
 
@@ -312,7 +314,8 @@ def respawn_followers(t: ActorTable, town: Town, lanes: np.ndarray, rng: np.rand
         ix = town.index
         words, buf = state_views(rng)
         respawn_kernel(words, buf, np.asarray(rows, np.int64), np.asarray(lanes, np.int64), t.active, t.pos, t.yaw,
-                       t.speed, t.lane, t.s, t.lat, t.stopped_at_sign, t.wait, t.scenario, float(min_avoid), 10.0, 50,
+                       t.speed, t.lane, t.s, t.lat, t.stopped_at_sign, t.wait, t.scenario, float(min_avoid), SPOT_CLEARANCE_M,
+                       SPOT_TRIES,
                        ix.points, ix.heading, ix.offset, ix.n_points, ix.gs, ix.base, ix.length)
         return
     for i in rows:
@@ -328,8 +331,8 @@ def respawn_followers(t: ActorTable, town: Town, lanes: np.ndarray, rng: np.rand
 
 
 def free_lane_spot(t: ActorTable, town: Town, lanes: np.ndarray, rng: np.random.Generator,
-                   avoid: np.ndarray, min_avoid: float, clearance: float = 10.0,
-                   tries: int = 50) -> tuple[int, float] | None:
+                   avoid: np.ndarray, min_avoid: float, clearance: float = SPOT_CLEARANCE_M,
+                   tries: int = SPOT_TRIES) -> tuple[int, float] | None:
     """A random ``(lane, s)`` on ``lanes`` at least ``clearance`` m from actors and ``min_avoid`` m
     from ``avoid (2,)``; ``None`` if none found in ``tries`` draws."""
     ix = town.index

@@ -44,11 +44,11 @@ from .pedestrians import SidewalkNetwork, step_walkers
 from .physics import CollisionWorld
 from .raycast import Boxes
 from .routes import Route, random_route
-from .rsu import KIND_TRIGGER, TRIGGER_PREFERENCE_M, RSUSet, deploy, select_active
+from .rsu import FACING_MAX_ANGLE, KIND_TRIGGER, TRIGGER_PREFERENCE_M, RSUSet, deploy, select_active
 from .signals import SignalPlan
 from .town import get_town
 from .town.model import DRIVING, RAMP
-from .traffic import free_lane_spot, place_on_lane, respawn_followers, step_followers
+from .traffic import SPOT_TRIES, free_lane_spot, place_on_lane, respawn_followers, step_followers
 from .visibility import VISIBILITY_SAMPLING, VISIBLE_THRESHOLD, visible_fraction
 from .wire import NUM_OBJECT_FIELDS, max_objects, pack_objects, pack_rows, wrap_track_ids
 
@@ -56,13 +56,23 @@ _NO_PAYLOAD = np.zeros(0, np.float32)
 EGO_SENSOR_Z = 1.8  # m, ego camera height (occlusion is judged from here)
 EGO_LENGTH, EGO_WIDTH, EGO_HEIGHT = 4.7, 1.9, 1.5  # m
 RSU_HFOV = np.deg2rad(120.0)  # rad, RSU LiDAR horizontal field of view
-_TRIGGER_PREFERENCE = float(TRIGGER_PREFERENCE_M)
-_FACING = float(np.deg2rad(100.0))  # rad, rsu.select_active's facing test
 
+
+#: NPCs placed at reset keep this far from the ego (m), and this far from every other actor (m)
+SPAWN_AWAY_M = 25.0
+SPAWN_CLEARANCE_M = {DRIVER: 12.0, RIDER: 10.0}
+#: desired speed draws: cars and large vehicles as a fraction of the speed limit, bicycles in m/s
+V0_RANGES = {CAR: (0.75, 1.05), LARGE_VEHICLE: (0.65, 0.9), BICYCLE: (3.5, 5.5)}
+#: speed at reset: vehicles at this fraction of desired speed x speed limit, bicycles of desired speed
+START_SPEED_FRACTION = {DRIVER: 0.5, RIDER: 0.8}
+WALKER_LAT_RANGE = (-0.8, 0.8)  # m, pedestrians' lateral offset on their sidewalk
+WALKER_SPEED_RANGE = (1.0, 1.6)  # m/s
 
 _FOLLOWER_KINDS = np.array([CAR, LARGE_VEHICLE, BICYCLE], np.int64)
 #: ``(low (3, 3), high (3, 3))`` size bounds of the follower kinds, in ``_FOLLOWER_KINDS`` order
 _FOLLOWER_SIZES = tuple(np.stack([SIZE_BOUNDS[k][j] for k in _FOLLOWER_KINDS]) for j in (0, 1))
+#: ``(low (3,), high (3,))`` of :data:`V0_RANGES`, in ``_FOLLOWER_KINDS`` order
+_FOLLOWER_V0 = tuple(np.array([V0_RANGES[k][j] for k in _FOLLOWER_KINDS]) for j in (0, 1))
 
 
 class StepError(RuntimeError):
@@ -198,27 +208,29 @@ class World:
         """:meth:`_spawn_drivers` / :meth:`_spawn_riders` in one kernel (same draws, same actors)."""
         t, ix = self.table, self.town.index
         words, buf = state_views(self.rng)
-        lo, hi = _FOLLOWER_SIZES
+        behaviour = RIDER if riders else DRIVER
         return spawn_followers_kernel(
-            words, buf, row, count, riders, self._drive_lanes, float(self.config.large_vehicle_fraction),
-            _FOLLOWER_KINDS, RIDER if riders else DRIVER, lo, hi, t.kind, t.behaviour, t.active, t.length, t.width,
-            t.height, t.v0, t.speed, t.lane, t.s, t.lat, t.pos, t.yaw, t.stopped_at_sign, t.wait, ix.speed_limit,
-            ix.points, ix.heading, ix.offset, ix.n_points, ix.gs, ix.base, ix.length)
+            words, buf, row, count, riders, self._drive_lanes, SPAWN_AWAY_M, SPAWN_CLEARANCE_M[behaviour], SPOT_TRIES,
+            float(self.config.large_vehicle_fraction), _FOLLOWER_KINDS, behaviour, *_FOLLOWER_SIZES, *_FOLLOWER_V0,
+            START_SPEED_FRACTION[behaviour], t.kind, t.behaviour, t.active, t.length, t.width, t.height, t.v0,
+            t.speed, t.lane, t.s, t.lat, t.pos, t.yaw, t.stopped_at_sign, t.wait, ix.speed_limit, ix.points,
+            ix.heading, ix.offset, ix.n_points, ix.gs, ix.base, ix.length)
 
     def _spawn_drivers(self, row: int, count: int) -> int:
         if HAVE_JIT and len(self._drive_lanes):
             return self._spawn_followers_jit(row, count, False)
         t, rng = self.table, self.rng
         for _ in range(count):
-            spot = free_lane_spot(t, self.town, self._drive_lanes, rng, t.pos[0], 25.0, clearance=12.0)
+            spot = free_lane_spot(t, self.town, self._drive_lanes, rng, t.pos[0], SPAWN_AWAY_M,
+                                  clearance=SPAWN_CLEARANCE_M[DRIVER])
             if spot is None:
                 break
             kind = LARGE_VEHICLE if rng.random() < self.config.large_vehicle_fraction else CAR
             t.kind[row], t.behaviour[row], t.active[row] = kind, DRIVER, True
             t.length[row], t.width[row], t.height[row] = draw_size(kind, rng)
-            t.v0[row] = rng.uniform(0.75, 1.05) if kind == CAR else rng.uniform(0.65, 0.9)
+            t.v0[row] = rng.uniform(*V0_RANGES[kind])
             place_on_lane(t, self.town, row, *spot)
-            t.speed[row] = 0.5 * t.v0[row] * self.town.index.speed_limit[spot[0]]
+            t.speed[row] = START_SPEED_FRACTION[DRIVER] * t.v0[row] * self.town.index.speed_limit[spot[0]]
             row += 1
         return row
 
@@ -242,19 +254,19 @@ class World:
         if HAVE_JIT:
             ix = net.index
             words, buf = state_views(rng)
-            lo, hi = SIZE_BOUNDS[PEDESTRIAN]
-            return spawn_walkers_kernel(words, buf, row, count, PEDESTRIAN, WALKER, lo, hi, t.kind, t.behaviour,
-                                        t.active, t.length, t.width, t.height, t.path, t.path_s, t.path_dir, t.lat,
-                                        t.speed, t.pos, t.yaw, ix.points, ix.heading, ix.offset, ix.n_points, ix.gs,
-                                        ix.base, ix.length)
+            return spawn_walkers_kernel(words, buf, row, count, PEDESTRIAN, WALKER, *SIZE_BOUNDS[PEDESTRIAN],
+                                        *WALKER_LAT_RANGE, *WALKER_SPEED_RANGE, t.kind, t.behaviour, t.active,
+                                        t.length, t.width, t.height, t.path, t.path_s, t.path_dir, t.lat, t.speed,
+                                        t.pos, t.yaw, ix.points, ix.heading, ix.offset, ix.n_points, ix.gs, ix.base,
+                                        ix.length)
         for _ in range(count):
             sw = int(rng.integers(len(net.index.length)))
             t.kind[row], t.behaviour[row], t.active[row] = PEDESTRIAN, WALKER, True
             t.length[row], t.width[row], t.height[row] = draw_size(PEDESTRIAN, rng)
             t.path[row], t.path_s[row] = sw, rng.uniform(0.0, net.index.length[sw])
             t.path_dir[row] = signs(rng)
-            t.lat[row] = rng.uniform(-0.8, 0.8)
-            t.speed[row] = rng.uniform(1.0, 1.6)
+            t.lat[row] = rng.uniform(*WALKER_LAT_RANGE)
+            t.speed[row] = rng.uniform(*WALKER_SPEED_RANGE)
             p, h = net.index.pose_at(np.array([sw]), np.array([t.path_s[row]]))
             t.pos[row] = p[0] + t.lat[row] * np.array([-np.sin(h[0]), np.cos(h[0])])
             t.yaw[row] = h[0] if t.path_dir[row] > 0 else h[0] + np.pi
@@ -266,14 +278,15 @@ class World:
             return self._spawn_followers_jit(row, count, True)
         t, rng = self.table, self.rng
         for _ in range(count):
-            spot = free_lane_spot(t, self.town, self._drive_lanes, rng, t.pos[0], 25.0, clearance=10.0)
+            spot = free_lane_spot(t, self.town, self._drive_lanes, rng, t.pos[0], SPAWN_AWAY_M,
+                                  clearance=SPAWN_CLEARANCE_M[RIDER])
             if spot is None:
                 break
             t.kind[row], t.behaviour[row], t.active[row] = BICYCLE, RIDER, True
             t.length[row], t.width[row], t.height[row] = draw_size(BICYCLE, rng)
-            t.v0[row] = rng.uniform(3.5, 5.5)
+            t.v0[row] = rng.uniform(*V0_RANGES[BICYCLE])
             place_on_lane(t, self.town, row, *spot)
-            t.speed[row] = t.v0[row] * 0.8
+            t.speed[row] = t.v0[row] * START_SPEED_FRACTION[RIDER]
             row += 1
         return row
 
@@ -413,7 +426,7 @@ class World:
         cfg, t = self.config, self.table
         if HAVE_JIT:
             self.active_rsu, self.ego_vis, self.rsu_vis = perceive_all_kernel(
-                self.rsus.pose, self.rsus.kind, KIND_TRIGGER, _TRIGGER_PREFERENCE, _FACING, int(cfg.rsu_slots), t.pos,
+                self.rsus.pose, self.rsus.kind, KIND_TRIGGER, TRIGGER_PREFERENCE_M, FACING_MAX_ANGLE, int(cfg.rsu_slots), t.pos,
                 t.length, t.width, t.yaw, t.height, t.active, self.static_boxes, self.static_heights,
                 *self._static_trig, EGO_SENSOR_Z, float(cfg.ego_range) ** 2, float(cfg.ego_range),
                 float(cfg.rsu_range) ** 2, float(cfg.rsu_range), 0.5 * RSU_HFOV, *VISIBILITY_SAMPLING)

@@ -42,7 +42,7 @@ from .geometry import (
 from .jit import HAVE_JIT
 from .jit_observations import ego_obs_kernel
 from .rsu import RSU_PITCH
-from .traffic import STOP_LINE_SETBACK
+from .traffic import STOP_LINE_SETBACK, stop_sign_lanes
 from .visibility import VISIBLE_THRESHOLD
 from .wire import NUM_OBJECT_FIELDS, decode_message, unpack_objects
 
@@ -256,7 +256,7 @@ def fill_objects_observation(world, out: dict) -> None:
         STOP_LINE_SETBACK, ix.points, ix.owner, ix.offset, ix.n_points, ix.gs, ix.base, has_msg, payload, float(rx),
         float(ry), float(ryaw), age)
     light = float(world.lane_signal[lane])
-    if light < 0 and _stop_lanes(world.town)[lane]:
+    if light < 0 and stop_sign_lanes(world.town)[lane]:
         light = float(LIGHT_STOP_SIGN)
     control = world.last_control
     speed = t.speed[0]
@@ -266,18 +266,6 @@ def fill_objects_observation(world, out: dict) -> None:
 
 
 _NO_PAYLOAD = np.zeros(0, np.float32)
-
-
-def _stop_lanes(town) -> np.ndarray:
-    """``(L,)`` bool: the lane ends at a stop sign of its junction (cached on the town)."""
-    store = town.cache("lanes")
-    mask = store.get("stop_sign_lanes")
-    if mask is None:
-        ja = town.index.junction_ahead
-        mask = np.array([j >= 0 and k in town.junctions[j].stop_lanes for k, j in enumerate(ja)], bool)
-        mask.setflags(write=False)
-        store["stop_sign_lanes"] = mask
-    return mask
 
 
 def _v2x(world, ego_xy: np.ndarray, ego_yaw: float) -> tuple[np.ndarray, np.ndarray]:

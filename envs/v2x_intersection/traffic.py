@@ -224,6 +224,11 @@ def _lane_transitions(t: ActorTable, town: Town, idx: np.ndarray, lane: np.ndarr
     return respawn
 
 
+def stop_sign_lanes(town: Town) -> np.ndarray:
+    """``(L,)`` bool: the lane ends at a stop sign of its junction (cached on the town)."""
+    return _town_arrays(town)["stop_lane"]
+
+
 def _town_arrays(town: Town) -> dict[str, np.ndarray]:
     """Junction tables for the kernels, cached on the town: ``stop_lane (L,)`` (the lane has a stop
     sign at its junction ahead), ``major (J, L + 1)`` (``_major_mask`` rows), the junctions'

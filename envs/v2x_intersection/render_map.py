@@ -27,7 +27,13 @@ from .render_palette import (
     box_quads,
     mix_rgb,
 )
-from .town.areas import junction_corners, junction_roads, lane_markings, stop_bars
+from .town.areas import (
+    junction_corners,
+    junction_roads,
+    lane_markings,
+    parking_separators,
+    stop_bars,
+)
 from .town.model import CONNECTOR, DRIVING, PARKING, RAMP, Town
 
 MAX_STATIC_PIXELS = 30_000_000  # cap on a cached static map (beyond it the map is coarser)
@@ -139,15 +145,8 @@ def _build_static(town: Town, mpp: float) -> StaticMap:
             band(ln.points, ln.width, ROAD)
     for hull in junction_roads(town):
         d.polygon(px(hull), fill=ROAD)
-    # parking-slot separators
-    if len(town.parking):
-        hl, hw = 3.25, 1.25
-        for x, y, yaw in town.parking:
-            c, s = np.cos(yaw), np.sin(yaw)
-            for e in (-hl, hl):
-                a = np.array([x + c * e - s * hw, y + s * e + c * hw])
-                b = np.array([x + c * e + s * hw, y + s * e - c * hw])
-                line(np.stack([a, b]), MARK_WHITE, 0.12)
+    for seg in parking_separators(town):
+        line(seg, MARK_WHITE, 0.12)
     # faint lane centre lines (connectors show the turning paths)
     for ln in lanes:
         if ln.kind in (DRIVING, RAMP, CONNECTOR):

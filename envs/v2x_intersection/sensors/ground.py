@@ -23,7 +23,13 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from ..geometry import offset_polyline
-from ..town.areas import junction_corners, junction_roads, lane_markings, stop_bars
+from ..town.areas import (
+    junction_corners,
+    junction_roads,
+    lane_markings,
+    parking_separators,
+    stop_bars,
+)
 from ..town.model import CONNECTOR, DRIVING, PARKING, RAMP, Town
 from .semantics import (
     CENTRE_BIT,
@@ -188,12 +194,8 @@ def _build(town: Town, mpp: float) -> GroundRaster:
             band(ln.points, ln.width, M_ROAD)
     for hull in junction_roads(town):
         d.polygon(px(hull), fill=M_ROAD)
-    for x, y, yaw in town.parking:  # slot separators
-        c, s = np.cos(yaw), np.sin(yaw)
-        for e in (-3.25, 3.25):
-            a = np.array([x + c * e - s * 1.25, y + s * e + c * 1.25])
-            b = np.array([x + c * e + s * 1.25, y + s * e - c * 1.25])
-            line(np.stack([a, b]), M_PARK_LINE, 0.15)
+    for seg in parking_separators(town):
+        line(seg, M_PARK_LINE, 0.15)
     for ln in lanes:  # centre lines (BEV only)
         if ln.kind in (DRIVING, RAMP, CONNECTOR):
             line(ln.points, 1, 0.5, dc)

@@ -1,6 +1,7 @@
-"""Painted and paved geometry of a town: junction areas, lane boundary markings and stop lines,
-in world metres. The one home of this geometry for the renderer's static map (:mod:`..render_map`),
-the sensors' ground raster (:mod:`..sensors.ground`) and the BEV (:mod:`..sensors.bev`)."""
+"""Painted and paved geometry of a town: junction areas, parking-slot separators, lane boundary
+markings and stop lines, in world metres. The one home of this geometry for the renderer's static
+map (:mod:`..render_map`), the sensors' ground raster (:mod:`..sensors.ground`) and the BEV
+(:mod:`..sensors.bev`)."""
 
 from __future__ import annotations
 
@@ -26,6 +27,19 @@ def junction_corners(town: Town) -> list[np.ndarray]:
         ]
         if len(ends) >= 3:
             out.append(convex_hull(np.array(ends)))
+    return out
+
+
+def parking_separators(town: Town) -> list[np.ndarray]:
+    """The painted separators of the parking slots: per slot, its two short edges as ``(2, 2)``
+    segments (m), rear then front (slots are 6.5 m x 2.5 m)."""
+    out = []
+    for x, y, yaw in town.parking:
+        c, s = np.cos(yaw), np.sin(yaw)
+        for e in (-3.25, 3.25):
+            a = np.array([x + c * e - s * 1.25, y + s * e + c * 1.25])
+            b = np.array([x + c * e + s * 1.25, y + s * e - c * 1.25])
+            out.append(np.stack([a, b]))
     return out
 
 

@@ -29,7 +29,6 @@ from gymnasium import spaces
 from .wire import (
     _ENCODING_DTYPES,
     _MAX_U16,
-    _MAX_U32,
     ENCODING_CODES,
     HEADER_SIZE,
     MAGIC,
@@ -40,6 +39,7 @@ from .wire import (
     _check_used,
     _is_int,
     _serialize,
+    check_header,
     decode_message,
     encode_message,
     max_objects,
@@ -384,14 +384,31 @@ class Channel:
         """:meth:`send` without its payload checks: the caller guarantees ``length > 0`` and
         ``p[:length]`` finite float32 within ``+-PAYLOAD_LIMIT`` (e.g. after
         :func:`validate_message`, or rows the world packed itself)."""
-        cfg = self.config
         self.advance(tick)
-        if not _is_int(sender_id) or not 0 <= sender_id <= _MAX_U16:
-            raise ValueError(f"sender_id must be an integer in [0, {_MAX_U16}], got {sender_id!r}")
-        if tick > _MAX_U32:
-            raise ValueError(f"tick must be <= {_MAX_U32}, got {tick}")
+        check_header(sender_id, tick)
         # payload[:length] is finite and within +-PAYLOAD_LIMIT: the cast cannot overflow.
-        data = _serialize(sender_id, tick, p[:length].astype(self._dtype), self._code, self._pad)
+        return self._transmit(tick, _serialize(sender_id, tick, p[:length].astype(self._dtype), self._code, self._pad))
+
+    def send_encoded(self, tick: int, data: np.ndarray) -> int:
+        """:meth:`send_valid` for a message already serialized by this channel's rules (the bytes of
+        :func:`encode_message` with this config's encoding and header size, e.g. from
+        ``jit_wire.builtin_message_kernel``; sender and tick checked by :func:`check_header`)."""
+        self.advance(tick)
+        return self._transmit(tick, data.tobytes())
+
+    @property
+    def wire_code(self) -> int:
+        """The wire code of this channel's encoding (:data:`ENCODING_CODES`)."""
+        return self._code
+
+    @property
+    def header_pad(self) -> int:
+        """Zero bytes after the fixed 16-byte header (``header_bytes - HEADER_SIZE``)."""
+        return self._pad
+
+    def _transmit(self, tick: int, data: bytes) -> int:
+        """Steps 3-6 of :meth:`send` for the serialized message ``data``."""
+        cfg = self.config
         n = len(data)
         if self._cap is not None and self._wsum + n > self._cap:
             self._n_dropped += 1
@@ -469,6 +486,21 @@ class Channel:
         """``stats()["bytes_sent_total"]`` without building the dict."""
         return self._bytes_sent
 
+    @property
+    def peak_bps(self) -> float:
+        """``stats()["peak_bps"]`` without building the dict."""
+        return self._peak / self._window_s
+
+    @property
+    def messages_lost(self) -> int:
+        """``stats()["messages_lost"]`` without building the dict."""
+        return self._n_lost
+
+    @property
+    def messages_dropped_bandwidth(self) -> int:
+        """``stats()["messages_dropped_bandwidth"]`` without building the dict."""
+        return self._n_dropped
+
     def stats(self) -> dict[str, float | int]:
         """Counters since :meth:`reset` (all numbers; see the class docstring for definitions).
 
@@ -486,14 +518,14 @@ class Channel:
         return {
             "bytes_sent_total": self._bytes_sent,
             "messages_sent": self._n_sent,
-            "messages_lost": self._n_lost,
-            "messages_dropped_bandwidth": self._n_dropped,
+            "messages_lost": self.messages_lost,
+            "messages_dropped_bandwidth": self.messages_dropped_bandwidth,
             "bytes_dropped_bandwidth": self._bytes_dropped,
             "messages_delivered": self._n_delivered,
             "bytes_delivered_total": self._bytes_delivered,
             "messages_pending": len(self._pending),
             "bps": self._bytes_sent / secs if ticks > 0 else 0.0,
-            "peak_bps": self._peak / self._window_s,
+            "peak_bps": self.peak_bps,
             "last_message_bytes": self._last_bytes,
             "ticks_elapsed": ticks,
             "seconds_elapsed": secs,

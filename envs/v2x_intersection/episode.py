@@ -54,10 +54,15 @@ class EpisodeTracker:
         ``with_info`` is false: callers that never read it skip building it)."""
         w = self.world
         s = float(w.route.s[w.monitor.progress])
+        if events:
+            collision = float(sum(e[0] in COLLISIONS for e in events))
+            infraction = float(sum(e[0] in INFRACTIONS for e in events))
+        else:
+            collision = infraction = 0.0
         terms = {
             "progress": (s - self.prev_s) / 10.0,
-            "collision": float(sum(e[0] in COLLISIONS for e in events)),
-            "infraction": float(sum(e[0] in INFRACTIONS for e in events)),
+            "collision": collision,
+            "infraction": infraction,
             "comfort": abs(float(w.table.accel[0])) / 4.0,
         }
         self.prev_s = s
@@ -75,7 +80,7 @@ class EpisodeTracker:
         """Flat numeric info: tick, route completion, event counts (``events``, indexed by
         ``infractions.EVENT_NAMES``), channel statistics and reward terms (``reward_<term>``)."""
         w = self.world
-        stats = w.channel.stats()
+        ch = w.channel
         out = {
             "tick": w.tick,
             "route_completion": w.monitor.route_completion,
@@ -85,12 +90,16 @@ class EpisodeTracker:
             "outside_lanes_m": w.monitor.outside_m,
             "driven_m": w.monitor.driven_m,
             "active_rsu": int(w.active_rsu[0]),
-            "v2x_bytes_total": int(stats["bytes_sent_total"]),
+            "v2x_bytes_total": int(ch.bytes_sent_total),
             "v2x_bps": v2x_bps(w),
-            "v2x_peak_bps": float(stats["peak_bps"]),
-            "v2x_messages_lost": int(stats["messages_lost"]),
-            "v2x_messages_dropped": int(stats["messages_dropped_bandwidth"]),
+            "v2x_peak_bps": float(ch.peak_bps),
+            "v2x_messages_lost": int(ch.messages_lost),
+            "v2x_messages_dropped": int(ch.messages_dropped_bandwidth),
         }
-        for k, v in (terms or dict.fromkeys(REWARD_WEIGHTS, 0.0)).items():
-            out[f"reward_{k}"] = float(v)
+        for k, v in (terms or _NO_TERMS).items():
+            out[_REWARD_KEYS[k]] = float(v)
         return out
+
+
+_REWARD_KEYS = {k: f"reward_{k}" for k in REWARD_WEIGHTS}
+_NO_TERMS = dict.fromkeys(REWARD_WEIGHTS, 0.0)

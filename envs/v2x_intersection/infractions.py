@@ -63,6 +63,7 @@ class EventMonitor:
         self._off_road_active = False
         self._driving_pts = _driving_point_ids(town)
         self._driving_grid = _driving_grid(town)
+        self._lanes = _lane_lists(town)  # Python numbers: the same values, cheaper scalar tests
 
     def emit(self, code: int, tick: int, other: int = -1, value: float = 0.0) -> None:
         """Record an event (scenarios emit ``SCENARIO_TIMEOUT`` and ``YIELD_EMERGENCY`` here)."""
@@ -78,7 +79,7 @@ class EventMonitor:
                moved: float) -> list[tuple[int, int, int, float]]:
         """Process one tick; returns the events emitted in it."""
         n0 = len(self.events)
-        ego, yaw, v = t.pos[0], float(t.yaw[0]), float(t.speed[0])
+        yaw, v = float(t.yaw[0]), float(t.speed[0])
         self.driven_m += moved
         # collisions (by class of the other party); statics are encoded as negative ids
         for c in contacts:
@@ -98,10 +99,12 @@ class EventMonitor:
         r = self.route
         ix = self.town.index
         if HAVE_JIT:
+            ex, ey = t.pos[0].tolist()
             self.progress, dev, lane, s, dist, heading = route_monitor_kernel(
-                r.points, self.progress, float(ego[0]), float(ego[1]), ix.points, self._driving_pts, ix.owner,
+                r.points, self.progress, ex, ey, ix.points, self._driving_pts, ix.owner,
                 ix.offset, ix.n_points, ix.gs, ix.base, ix.heading, ix.length, *self._driving_grid)
         else:
+            ego = t.pos[0]
             hi = min(self.progress + 40, len(r.points))
             d = row_norms(r.points[self.progress:hi] - ego)
             close = np.flatnonzero(d < 3.0)
@@ -114,7 +117,7 @@ class EventMonitor:
             heading = float(ix.pose_at(np.array([lane]), np.array([s]))[1][0])
         if dev > ROUTE_DEVIATION_M and not self.counts[ROUTE_DEVIATION]:
             self.emit(ROUTE_DEVIATION, tick, -1, dev)
-        lanes = _lane_lists(self.town)  # Python numbers: the same values, cheaper scalar tests
+        lanes = self._lanes
         half = lanes["width"][lane] / 2.0
         outside = dist > half + 0.3
         if outside:

@@ -27,6 +27,7 @@ Rows of object arrays are sorted by distance; unused rows are all zero (``presen
 from __future__ import annotations
 
 import functools
+import math
 
 import numpy as np
 from gymnasium import spaces
@@ -149,6 +150,12 @@ def validate_control(action, name: str = "ego action") -> np.ndarray:
     Out-of-range finite values are **clipped** to the action box (as most RL libraries expect);
     wrong shape, non-numeric dtype, NaN or inf raise ``ValueError`` naming the problem.
     """
+    if type(action) is np.ndarray and action.shape == (3,) and action.dtype.char in "fd":
+        throttle, steer, brake = action.tolist()  # the float64 values of float32 / float64
+        if math.isfinite(throttle) and math.isfinite(steer) and math.isfinite(brake):
+            # np.minimum(np.maximum(a, lo), hi) on Python floats (like NumPy's, a value equal to a
+            # bound gives the bound: -0.0 throttle becomes 0.0)
+            return np.array((_clip(throttle, 0.0, 1.0), _clip(steer, -1.0, 1.0), _clip(brake, 0.0, 1.0)))
     a = np.asarray(action)
     if a.dtype.kind not in "fiu":
         raise ValueError(f"{name}: expected a numeric array of shape (3,), got dtype {a.dtype}")
@@ -158,6 +165,11 @@ def validate_control(action, name: str = "ego action") -> np.ndarray:
     if not np.isfinite(a).all():
         raise ValueError(f"{name}: contains NaN or inf: {a.tolist()}")
     return np.minimum(np.maximum(a, _CONTROL_LO), _CONTROL_HI)  # np.clip for finite values, cheaper
+
+
+def _clip(x: float, lo: float, hi: float) -> float:
+    x = x if x > lo else lo
+    return x if x < hi else hi
 
 
 _CONTROL_LO = np.array([0.0, -1.0, 0.0])

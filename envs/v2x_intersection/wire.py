@@ -42,6 +42,7 @@ __all__ = [
     "OBJECT_FIELDS",
     "PAYLOAD_LIMIT",
     "WIRE_VERSION",
+    "check_header",
     "decode_message",
     "encode_message",
     "max_objects",
@@ -151,6 +152,15 @@ def encode_message(
             raise ValueError("payload contains NaN or inf")
         raise ValueError(f"payload values overflow {encoding} (max abs {float(np.abs(p).max())})")
     return _serialize(sender_id, tick, enc, ENCODING_CODES[encoding], header_bytes - HEADER_SIZE)
+
+
+def check_header(sender_id: int, tick: int) -> None:
+    """Raise ``ValueError`` unless ``sender_id`` fits the header's uint16 and ``tick`` (an int >= 0)
+    its uint32."""
+    if not _is_int(sender_id) or not 0 <= sender_id <= _MAX_U16:
+        raise ValueError(f"sender_id must be an integer in [0, {_MAX_U16}], got {sender_id!r}")
+    if tick > _MAX_U32:
+        raise ValueError(f"tick must be <= {_MAX_U32}, got {tick}")
 
 
 def _serialize(sender_id: int, tick: int, enc: np.ndarray, code: int, pad: int) -> bytes:

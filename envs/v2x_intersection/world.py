@@ -40,6 +40,7 @@ from .jit import HAVE_JIT
 from .jit_perception import object_rows_kernel, perceive_all_kernel, seen_rows_kernel
 from .jit_rng import state_views
 from .jit_spawn import spawn_followers_kernel, spawn_walkers_kernel
+from .jit_wire import builtin_message_kernel
 from .pedestrians import SidewalkNetwork, step_walkers
 from .physics import CollisionWorld
 from .raycast import Boxes
@@ -50,9 +51,10 @@ from .town import get_town
 from .town.model import DRIVING, RAMP
 from .traffic import SPOT_TRIES, free_lane_spot, place_on_lane, respawn_followers, step_followers
 from .visibility import VISIBILITY_SAMPLING, VISIBLE_THRESHOLD, visible_fraction
-from .wire import NUM_OBJECT_FIELDS, max_objects, pack_objects, pack_rows, wrap_track_ids
+from .wire import check_header, max_objects, pack_objects, pack_rows
 
 _NO_PAYLOAD = np.zeros(0, np.float32)
+_NO_BYTES = np.zeros(0, np.uint8)
 EGO_SENSOR_Z = 1.8  # m, ego camera height (occlusion is judged from here)
 EGO_LENGTH, EGO_WIDTH, EGO_HEIGHT = 4.7, 1.9, 1.5  # m
 RSU_HFOV = np.deg2rad(120.0)  # rad, RSU LiDAR horizontal field of view
@@ -320,19 +322,28 @@ class World:
 
     def send_builtin(self) -> None:
         """Step 2 of :meth:`step_builtin`: the built-in policy's message goes on the channel."""
-        sender = int(max(self.active_rsu[0], 0))
+        u = int(self.active_rsu[0])
+        sender = max(u, 0)
+        if HAVE_JIT:  # the message bytes in one kernel (the same bytes as pack_rows + encode_message)
+            data = _NO_BYTES
+            if self.config.rsu_policy != "none" and u >= 0:
+                ch, t = self.channel, self.table
+                check_header(sender, self.tick)
+                x, y, _, yaw = self.rsus.pose[u].tolist()
+                data = builtin_message_kernel(
+                    self.rsu_vis[0], VISIBLE_THRESHOLD, t.pos, t.yaw, t.speed, t.kind, t.length, t.width, t.height,
+                    t.actor_id, x, y, yaw, self._max_rows, self.config.encoding == "float16", sender, self.tick,
+                    ch.wire_code, ch.header_pad)
+            if len(data):
+                self.channel.send_encoded(self.tick, data)
+            else:
+                self.channel.send(self.tick, sender, 0, _NO_PAYLOAD)  # sends nothing, as an empty message
+            return
         objs = self._builtin_objects()
         length = 0
         if objs is not None:
             cfg = self.config
-            if HAVE_JIT:  # pack_rows's payload without its zero padding (objs is the kernel's own array)
-                k = min(len(objs), self._max_rows)
-                rows = objs[:k]
-                if cfg.encoding == "float16":
-                    wrap_track_ids(rows)
-                length, payload = k * NUM_OBJECT_FIELDS, rows.reshape(-1)
-            else:
-                length, payload = pack_rows(objs, cfg.max_payload_floats, cfg.encoding)
+            length, payload = pack_rows(objs, cfg.max_payload_floats, cfg.encoding)
         if length:
             self.channel.send_valid(self.tick, sender, length, payload)
         else:
@@ -353,18 +364,21 @@ class World:
 
     def move_ego(self, control: np.ndarray) -> None:
         """Step 3: the ego's kinematic bicycle under ``control``."""
-        cfg, t = self.config, self.table
-        throttle, steer, brake = (float(c) for c in control)
-        self._old_pos = old = t.pos[0].copy()
+        t = self.table
+        if type(control) is np.ndarray and control.dtype == np.float64:
+            throttle, steer, brake = control.tolist()
+        else:
+            throttle, steer, brake = (float(c) for c in control)
+        self._old_pos = old = t.pos[0].tolist()  # (x, y) as Python floats
         if HAVE_JIT:
-            x, y, yaw, v, a = bicycle_step_scalar(float(old[0]), float(old[1]), t.yaw[0], t.speed[0], throttle,
-                                                  steer, brake, *self._bicycle_params)
+            x, y, yaw, v, a = bicycle_step_scalar(old[0], old[1], t.yaw[0], t.speed[0], throttle, steer, brake,
+                                                  *self._bicycle_params)
         else:
             x, y, yaw, v, a = bicycle_step(t.pos[0, 0], t.pos[0, 1], t.yaw[0], t.speed[0], throttle, steer, brake,
-                                           self.params, cfg.dt)
+                                           self.params, self.config.dt)
         t.pos[0] = (x, y)
         t.yaw[0], t.speed[0], t.accel[0] = yaw, v, a
-        self.last_control = np.array([throttle, steer, brake])
+        self.last_control = np.array((throttle, steer, brake))
 
     def update_signals(self) -> None:
         """Step 4a: the traffic lights' state at the end of this tick."""
@@ -394,10 +408,11 @@ class World:
         t, old = self.table, self._old_pos
         contacts = self.collisions.ego_contacts(t)
         if HAVE_JIT:  # np.linalg.norm of the (2,) step: sqrt of the dot product, the same float
-            dx, dy = float(t.pos[0, 0]) - float(old[0]), float(t.pos[0, 1]) - float(old[1])
+            x, y = t.pos[0].tolist()
+            dx, dy = x - old[0], y - old[1]
             moved = math.sqrt(dx * dx + dy * dy)
         else:
-            moved = float(np.linalg.norm(t.pos[0] - old))
+            moved = float(np.linalg.norm(t.pos[0] - np.array(old)))
         self.last_events = self.monitor.update(self.tick + 1, t, contacts, self.lane_signal, moved)
         for sc in self.scenarios:  # the progress just moved: a route's last scenario may be passed
             sc.check_passed(self)

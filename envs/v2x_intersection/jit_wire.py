@@ -1,0 +1,133 @@
+"""numba kernels for the V2X wire format (:mod:`.wire`): one call turns the built-in RSU policy's
+object rows into the message bytes that :func:`.wire.encode_message` would give.
+
+:func:`encode_kernel` writes the header, the payload (float32 -> float16 with round-to-nearest-even,
+as NumPy's ``astype``, or float32 as is) and the CRC-32 (zlib's polynomial) into one ``uint8``
+array. :func:`builtin_message_kernel` adds what ``World.send_builtin`` does before encoding: the
+slot-0 unit's visible actors as object rows sorted by distance, cut to what fits a message, with
+track ids wrapped for float16. ``tests/test_jit_wire.py`` compares the bytes with the NumPy codec
+(float16 edge cases included); the channel's decoder, which checks every message, is unchanged.
+"""
+
+from __future__ import annotations
+
+import zlib
+
+import numpy as np
+
+from .jit import _njit, _njit_inline
+from .jit_perception import object_rows_kernel
+from .wire import (
+    _TRACK_ID_COL,
+    FLOAT16_TRACK_ID_MODULUS,
+    HEADER_SIZE,
+    MAGIC,
+    NUM_OBJECT_FIELDS,
+    WIRE_VERSION,
+)
+
+
+def _crc_table() -> np.ndarray:
+    """The 256-entry table of the reflected CRC-32 polynomial 0xEDB88320 (zlib's CRC-32)."""
+    table = np.empty(256, np.int64)
+    for n in range(256):
+        c = n
+        for _ in range(8):
+            c = (c >> 1) ^ 0xEDB88320 if c & 1 else c >> 1
+        table[n] = c
+    assert zlib.crc32(b"123456789") == 0xCBF43926  # the check value the table reproduces (tested)
+    return table
+
+
+_CRC_TABLE = _crc_table()
+_MAGIC0, _MAGIC1 = MAGIC[0], MAGIC[1]
+_TRACK_MOD = np.float32(FLOAT16_TRACK_ID_MODULUS)
+
+
+@_njit_inline
+def half_bits(b):  # pragma: no cover
+    """float16 bits of the float32 with bits ``b`` (an int64 holding the uint32), rounded to nearest
+    even as NumPy's ``astype(np.float16)``: overflow to inf, subnormals, NaN payloads as NumPy keeps them."""
+    sign = (b >> 16) & 0x8000
+    a = b & 0x7FFFFFFF
+    if a >= 0x7F800000:  # inf, or NaN (its top mantissa bits kept, and kept a NaN)
+        h = 0x7C00 | ((a & 0x7FFFFF) >> 13)
+        if h == 0x7C00 and a != 0x7F800000:
+            h += 1
+        return sign | h
+    if a >= 0x47800000:  # >= 65536: beyond float16's range
+        return sign | 0x7C00
+    if a < 0x38800000:  # below float16's smallest normal (2**-14): subnormal or zero
+        if a < 0x33000000:  # below 2**-25: rounds to zero
+            return sign
+        m = (a & 0x7FFFFF) | 0x800000
+        shift = 126 - (a >> 23)
+        h = m >> shift
+        rem = m & ((1 << shift) - 1)
+        half = 1 << (shift - 1)
+        if rem > half or (rem == half and (h & 1) == 1):
+            h += 1
+        return sign | h
+    h = (a >> 13) - (112 << 10)  # exponent rebiased from 127 to 15, the top 10 mantissa bits
+    rem = a & 0x1FFF
+    if rem > 0x1000 or (rem == 0x1000 and (h & 1) == 1):
+        h += 1  # a carry into the exponent is right (65520 and up round to inf)
+    return sign | h
+
+
+@_njit_inline
+def _crc_update(crc, data, lo, hi):  # pragma: no cover
+    for i in range(lo, hi):
+        crc = _CRC_TABLE[(crc ^ data[i]) & 0xFF] ^ (crc >> 8)
+    return crc
+
+
+@_njit
+def encode_kernel(values, n, sender, tick, code, pad):  # pragma: no cover
+    """:func:`.wire.encode_message`'s bytes for ``values[:n]`` (float32, contiguous, finite and
+    within the payload bound: the caller checked them), sent by ``sender`` at ``tick``, with
+    encoding ``code`` (1 float16, 2 float32) and ``pad`` zero bytes after the 16-byte header."""
+    item = 2 if code == 1 else 4
+    hb = HEADER_SIZE + pad
+    out = np.zeros(hb + n * item, np.uint8)
+    out[0], out[1], out[2], out[3] = _MAGIC0, _MAGIC1, WIRE_VERSION, code
+    out[4], out[5] = sender & 0xFF, (sender >> 8) & 0xFF
+    out[6], out[7] = n & 0xFF, (n >> 8) & 0xFF
+    for k in range(4):
+        out[8 + k] = (tick >> (8 * k)) & 0xFF
+    bits = values.view(np.uint32)
+    for i in range(n):
+        b = np.int64(bits[i])
+        if item == 2:
+            h = half_bits(b)
+            out[hb + 2 * i], out[hb + 2 * i + 1] = h & 0xFF, h >> 8
+        else:
+            for k in range(4):
+                out[hb + 4 * i + k] = (b >> (8 * k)) & 0xFF
+    crc = _crc_update(np.int64(0xFFFFFFFF), out, 0, HEADER_SIZE - 4)
+    crc = _crc_update(crc, out, hb, out.shape[0]) ^ 0xFFFFFFFF
+    for k in range(4):
+        out[12 + k] = (crc >> (8 * k)) & 0xFF
+    return out
+
+
+@_njit
+def builtin_message_kernel(vis, threshold, pos, yaw, speed, kind, length, width, height, actor_id, ox, oy, oyaw,
+                           max_rows, wrap_ids, sender, tick, code, pad):  # pragma: no cover
+    """The built-in ``share_objects`` message of the unit at ``(ox, oy, oyaw)``: the actors with
+    ``vis >= threshold`` as object rows (``jit_perception.object_rows_kernel``, nearest first), the
+    first ``max_rows`` of them, track ids modulo 2048 when ``wrap_ids`` (float16), encoded by
+    :func:`encode_kernel`. Returns the message bytes, or no bytes when the unit sees nothing."""
+    idx = np.flatnonzero(vis >= threshold)
+    k = min(idx.shape[0], max_rows)
+    if k == 0:
+        return np.zeros(0, np.uint8)
+    rows = object_rows_kernel(idx, pos, yaw, speed, kind, length, width, height, actor_id, ox, oy, oyaw)
+    flat = np.empty(k * NUM_OBJECT_FIELDS, np.float32)
+    for r in range(k):
+        for f in range(NUM_OBJECT_FIELDS):
+            flat[r * NUM_OBJECT_FIELDS + f] = rows[r, f]
+        if wrap_ids:
+            j = r * NUM_OBJECT_FIELDS + _TRACK_ID_COL
+            flat[j] = flat[j] % _TRACK_MOD
+    return encode_kernel(flat, k * NUM_OBJECT_FIELDS, sender, tick, code, pad)

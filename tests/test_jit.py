@@ -520,3 +520,22 @@ def test_expert_travel_time_kernel_matches_numpy(monkeypatch):
         assert x.shape == y.shape and x.tobytes() == y.tobytes()
     x = junction.travel_time(*cases[0])
     assert np.isinf(x).any() and (x == 0).any() and ((x > 0) & np.isfinite(x)).any()
+
+
+def test_occupied_kernel_matches_numpy(monkeypatch):
+    """``traffic.occupied`` on both paths, with actors placed exactly on the radius."""
+    from v2xbench.envs.v2x_intersection import traffic
+    from v2xbench.envs.v2x_intersection.actors import ActorTable
+
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        n = int(rng.integers(1, 40))
+        t = ActorTable.empty(n)
+        t.pos[:] = rng.uniform(-20, 20, (n, 2))
+        t.active[:] = rng.random(n) < 0.7
+        xy = rng.uniform(-20, 20, 2)
+        radius = float(np.sqrt(np.add.reduce((t.pos[0] - xy) ** 2))) if rng.random() < 0.3 else rng.uniform(0, 15)
+        got = traffic.occupied(t, xy, radius)
+        with monkeypatch.context() as m:
+            m.setattr(traffic, "HAVE_JIT", False)
+            assert traffic.occupied(t, xy, radius) == got

@@ -330,6 +330,18 @@ def place_kernel(row, lane, s, lane_arr, s_arr, lat, pos, yaw, stopped_at_sign, 
 
 
 @_njit
+def occupied_kernel(active, pos, x, y, radius):  # pragma: no cover
+    """``traffic.occupied``: any active actor within ``radius`` m of ``(x, y)``."""
+    for i in range(active.shape[0]):
+        if active[i]:
+            dx = pos[i, 0] - x
+            dy = pos[i, 1] - y
+            if np.sqrt(dx * dx + dy * dy) < radius:
+                return True
+    return False
+
+
+@_njit
 def lane_states_kernel(t, lanes, group, period, green, yellow, n_groups, offset, num_lanes):  # pragma: no cover
     """``signals.SignalPlan.lane_states``: ``(num_lanes,)`` signal state per lane at time ``t``."""
     out = np.full(num_lanes, _NO_SIGNAL, np.int64)

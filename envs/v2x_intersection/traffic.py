@@ -12,7 +12,12 @@ from .dynamics import IDMParams, idm_accel
 from .geometry import row_norms
 from .jit import HAVE_JIT, leaders_kernel
 from .jit_rng import state_views
-from .jit_traffic import followers_tick_kernel, free_lane_spot_kernel, respawn_kernel
+from .jit_traffic import (
+    followers_tick_kernel,
+    free_lane_spot_kernel,
+    occupied_kernel,
+    respawn_kernel,
+)
 from .signals import RED, YELLOW
 from .town.model import PRIORITY, STOP, Town
 
@@ -298,6 +303,8 @@ def _lane_changes(t, town, idx, lane, s, gap, dv, bike, rng, dt) -> None:
 
 def occupied(t: ActorTable, xy: np.ndarray, radius: float) -> bool:
     """Whether any active actor is within ``radius`` m of ``xy``."""
+    if HAVE_JIT:
+        return occupied_kernel(t.active, t.pos, float(xy[0]), float(xy[1]), float(radius))
     return bool((t.active & (row_norms(t.pos - xy) < radius)).any())
 
 

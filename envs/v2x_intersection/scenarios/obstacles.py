@@ -119,6 +119,7 @@ class LaneFlow:
         ignore_rules: bool = True,
     ) -> None:
         self.rows, self.lane, self.gap, self.speed = [int(r) for r in rows], lane, gap, speed
+        self._row_index = np.array(self.rows, np.int64)
         self.s_lo, self.s_hi, self.plan, self.ignore_rules = (
             s_lo,
             s_hi,
@@ -171,9 +172,10 @@ class LaneFlow:
     def update(self, world) -> None:
         """Re-enter one vehicle at the lane start when there is room."""
         t = world.table
-        free = [r for r in self.rows if not t.active[r]]
-        if not free:
+        active = t.active[self._row_index]
+        if active.all():
             return
+        free = self.rows[int(active.argmin())]  # the first inactive row
         lead = self.last
         if (
             lead >= 0
@@ -187,7 +189,7 @@ class LaneFlow:
         p = self._entry
         if occupied(t, p, 7.0) or np.linalg.norm(t.pos[0] - p) < ENTRY_HIDDEN_M:
             return  # no vehicle appears out of nowhere within sight of the ego
-        self._put(world, free[0], self.s_lo)
+        self._put(world, free, self.s_lo)
         self.next_gap = self._draw_gap(world.rng)
 
 

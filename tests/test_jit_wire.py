@@ -16,7 +16,9 @@ if HAVE_JIT:
     from v2xbench.envs.v2x_intersection.jit_wire import (
         _CRC_TABLE,
         builtin_message_kernel,
+        decode_kernel,
         encode_kernel,
+        float_bits,
         half_bits,
     )
 
@@ -97,3 +99,34 @@ def test_builtin_message_kernel_matches_pack_and_encode():
             length, payload = pack_rows(rows, max_rows * 10, encoding)
             want = encode_message(9, 77, payload[:length], encoding) if length else b""
             assert got.tobytes() == want, (encoding, max_rows, thr)
+
+
+def test_float_bits_are_numpys_for_every_float16():
+    h = np.arange(2**16, dtype=np.uint16)
+    want = h.view(np.float16).astype(np.float32).view(np.uint32).astype(np.int64)
+    got = np.array([float_bits(int(x)) for x in h], np.int64)
+    assert (got == want).all()
+
+
+@pytest.mark.parametrize("encoding", ["float16", "float32"])
+@pytest.mark.parametrize("header_bytes", [16, 20])
+def test_decode_kernel_matches_decode_message(encoding, header_bytes):
+    """Valid messages decode to the codec's values; every corruption the codec rejects (truncation,
+    trailing bytes, magic, version, encoding code, padding, payload or header bits) the kernel
+    rejects too."""
+    rng = np.random.default_rng(len(encoding) + header_bytes)
+    for n in (0, 1, 10, 320):
+        values = rng.uniform(-1e4, 1e4, n).astype(np.float32)
+        data = encode_message(3, 99, values, encoding, header_bytes)
+        ok, sender, tick, payload = decode_kernel(np.frombuffer(data, np.uint8), header_bytes)
+        want = decode_message(data, header_bytes)
+        assert ok and (sender, tick) == want[:2] and payload.tobytes() == want[2].tobytes()
+        bad = [data[:-1], data + b"\x00", data[:5]]
+        for pos in (0, 2, 3, 6, 8, 12, header_bytes - 1, len(data) - 1):
+            b = bytearray(data)
+            b[pos] ^= 0x10
+            bad.append(bytes(b))
+        for b in bad:
+            with pytest.raises(ValueError):
+                decode_message(b, header_bytes)
+            assert not decode_kernel(np.frombuffer(b, np.uint8), header_bytes)[0]

@@ -5,8 +5,10 @@ object rows into the message bytes that :func:`.wire.encode_message` would give.
 as NumPy's ``astype``, or float32 as is) and the CRC-32 (zlib's polynomial) into one ``uint8``
 array. :func:`builtin_message_kernel` adds what ``World.send_builtin`` does before encoding: the
 slot-0 unit's visible actors as object rows sorted by distance, cut to what fits a message, with
-track ids wrapped for float16. ``tests/test_jit_wire.py`` compares the bytes with the NumPy codec
-(float16 edge cases included); the channel's decoder, which checks every message, is unchanged.
+track ids wrapped for float16. :func:`decode_kernel` reads a message back with every check of
+:func:`.wire.decode_message`; where one fails, the channel lets the codec raise its error.
+``tests/test_jit_wire.py`` compares both ways with the NumPy codec (float16 edge cases, every
+float16 value, corrupted messages).
 """
 
 from __future__ import annotations
@@ -131,3 +133,67 @@ def builtin_message_kernel(vis, threshold, pos, yaw, speed, kind, length, width,
             j = r * NUM_OBJECT_FIELDS + _TRACK_ID_COL
             flat[j] = flat[j] % _TRACK_MOD
     return encode_kernel(flat, k * NUM_OBJECT_FIELDS, sender, tick, code, pad)
+
+
+@_njit_inline
+def float_bits(h):  # pragma: no cover
+    """float32 bits (int64) of the float16 with bits ``h``: exact, as NumPy's ``astype``
+    (subnormals normalized, infinities and NaN payloads kept)."""
+    sign = (h & 0x8000) << 16
+    e = (h >> 10) & 0x1F
+    m = h & 0x3FF
+    if e == 0:
+        if m == 0:
+            return sign
+        e = 113
+        while (m & 0x400) == 0:
+            m <<= 1
+            e -= 1
+        return sign | (e << 23) | ((m & 0x3FF) << 13)
+    if e == 31:
+        return sign | 0x7F800000 | (m << 13)
+    return sign | ((e + 112) << 23) | (m << 13)
+
+
+@_njit
+def decode_kernel(data, header_bytes):  # pragma: no cover
+    """:func:`.wire.decode_message` of the message bytes ``data`` (uint8): ``(ok, sender, tick,
+    payload float32)``; ``ok`` is false where the codec would raise (the caller then lets it name
+    the problem)."""
+    none = np.zeros(0, np.float32)
+    n = data.shape[0]
+    if n < header_bytes or n < HEADER_SIZE:
+        return False, 0, 0, none
+    if data[0] != _MAGIC0 or data[1] != _MAGIC1 or data[2] != WIRE_VERSION:
+        return False, 0, 0, none
+    code = data[3]
+    if code != 1 and code != 2:
+        return False, 0, 0, none
+    item = 2 if code == 1 else 4
+    sender = np.int64(data[4]) | (np.int64(data[5]) << 8)
+    length = np.int64(data[6]) | (np.int64(data[7]) << 8)
+    tick = np.int64(0)
+    crc = np.int64(0)
+    for k in range(4):
+        tick |= np.int64(data[8 + k]) << (8 * k)
+        crc |= np.int64(data[12 + k]) << (8 * k)
+    if n != header_bytes + length * item:
+        return False, 0, 0, none
+    for i in range(HEADER_SIZE, header_bytes):
+        if data[i] != 0:
+            return False, 0, 0, none
+    c = _crc_update(np.int64(0xFFFFFFFF), data, 0, HEADER_SIZE - 4)
+    if _crc_update(c, data, header_bytes, n) ^ 0xFFFFFFFF != crc:
+        return False, 0, 0, none
+    payload = np.empty(length, np.float32)
+    bits = payload.view(np.uint32)
+    for i in range(length):
+        j = header_bytes + item * i
+        if item == 2:
+            bits[i] = np.uint32(float_bits(np.int64(data[j]) | (np.int64(data[j + 1]) << 8)))
+        else:
+            b = np.int64(0)
+            for k in range(4):
+                b |= np.int64(data[j + k]) << (8 * k)
+            bits[i] = np.uint32(b)
+    return True, sender, tick, payload

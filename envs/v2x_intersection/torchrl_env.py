@@ -39,9 +39,11 @@ def _spec(space, n: int, device) -> Composite | Unbounded:
 
 
 def _tensors(buf: dict, device) -> dict:
-    """Copy (nested) ``(N, ...)`` NumPy buffers into (nested) tensors."""
-    return {k: _tensors(v, device) if isinstance(v, dict) else torch.tensor(v, device=device)
-            for k, v in buf.items()}
+    """Copy (nested) ``(N, ...)`` NumPy buffers into (nested) tensors (a NumPy copy wrapped by
+    ``torch.from_numpy`` costs a third of ``torch.tensor``'s)."""
+    cpu = torch.device(device).type == "cpu"
+    return {k: _tensors(v, device) if isinstance(v, dict)
+            else torch.from_numpy(v.copy()) if cpu else torch.tensor(v, device=device) for k, v in buf.items()}
 
 
 class V2XTorchEnv(EnvBase):

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..actors import DRIVER
 from ..classes import CAR, LARGE_VEHICLE, PEDESTRIAN
-from ..geometry import world_to_local_2d
+from ..geometry import row_norms, world_to_local_2d
 from ..pedestrians import ego_in_the_way
 from ..raycast import Boxes, segments_blocked
 from ..rsu import KIND_TRIGGER, deploy
@@ -162,10 +162,12 @@ def sight_blocked(world, eyes: np.ndarray, targets: np.ndarray, extra: list[tupl
     buildings and the ``extra`` boxes ``(x, y, length, width, yaw, height)`` (e.g. a truck just
     placed); used to pick hazard positions hidden from the ego."""
     sb, sh = world.static_boxes, world.static_heights
-    keep = np.linalg.norm(sb[:, :2] - targets[:, :2].mean(0), axis=1) < 90.0
+    keep = row_norms(sb[:, :2] - targets[:, :2].mean(0)) < 90.0
     rows = np.concatenate([sb[keep], np.array([e[:5] for e in extra], float).reshape(-1, 5)])
     heights = np.concatenate([sh[keep], np.array([e[5] for e in extra], float)])
-    boxes = Boxes.from_arrays(rows[:, :2], rows[:, 2], rows[:, 3], rows[:, 4], heights)
+    # fresh float64 arrays of finite values: wrapped without Boxes' checks and copies
+    boxes = Boxes.trusted(np.ascontiguousarray(rows[:, :2]), rows[:, 2].copy(), rows[:, 3].copy(),
+                          rows[:, 4].copy(), np.zeros(len(rows)), heights)
     starts = np.repeat(eyes, len(targets), axis=0)
     ends = np.tile(targets, (len(eyes), 1))
     return float(segments_blocked(starts, ends, boxes).mean())

@@ -66,7 +66,10 @@ class EpisodeTracker:
             "comfort": abs(float(w.table.accel[0])) / 4.0,
         }
         self.prev_s = s
-        reward = float(sum(REWARD_WEIGHTS[k] * v for k, v in terms.items()))
+        reward = 0  # sum() of the weighted terms, in order (the same float)
+        for k, v in terms.items():
+            reward += REWARD_WEIGHTS[k] * v
+        reward = float(reward)
         counts = w.monitor.counts
         terminated = bool(
             w.is_route_complete() or counts[inf.ROUTE_DEVIATION] > 0 or counts[inf.BLOCKED] > 0

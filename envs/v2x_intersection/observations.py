@@ -256,7 +256,7 @@ def fill_objects_observation(world, out: dict) -> None:
     has_msg = inbox is not None and world.tick - inbox[1] < cfg.latency_ticks + V2X_HOLD_TICKS
     if has_msg:
         sender, sent_tick, payload = inbox
-        rx, ry, _, ryaw = world.rsus.pose[sender]
+        rx, ry, _, ryaw = world.rsus.pose[sender].tolist()
         age = world.tick - sent_tick
     else:
         payload, rx, ry, ryaw, age = _NO_PAYLOAD, 0.0, 0.0, 0.0, 0
@@ -265,8 +265,8 @@ def fill_objects_observation(world, out: dict) -> None:
         out["route"], out["v2x_objects"] if objects is None else objects, out["v2x_objects"], out["v2x_info"],
         objects is not None, r.points, r.commands, k0, cfg.route_step, world.ego_vis, VISIBLE_THRESHOLD, t.pos, t.yaw,
         t.speed, t.kind, t.length, t.width, t.height, t.actor_id, lane, ix.stop_at_end, ix.length,
-        STOP_LINE_SETBACK, ix.points, ix.owner, ix.offset, ix.n_points, ix.gs, ix.base, has_msg, payload, float(rx),
-        float(ry), float(ryaw), age)
+        STOP_LINE_SETBACK, ix.points, ix.owner, ix.offset, ix.n_points, ix.gs, ix.base, has_msg, payload, rx, ry,
+        ryaw, age)
     light = float(world.lane_signal[lane])
     if light < 0 and stop_sign_lanes(world.town)[lane]:
         light = float(LIGHT_STOP_SIGN)

@@ -33,14 +33,20 @@ def test_pick_from_empty_raises():
         pick(np.random.default_rng(0), [])
 
 
-def test_draw_size_draws_three_scalar_uniforms():
-    """``draw_size`` draws its three sizes in one call; the numbers and the generator's state
-    are those of three scalar ``uniform`` calls (what it did before)."""
-    from v2xbench.envs.v2x_intersection.actors import SIZES, draw_size
+@pytest.mark.parametrize("jit", [True, False])
+def test_draw_size_draws_three_scalar_uniforms(monkeypatch, jit):
+    """``draw_size`` (in a kernel on the generator's state with numba, else three scalar calls):
+    the numbers and the generator's state are those of three scalar ``uniform`` calls, and of one
+    call with array bounds (what it did before)."""
+    from v2xbench.envs.v2x_intersection import actors
+    from v2xbench.envs.v2x_intersection.actors import SIZE_BOUNDS, SIZES, draw_size
 
+    monkeypatch.setattr(actors, "HAVE_JIT", jit and actors.HAVE_JIT)
     for seed in range(20):
-        a, b = np.random.default_rng(seed), np.random.default_rng(seed)
+        a, b, c = np.random.default_rng(seed), np.random.default_rng(seed), np.random.default_rng(seed)
         for kind, ((l0, l1), (w0, w1), (h0, h1)) in SIZES.items():
-            assert draw_size(kind, a) == (float(b.uniform(l0, l1)), float(b.uniform(w0, w1)),
-                                          float(b.uniform(h0, h1)))
-        assert a.bit_generator.state == b.bit_generator.state
+            got = draw_size(kind, a)
+            assert got == (float(b.uniform(l0, l1)), float(b.uniform(w0, w1)), float(b.uniform(h0, h1)))
+            assert got == tuple(c.uniform(*SIZE_BOUNDS[kind]).tolist())
+            assert all(type(x) is float for x in got)
+        assert a.bit_generator.state == b.bit_generator.state == c.bit_generator.state

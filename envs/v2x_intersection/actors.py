@@ -11,6 +11,8 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from .classes import BICYCLE, CAR, LARGE_VEHICLE, PEDESTRIAN
+from .jit import HAVE_JIT, _njit
+from .jit_rng import state_views, uniform
 
 # behaviour codes
 EGO, DRIVER, PARKED, WALKER, RIDER, STATIC, SCRIPTED = 0, 1, 2, 3, 4, 5, 6
@@ -105,11 +107,24 @@ class ActorTable:
 
 
 def draw_size(kind: int, rng: np.random.Generator) -> tuple[float, float, float]:
-    """Random ``(length, width, height)`` for a class (m)."""
-    lo, hi = SIZE_BOUNDS[kind]
-    size = rng.uniform(lo, hi)  # three draws in order: the numbers of three scalar uniform() calls
-    return float(size[0]), float(size[1]), float(size[2])
+    """Random ``(length, width, height)`` for a class (m): three ``rng.uniform`` draws in order."""
+    (l0, l1, l2), (h0, h1, h2) = _SIZE_FLOATS[kind]
+    if HAVE_JIT:  # the generator's own draws in a kernel (a scalar uniform() call costs ~4 us)
+        words, _ = state_views(rng)
+        return uniform3_kernel(words, l0, l1, l2, h0, h1, h2)
+    u = rng.uniform
+    return u(l0, h0), u(l1, h1), u(l2, h2)
+
+
+@_njit
+def uniform3_kernel(words, l0, l1, l2, h0, h1, h2):  # pragma: no cover
+    """``(rng.uniform(l0, h0), rng.uniform(l1, h1), rng.uniform(l2, h2))`` on ``jit_rng``'s view of
+    the generator's state."""
+    a = uniform(words, l0, h0)
+    b = uniform(words, l1, h1)
+    return a, b, uniform(words, l2, h2)
 
 
 #: per class, ``(low (3,), high (3,))`` of :data:`SIZES`
 SIZE_BOUNDS = {k: (np.array([r[0] for r in v]), np.array([r[1] for r in v])) for k, v in SIZES.items()}
+_SIZE_FLOATS = {k: (tuple(r[0] for r in v), tuple(r[1] for r in v)) for k, v in SIZES.items()}

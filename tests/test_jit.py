@@ -539,3 +539,30 @@ def test_occupied_kernel_matches_numpy(monkeypatch):
         with monkeypatch.context() as m:
             m.setattr(traffic, "HAVE_JIT", False)
             assert traffic.occupied(t, xy, radius) == got
+
+
+@pytest.mark.parametrize("town", ["Town01", "Town03"])
+def test_sight_fraction_kernel_matches_numpy(monkeypatch, town):
+    """The V2X scenarios' sight-line test (``scenarios.v2x.sight_blocked``) on both paths: one eye
+    and five, with and without a placed vehicle, targets near buildings and in the open."""
+    from v2xbench.envs.v2x_intersection.config import make_config
+    from v2xbench.envs.v2x_intersection.scenarios import v2x
+    from v2xbench.envs.v2x_intersection.world import World
+
+    w = World(make_config(town=town))
+    rng = np.random.default_rng(1)
+    sb = w.static_boxes
+    fractions = []
+    for k in range(300):
+        centre = sb[rng.integers(len(sb)), :2] + rng.uniform(-25, 25, 2)
+        eyes = np.concatenate([centre + rng.uniform(-40, 40, (1 if k % 2 else 5, 2)),
+                               np.full((1 if k % 2 else 5, 1), 1.6)], 1)
+        targets = np.concatenate([centre + rng.uniform(-3, 3, (6, 2)), rng.uniform(0.3, 1.5, (6, 1))], 1)
+        extra = [] if k % 3 == 0 else [(*(centre + rng.uniform(-15, 15, 2)), 8.0, 2.5, rng.uniform(-3, 3), 3.5)]
+        got = v2x.sight_blocked(w, eyes, targets, extra)
+        with monkeypatch.context() as m:
+            m.setattr(v2x, "HAVE_JIT", False)
+            want = v2x.sight_blocked(w, eyes, targets, extra)
+        assert got == want, k
+        fractions.append(got)
+    assert 0.0 in fractions and 1.0 in fractions and len(set(fractions)) > 5

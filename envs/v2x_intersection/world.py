@@ -115,7 +115,7 @@ class World:
         self.static_boxes = statics  # (S, 5) x, y, length, width, yaw
         self.static_heights = heights
         self.static_kinds = kinds
-        self._static_trig = (np.cos(statics[:, 4]), np.sin(statics[:, 4]))  # for the perception kernel
+        self.static_trig = (np.cos(statics[:, 4]), np.sin(statics[:, 4]))  # their yaw cos, sin (for the kernels)
 
     # ------------------------------------------------------------------ setup
     def _static_boxes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -443,7 +443,7 @@ class World:
             self.active_rsu, self.ego_vis, self.rsu_vis = perceive_all_kernel(
                 self.rsus.pose, self.rsus.kind, KIND_TRIGGER, TRIGGER_PREFERENCE_M, FACING_MAX_ANGLE, int(cfg.rsu_slots), t.pos,
                 t.length, t.width, t.yaw, t.height, t.active, self.static_boxes, self.static_heights,
-                *self._static_trig, EGO_SENSOR_Z, float(cfg.ego_range) ** 2, float(cfg.ego_range),
+                *self.static_trig, EGO_SENSOR_Z, float(cfg.ego_range) ** 2, float(cfg.ego_range),
                 float(cfg.rsu_range) ** 2, float(cfg.rsu_range), 0.5 * RSU_HFOV, *VISIBILITY_SAMPLING)
             return
         self.active_rsu = select_active(self.rsus, t.pos[0], float(t.yaw[0]), cfg.rsu_range, cfg.rsu_slots)

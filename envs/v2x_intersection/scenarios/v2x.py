@@ -16,8 +16,10 @@ import numpy as np
 from ..actors import DRIVER
 from ..classes import CAR, LARGE_VEHICLE, PEDESTRIAN
 from ..geometry import row_norms, world_to_local_2d
+from ..jit import HAVE_JIT
+from ..jit_sight import KEEP_RADIUS_M, sight_fraction_kernel
 from ..pedestrians import ego_in_the_way
-from ..raycast import Boxes, segments_blocked
+from ..raycast import DTYPE, END_EPS, Boxes, segments_blocked
 from ..rsu import KIND_TRIGGER, deploy
 from ..signals import RED, YELLOW
 from ..town.model import DRIVING, MERGE, PARKING, Town
@@ -157,12 +159,21 @@ def park_vehicle(
     return size
 
 
+_LO, _HI = DTYPE(END_EPS), DTYPE(1.0 - END_EPS)  # segments_blocked's end tolerances
+
+
 def sight_blocked(world, eyes: np.ndarray, targets: np.ndarray, extra: list[tuple] = ()) -> float:
     """Fraction of the sight lines from ``eyes (E, 3)`` to ``targets (T, 3)`` blocked by the town's
     buildings and the ``extra`` boxes ``(x, y, length, width, yaw, height)`` (e.g. a truck just
-    placed); used to pick hazard positions hidden from the ego."""
+    placed); used to pick hazard positions hidden from the ego. With numba, in one kernel
+    (``jit_sight``, the same floats)."""
     sb, sh = world.static_boxes, world.static_heights
-    keep = row_norms(sb[:, :2] - targets[:, :2].mean(0)) < 90.0
+    if HAVE_JIT:
+        ex = np.array([e[:6] for e in extra], float).reshape(-1, 6)
+        return sight_fraction_kernel(np.ascontiguousarray(eyes, float), np.ascontiguousarray(targets, float), sb,
+                                     sh, *world.static_trig, ex, np.cos(ex[:, 4]), np.sin(ex[:, 4]), KEEP_RADIUS_M,
+                                     _LO, _HI)
+    keep = row_norms(sb[:, :2] - targets[:, :2].mean(0)) < KEEP_RADIUS_M
     rows = np.concatenate([sb[keep], np.array([e[:5] for e in extra], float).reshape(-1, 5)])
     heights = np.concatenate([sh[keep], np.array([e[5] for e in extra], float)])
     # fresh float64 arrays of finite values: wrapped without Boxes' checks and copies

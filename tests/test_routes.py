@@ -279,3 +279,20 @@ def test_shortest_lane_path_prefers_successors():
     assert shortest_lane_path(town, 0, 0) == [0]
     assert shortest_lane_path(town, 0, 6) == [0, 20, 6]
     assert shortest_lane_path(town, 0, 12) == [0, 20, 6, 27, 12]
+
+
+def test_route_from_lanes_same_with_cached_lane_chunks():
+    """Routes built from the per-town cache of whole-lane chunks and arc lengths are the routes
+    built without it (cold cache), array for array."""
+    from v2xbench.envs.v2x_intersection.routes import random_route
+
+    town = get_town("Town03")
+    for name in ("lane_chunk", "lane_arc"):
+        town.__dict__.pop(f"_cache_{name}", None)
+    cold, warm = ([random_route(town, np.random.default_rng(seed), 400.0, lane_change_prob=0.5) for seed in range(8)]
+                  for _ in range(2))
+    for a, b in zip(cold, warm):
+        assert a.lanes == b.lanes
+        for f in ("points", "headings", "lane_ids", "commands", "s"):
+            assert getattr(a, f).tobytes() == getattr(b, f).tobytes()
+    assert any(len(set(r.commands.tolist())) > 2 for r in warm)  # lane changes were blended

@@ -144,14 +144,14 @@ def route_from_lanes(town: Town, lanes: list[int], s_start: float = 0.0, s_end: 
     while i < len(lanes):
         ln = town.lanes[lanes[i]]
         pts = ln.points
-        s = polyline_lengths(pts)
+        s = lane_arc(town, ln.id)
         a = s_start if i == 0 else 0.0
         b = s_end if (i == len(lanes) - 1 and s_end is not None) else s[-1]
         nxt = lanes[i + 1] if i + 1 < len(lanes) else None
         if nxt is not None and nxt in (ln.left, ln.right):
             # lane change: drive the first part of this lane, then blend into the neighbour
             other = town.lanes[nxt].points
-            so = polyline_lengths(other)
+            so = lane_arc(town, nxt)
             mid = max(a, 0.5 * (s[-1] - LANE_CHANGE_LENGTH))
             t0 = np.arange(a, mid, ROUTE_STEP)
             seg0 = np.stack([np.interp(t0, s, pts[:, 0]), np.interp(t0, s, pts[:, 1])], -1)
@@ -170,7 +170,7 @@ def route_from_lanes(town: Town, lanes: list[int], s_start: float = 0.0, s_end: 
             i += 1
             # the neighbour lane starts at the blend end
             ln2 = town.lanes[nxt]
-            s2 = polyline_lengths(ln2.points)
+            s2 = lane_arc(town, nxt)
             b2 = s_end if (i == len(lanes) - 1 and s_end is not None) else s2[-1]
             t2 = np.arange(s_start, b2, ROUTE_STEP)
             seg2 = np.stack([np.interp(t2, s2, ln2.points[:, 0]), np.interp(t2, s2, ln2.points[:, 1])], -1)
@@ -182,16 +182,14 @@ def route_from_lanes(town: Town, lanes: list[int], s_start: float = 0.0, s_end: 
             cmd_tags.append(np.full(len(seg2), ln2.turn if ln2.kind == CONNECTOR else FOLLOW_LANE))
             i += 1
             continue
-        t = np.arange(a, b, ROUTE_STEP)
-        if len(t) == 0:
-            t = np.array([a])
-        chunks.append(np.stack([np.interp(t, s, pts[:, 0]), np.interp(t, s, pts[:, 1])], -1))
-        lane_tags.append(np.full(len(t), ln.id))
-        cmd_tags.append(np.full(len(t), ln.turn if ln.kind == CONNECTOR else FOLLOW_LANE))
+        chunk = _lane_chunk(town, ln, s, a, b)
+        chunks.append(chunk[0])
+        lane_tags.append(chunk[1])
+        cmd_tags.append(chunk[2])
         i += 1
     # close the route exactly at its end (np.arange above excludes the end point)
     last = town.lanes[lanes[-1]]
-    s_last = polyline_lengths(last.points)
+    s_last = lane_arc(town, last.id)
     end_s = s_end if s_end is not None else s_last[-1]
     chunks.append(np.array([[np.interp(end_s, s_last, last.points[:, 0]), np.interp(end_s, s_last, last.points[:, 1])]]))
     lane_tags.append(np.array([last.id]))
@@ -207,6 +205,36 @@ def route_from_lanes(town: Town, lanes: list[int], s_start: float = 0.0, s_end: 
     headings = np.concatenate([headings, headings[-1:]])
     return Route(town.name, list(lanes), raw, headings, lane_ids.astype(np.int64),
                  commands.astype(np.int64), polyline_lengths(raw))
+
+
+def lane_arc(town: Town, lane: int) -> np.ndarray:
+    """``polyline_lengths`` of lane ``lane``'s points (cached on the town, read-only)."""
+    store = town.cache("lane_arc")
+    s = store.get(lane)
+    if s is None:
+        s = store[lane] = polyline_lengths(town.lanes[lane].points)
+        s.setflags(write=False)
+    return s
+
+
+def _lane_chunk(town: Town, ln, s: np.ndarray, a: float, b: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Route points every ``ROUTE_STEP`` m on lane ``ln`` from arc length ``a`` to ``b`` (``b``
+    excluded; ``[a]`` when empty), with their lane ids and commands; the whole lane's (``a = 0``,
+    ``b`` = its length, most lanes of a route) is computed once per town (read-only arrays)."""
+    whole = a == 0.0 and b == s[-1]
+    store = town.cache("lane_chunk")
+    if whole and ln.id in store:
+        return store[ln.id]
+    t = np.arange(a, b, ROUTE_STEP)
+    if len(t) == 0:
+        t = np.array([a])
+    out = (np.stack([np.interp(t, s, ln.points[:, 0]), np.interp(t, s, ln.points[:, 1])], -1),
+           np.full(len(t), ln.id), np.full(len(t), ln.turn if ln.kind == CONNECTOR else FOLLOW_LANE))
+    if whole:
+        for x in out:
+            x.setflags(write=False)
+        store[ln.id] = out
+    return out
 
 
 def random_route(town: Town, rng: np.random.Generator, min_length: float = 300.0,

@@ -266,3 +266,23 @@ def test_deployment_is_remembered_per_route_and_read_only():
             getattr(first, name)[0] = 0
     assert deploy(town, route, None) is not first  # other triggers, other placement
     assert len(deploy(town, route, None)) == len(rsu_module._deploy(town, route, None))
+
+
+@pytest.mark.parametrize("town_name", ["Town01", "Town03", "Town12"])
+def test_sidewalk_snap_same_on_both_paths(monkeypatch, town_name):
+    """A pole's snap onto the sidewalk (``rsu._on_sidewalk``): the one-pass kernel gives the NumPy
+    path's pose, for candidates near sidewalks and beyond the snap distance."""
+    rsu = rsu_module
+    town = get_town(town_name)
+    pts = rsu._sidewalk_index(town).points
+    rng = np.random.default_rng(0)
+    moved = 0
+    for _ in range(300):
+        x, y = pts[rng.integers(len(pts))] + rng.uniform(-12, 12, 2)
+        cand = (float(x), float(y), float(rng.uniform(-np.pi, np.pi)), 1, 10.0)
+        got = rsu._on_sidewalk(town, cand)
+        with monkeypatch.context() as m:
+            m.setattr(rsu, "HAVE_JIT", False)
+            assert rsu._on_sidewalk(town, cand) == got
+        moved += got != cand
+    assert 0 < moved < 300

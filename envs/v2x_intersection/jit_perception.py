@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .jit import _njit, pose_at_kernel, visible_fraction_kernel
+from .jit import _njit, pose_at_kernel, project_refine, visible_fraction_kernel
 from .jit_grid import project_grid_kernel
 
 
@@ -89,6 +89,30 @@ def select_active_kernel(pose, kind, trigger_kind, ex, ey, eyaw, max_range, slot
     if out[0] < 0:
         out[0] = np.argmin(dist)
     return out
+
+
+@_njit
+def sidewalk_snap_kernel(x, y, points, owner, offset, n_points, gs, base):  # pragma: no cover
+    """``rsu._on_sidewalk``'s two searches over all sidewalk vertices in one pass: the distance to
+    the sidewalks (``PolylineIndex.project``: nearest vertex by squared distance, then the segments
+    beside it) and the nearest vertex by distance (``np.argmin`` of the norms: the first minimum).
+
+    Returns:
+        ``(distance, vertex)``.
+    """
+    best, j = np.inf, 0
+    best_n, k = np.inf, 0
+    for p in range(points.shape[0]):
+        dx = x - points[p, 0]
+        dy = y - points[p, 1]
+        d2 = dx * dx + dy * dy
+        if d2 < best:
+            best, j = d2, p
+        nrm = np.sqrt(d2)
+        if nrm < best_n:
+            best_n, k = nrm, p
+    _, _, d = project_refine(x, y, j, points, owner, offset, n_points, gs, base)
+    return d, k
 
 
 @_njit

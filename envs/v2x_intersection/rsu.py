@@ -17,7 +17,7 @@ import numpy as np
 
 from .geometry import pose_matrix, wrap_angle
 from .jit import HAVE_JIT
-from .jit_perception import select_active_kernel
+from .jit_perception import select_active_kernel, sidewalk_snap_kernel
 from .routes import Route
 from .town.model import Town
 
@@ -139,10 +139,16 @@ def _on_sidewalk(town: Town, cand: tuple) -> tuple:
         return cand
     x, y, yaw, kind, s = cand
     idx = _sidewalk_index(town)
-    _, _, d = idx.project(np.array([[x, y]]))
-    if d[0] > SNAP_M:
-        return cand
-    k = np.argmin(np.linalg.norm(idx.points - (x, y), axis=1))
+    if HAVE_JIT:  # both searches in one pass over the vertices (the same numbers)
+        d, k = sidewalk_snap_kernel(float(x), float(y), idx.points, idx.owner, idx.offset, idx.n_points, idx.gs,
+                                    idx.base)
+        if d > SNAP_M:
+            return cand
+    else:
+        _, _, dist = idx.project(np.array([[x, y]]))
+        if dist[0] > SNAP_M:
+            return cand
+        k = np.argmin(np.linalg.norm(idx.points - (x, y), axis=1))
     nx, ny = idx.points[k]
     target = np.array([x, y]) + 20.0 * np.array([np.cos(yaw), np.sin(yaw)])
     return (float(nx), float(ny), float(np.arctan2(target[1] - ny, target[0] - nx)), kind, s)

@@ -57,11 +57,12 @@ class Scenario:
         self.params = {**self.defaults, **(params or {})}
         self.route, self.site = route, site
         self.conflict_s = float(conflict_s)  # route arc length of the conflict point (m)
-        k = int(np.clip(np.searchsorted(route.s, conflict_s), 0, len(route.points) - 1))
+        last = len(route.points) - 1
+        k = min(max(int(np.searchsorted(route.s, conflict_s)), 0), last)  # np.clip on an int, cheaper
         self.conflict_point = route.points[k].copy()
         ts = max(conflict_s - self.trigger_distance, 0.0)
         self.trigger_s = ts
-        self.trigger_point = route.points[int(np.clip(np.searchsorted(route.s, ts), 0, len(route.points) - 1))].copy()
+        self.trigger_point = route.points[min(max(int(np.searchsorted(route.s, ts)), 0), last)].copy()
         # at most the progress that completes the route (``World.is_route_complete``)
         self.end_s = min(conflict_s + 15.0, float(route.s[max(len(route.s) - 3, 0)]))
         self.rows = np.zeros(0, np.int64)

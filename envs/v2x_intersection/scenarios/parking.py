@@ -229,10 +229,12 @@ class ParkingExit(Scenario):
         lane, s_p = site.lanes[site.key], site.s_on_key
         lat0, length = kerb_parking(town, lane), float(p["exit_length"])
         u = np.arange(0.0, length, ROUTE_STEP)
+        # lane_point for each x, with the lane poses in one pose_at call (the same numbers)
+        p_u, h_u = town.index.pose_at(np.full(len(u), lane), s_p + u)
         curve = np.array(
             [
-                lane_point(town, lane, s_p + x, lat0 * (0.5 + 0.5 * np.cos(np.pi * x / length)))[0]
-                for x in u
+                p_u[k] + lat0 * (0.5 + 0.5 * np.cos(np.pi * x / length)) * np.array([-np.sin(h_u[k]), np.cos(h_u[k])])
+                for k, x in enumerate(u)
             ]
         )
         if np.linalg.norm(route.points[0] - curve[0]) < 0.1:  # this route was rewritten already

@@ -47,6 +47,7 @@ class EpisodeTracker:
         self.world = world
         self.max_steps = time_budget_steps(world)
         self.prev_s = float(world.route.s[world.monitor.progress])
+        self.route_length = world.route.length
         self.done = False
 
     def after_step(self, events: list, with_info: bool = True) -> tuple[float, bool, bool, dict | None]:
@@ -87,7 +88,7 @@ class EpisodeTracker:
         out = {
             "tick": w.tick,
             "route_completion": w.monitor.route_completion,
-            "route_length": w.route.length,
+            "route_length": self.route_length,
             "speed": float(w.table.speed[0]),
             "events": w.monitor.counts.copy(),
             "outside_lanes_m": w.monitor.outside_m,

@@ -47,6 +47,7 @@ class EventMonitor:
 
     def __init__(self, town: Town, route: Route, dt: float) -> None:
         self.town, self.route, self.dt = town, route, dt
+        self._length = max(route.length, 1e-9)  # the route is fixed for the episode
         self.counts = np.zeros(NUM_EVENTS, np.int64)
         self.events: list[tuple[int, int, int, float]] = []
         self.progress = 0
@@ -73,7 +74,7 @@ class EventMonitor:
     @property
     def route_completion(self) -> float:
         """Percent of the route length passed (0-100)."""
-        return 100.0 * float(self.route.s[self.progress]) / max(self.route.length, 1e-9)
+        return 100.0 * float(self.route.s[self.progress]) / self._length
 
     def update(self, tick: int, t: ActorTable, contacts: np.ndarray, lane_signal: np.ndarray,
                moved: float) -> list[tuple[int, int, int, float]]:

@@ -172,10 +172,10 @@ class LaneFlow:
     def update(self, world) -> None:
         """Re-enter one vehicle at the lane start when there is room."""
         t = world.table
-        active = t.active[self._row_index]
-        if active.all():
+        active = t.active[self._row_index].tolist()  # a short list: Python's all() beats ndarray.all()
+        if all(active):
             return
-        free = self.rows[int(active.argmin())]  # the first inactive row
+        free = self.rows[active.index(False)]  # the first inactive row
         lead = self.last
         if (
             lead >= 0

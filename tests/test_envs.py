@@ -124,6 +124,29 @@ def test_out_of_range_actions_are_clipped():
     np.testing.assert_allclose(obs["ego"][3:6], [1.0, -1.0, 0.0])
 
 
+def test_control_fast_path_is_numpys_clip():
+    """``validate_control``'s path for ``(3,)`` float32/float64 arrays gives what the general path
+    (NumPy's maximum/minimum in float64) gives, signed zeros included, and raises the same errors;
+    float16 and integer controls take the general path."""
+    import itertools
+
+    from v2xbench.envs.v2x_intersection.observations import validate_control
+
+    lo, hi = np.array([0.0, -1.0, 0.0]), np.array([1.0, 1.0, 1.0])
+    values = [-0.0, 0.0, 1.0, -1.0, 1.0000001, -1.0000001, 0.5, -2.0, 2.0, 1e300, -1e300, 5e-324, np.nan, np.inf]
+    for dtype in (np.float32, np.float64, np.float16, np.int64):
+        for v in itertools.product(values, repeat=3):
+            with np.errstate(all="ignore"):
+                a = np.array(v).astype(dtype)
+            wide = a.astype(np.float64)
+            if not np.isfinite(wide).all():
+                with pytest.raises(ValueError, match="NaN or inf"):
+                    validate_control(a)
+                continue
+            got = validate_control(a)
+            assert got.dtype == np.float64 and got.tobytes() == np.minimum(np.maximum(wide, lo), hi).tobytes(), v
+
+
 def test_step_after_end_and_before_reset_raise():
     env = V2XIntersectionEnv(max_steps=3, **SMALL)
     with pytest.raises(StepError, match="reset"):

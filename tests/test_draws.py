@@ -50,3 +50,5 @@ def test_draw_size_draws_three_scalar_uniforms(monkeypatch, jit):
             assert got == tuple(c.uniform(*SIZE_BOUNDS[kind]).tolist())
             assert all(type(x) is float for x in got)
         assert a.bit_generator.state == b.bit_generator.state == c.bit_generator.state
+    mt, mt2 = np.random.Generator(np.random.MT19937(1)), np.random.Generator(np.random.MT19937(1))
+    assert draw_size(0, mt) == tuple(mt2.uniform(*SIZE_BOUNDS[0]).tolist())  # other bit generators too

@@ -109,7 +109,8 @@ class ActorTable:
 def draw_size(kind: int, rng: np.random.Generator) -> tuple[float, float, float]:
     """Random ``(length, width, height)`` for a class (m): three ``rng.uniform`` draws in order."""
     (l0, l1, l2), (h0, h1, h2) = _SIZE_FLOATS[kind]
-    if HAVE_JIT:  # the generator's own draws in a kernel (a scalar uniform() call costs ~4 us)
+    if HAVE_JIT and type(rng.bit_generator) is np.random.PCG64:  # the generator's own draws in a kernel
+        # (a scalar uniform() call costs ~4 us; jit_rng replicates PCG64, what default_rng makes)
         words, _ = state_views(rng)
         return uniform3_kernel(words, l0, l1, l2, h0, h1, h2)
     u = rng.uniform

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from .jit import _njit, _njit_inline
-from .jit_perception import object_rows_kernel
+from .jit_perception import seen_rows_kernel
 from .wire import (
     _TRACK_ID_COL,
     FLOAT16_TRACK_ID_MODULUS,
@@ -115,14 +115,13 @@ def encode_kernel(values, n, sender, tick, code, pad):  # pragma: no cover
 def builtin_message_kernel(vis, threshold, pos, yaw, speed, kind, length, width, height, actor_id, ox, oy, oyaw,
                            max_rows, wrap_ids, sender, tick, code, pad):  # pragma: no cover
     """The built-in ``share_objects`` message of the unit at ``(ox, oy, oyaw)``: the actors with
-    ``vis >= threshold`` as object rows (``jit_perception.object_rows_kernel``, nearest first), the
+    ``vis >= threshold`` as object rows (``jit_perception.seen_rows_kernel``, nearest first), the
     first ``max_rows`` of them, track ids modulo 2048 when ``wrap_ids`` (float16), encoded by
     :func:`encode_kernel`. Returns the message bytes, or no bytes when the unit sees nothing."""
-    idx = np.flatnonzero(vis >= threshold)
-    k = min(idx.shape[0], max_rows)
+    rows = seen_rows_kernel(vis, threshold, pos, yaw, speed, kind, length, width, height, actor_id, ox, oy, oyaw)
+    k = min(rows.shape[0], max_rows)
     if k == 0:
         return np.zeros(0, np.uint8)
-    rows = object_rows_kernel(idx, pos, yaw, speed, kind, length, width, height, actor_id, ox, oy, oyaw)
     flat = np.empty(k * NUM_OBJECT_FIELDS, np.float32)
     for r in range(k):
         for f in range(NUM_OBJECT_FIELDS):

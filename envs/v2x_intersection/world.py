@@ -326,7 +326,7 @@ class World:
         sender = max(u, 0)
         if HAVE_JIT:  # the message bytes in one kernel (the same bytes as pack_rows + encode_message)
             data = _NO_BYTES
-            if self.config.rsu_policy != "none" and u >= 0:
+            if self._sends_builtin():
                 ch, t = self.channel, self.table
                 check_header(sender, self.tick)
                 x, y, _, yaw = self.rsus.pose[u].tolist()
@@ -496,9 +496,11 @@ class World:
 
     def _builtin_objects(self) -> np.ndarray | None:
         """What the built-in policy sends: the slot-0 RSU's object rows (``None``: nothing)."""
-        if self.config.rsu_policy == "none" or self.active_rsu[0] < 0:
-            return None
-        return self.rsu_objects(0)
+        return self.rsu_objects(0) if self._sends_builtin() else None
+
+    def _sends_builtin(self) -> bool:
+        """The built-in policy sends this tick: it is on and a unit serves slot 0."""
+        return self.config.rsu_policy != "none" and self.active_rsu[0] >= 0
 
     def is_route_complete(self) -> bool:
         """The ego has passed the last route point (within 3 m)."""

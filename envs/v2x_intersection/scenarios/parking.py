@@ -33,7 +33,7 @@ from .obstacles import (
     lane_sites,
     plan_from,
 )
-from .placement import clear_lanes, clear_near, lane_point, spawn_driver, spawn_static
+from .placement import clear_lanes, clear_near, lane_point, lane_points, spawn_driver, spawn_static
 from .registry import register_scenario
 
 PARKING_TOWNS = ("Town03", "Town06", "Town01", "Town05", "Town02")
@@ -229,14 +229,7 @@ class ParkingExit(Scenario):
         lane, s_p = site.lanes[site.key], site.s_on_key
         lat0, length = kerb_parking(town, lane), float(p["exit_length"])
         u = np.arange(0.0, length, ROUTE_STEP)
-        # lane_point for each x, with the lane poses in one pose_at call (the same numbers)
-        p_u, h_u = town.index.pose_at(np.full(len(u), lane), s_p + u)
-        curve = np.array(
-            [
-                p_u[k] + lat0 * (0.5 + 0.5 * np.cos(np.pi * x / length)) * np.array([-np.sin(h_u[k]), np.cos(h_u[k])])
-                for k, x in enumerate(u)
-            ]
-        )
+        curve = lane_points(town, lane, s_p + u, [lat0 * (0.5 + 0.5 * np.cos(np.pi * x / length)) for x in u])
         if np.linalg.norm(route.points[0] - curve[0]) < 0.1:  # this route was rewritten already
             super().__init__(route, site, float(route.s[len(curve)]), params)
             return

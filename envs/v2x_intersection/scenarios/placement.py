@@ -15,8 +15,19 @@ from .base import Scenario, Site
 def lane_point(town: Town, lane: int, s: float, lateral: float = 0.0) -> tuple[np.ndarray, float]:
     """Position (m) and heading (rad) at arc length ``s`` on ``lane``, shifted ``lateral`` m left."""
     p, h = town.index.pose_at(np.array([lane]), np.array([s]))
-    p = p[0] + lateral * np.array([-np.sin(h[0]), np.cos(h[0])])
-    return p, float(h[0])
+    return _shifted(p[0], h[0], lateral), float(h[0])
+
+
+def lane_points(town: Town, lane: int, s: np.ndarray, lateral) -> np.ndarray:
+    """``(K, 2)``: :func:`lane_point`'s positions at arc lengths ``s (K,)`` with offsets ``lateral``
+    (``(K,)``), the lane poses in one ``pose_at`` call (the same numbers as K calls)."""
+    p, h = town.index.pose_at(np.full(len(s), lane), s)
+    return np.array([_shifted(p[k], h[k], lateral[k]) for k in range(len(s))])
+
+
+def _shifted(p: np.ndarray, h, lateral: float) -> np.ndarray:
+    """Point ``p`` moved ``lateral`` m to the left of heading ``h``."""
+    return p + lateral * np.array([-np.sin(h), np.cos(h)])
 
 
 def extend_lanes(town: Town, rng: np.random.Generator, lanes: list[int], before: float, after: float) -> tuple[list[int], int]:

@@ -8,6 +8,7 @@ Commands:
     eval        closed-loop evaluation of an agent on a route suite (per-route JSON, summary)
     leaderboard leaderboard table, plots and per-scenario breakdown from evaluation results
     bench       benchmark suite (speed vs highway-env, sensors, batched worlds, eval time, memory)
+    profile     where a tick's time goes: per stage and per numba kernel (objects or batched)
     collect     expert data collection into TensorDict memmap shards (resumable)
     data        validate a collected data set (missing / corrupt shards)
     qa          build Chat-V2XBench from a data set, print its statistics, score answers
@@ -145,6 +146,12 @@ def _eval(args: argparse.Namespace) -> int:
 
 def _bench(args: argparse.Namespace) -> int:
     from v2xbench.benchmarks.suite import run
+
+    return run(args)
+
+
+def _profile(args: argparse.Namespace) -> int:
+    from v2xbench.benchmarks.tick_profile import run
 
     return run(args)
 
@@ -294,6 +301,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     _bench_arguments(bn)
     bn.set_defaults(func=_bench)
+    pf = sub.add_parser("profile", help="where a tick's time goes: per stage and per numba kernel",
+                        description="Time every stage of the tick and every numba kernel "
+                        "(benchmarks/tick_profile.py): prints a table, writes OUT/profile_<mode>.json and .md.")
+    from v2xbench.benchmarks.tick_profile import add_arguments as _profile_arguments
+
+    _profile_arguments(pf)
+    pf.set_defaults(func=_profile)
     lb = sub.add_parser("leaderboard", help="leaderboard table and plots from evaluation result dirs")
     lb.add_argument("results", nargs="+", help="result directories (each with a summary.json)")
     lb.add_argument("--out", default="leaderboard")

@@ -1,0 +1,289 @@
+"""Where a tick's time goes: per stage of the tick and per numba kernel (``v2xbench profile``).
+
+For the duration of a run, the stages of a tick (``World``'s step methods in step order, the action
+check, the episode tracker, the observation, resets) and every numba kernel the environment calls
+from Python are wrapped with a timer. Then the run drives one of two workloads:
+
+- ``objects``: the suite's objects row (``suite.OBJECTS_CONFIG``: ``gym.make``, a test50 route
+  with its scenario, a constant action, resets included), one process;
+- ``batched``: one native TorchRL env of ``worlds`` worlds (``V2XTorchEnv``, random actions,
+  TorchRL's ``rollout``), in this process.
+
+It reports microseconds per tick (per world-step in ``batched``) of every stage and every kernel,
+with calls per tick, and splits the tick into time inside kernels (numba's dispatch included)
+and Python around them. Kernels that call kernels inside numba are counted once, in the caller.
+Each timer adds ~0.2 us per wrapped call, so the stages read a little high; the split is what to
+look at. Stages nest in one place: the route monitor and the ego's contact test run inside
+``check_events``. ``other`` is the tick minus its stages: the env's own glue, Gymnasium's
+wrappers (objects), TorchRL and TensorDict (batched).
+
+Run ``v2xbench profile`` (or ``--mode batched``); writes ``OUT/profile_<mode>.json`` and ``.md``.
+Without numba (``V2XBENCH_NO_JIT=1``) there are no kernels and all the time is Python.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import importlib
+import json
+import pkgutil
+import time
+from collections import defaultdict
+from collections.abc import Callable, Iterator
+from datetime import datetime, timezone
+from pathlib import Path
+
+MODES = ("objects", "batched")
+#: ``World`` methods timed as stages, in the order a tick runs them
+WORLD_STAGES = ("send_builtin", "move_ego", "update_signals", "move_followers", "move_walkers", "run_scenarios",
+                "check_events", "perceive", "deliver", "reset")
+
+
+class _Timers:
+    """Accumulated seconds and call counts per key; ``outer`` sums only the calls made outside any
+    other timed call of the same timers (a reset's own perception counts once in it)."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = defaultdict(float)
+        self.calls: dict[str, int] = defaultdict(int)
+        self.outer = 0.0
+        self._depth = 0
+
+    def clear(self) -> None:
+        self.seconds.clear()
+        self.calls.clear()
+        self.outer = 0.0
+
+    def wrap(self, fn: Callable, key: str) -> Callable:
+        seconds, calls, clock = self.seconds, self.calls, time.perf_counter
+
+        def timed(*args, **kwargs):
+            self._depth += 1
+            t0 = clock()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                dt = clock() - t0
+                self._depth -= 1
+                seconds[key] += dt
+                calls[key] += 1
+                if self._depth == 0:
+                    self.outer += dt
+
+        timed.__wrapped__ = fn
+        return timed
+
+
+@contextlib.contextmanager
+def _patched(patches: list[tuple[object, str, object]]) -> Iterator[None]:
+    """Set ``owner.name = value`` for each patch; restore every original on exit."""
+    saved = [(owner, name, getattr(owner, name)) for owner, name, _ in patches]
+    try:
+        for owner, name, value in patches:
+            setattr(owner, name, value)
+        yield
+    finally:
+        for owner, name, value in reversed(saved):
+            setattr(owner, name, value)
+
+
+def _env_modules() -> list:
+    """The modules of the environment package (``v2xbench.envs.v2x_intersection`` and below)."""
+    import v2xbench.envs.v2x_intersection as pkg
+
+    mods = [pkg]
+    for info in pkgutil.walk_packages(pkg.__path__, pkg.__name__ + "."):
+        mods.append(importlib.import_module(info.name))
+    return mods
+
+
+def _code_names(code) -> set[str]:
+    """Global names a code object (and the code objects nested in it) refers to."""
+    names = set(code.co_names)
+    for c in code.co_consts:
+        if hasattr(c, "co_names"):
+            names |= _code_names(c)
+    return names
+
+
+def _kernel_patches(timers: _Timers) -> list[tuple[object, str, object]]:
+    """A timed stand-in for every module-level reference to a numba kernel that Python code calls
+    (one timer per kernel, shared by the modules that import it). Names that a kernel of the same
+    module calls stay as they are: numba resolves them when it compiles that kernel."""
+    try:
+        from numba.core.registry import CPUDispatcher
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return []
+    timed: dict[int, Callable] = {}
+    patches = []
+    for mod in _env_modules():
+        kernels = [o for o in vars(mod).values() if isinstance(o, CPUDispatcher)]
+        used = set().union(*(_code_names(k.py_func.__code__) for k in kernels))
+        for name, obj in list(vars(mod).items()):
+            if isinstance(obj, CPUDispatcher) and name not in used:
+                if id(obj) not in timed:
+                    timed[id(obj)] = timers.wrap(obj, obj.__name__)
+                patches.append((mod, name, timed[id(obj)]))
+    return patches
+
+
+def _stage_patches(timers: _Timers, mode: str) -> list[tuple[object, str, object]]:
+    """Timed stand-ins for the tick's stages (and the tuples and imports that reference them)."""
+    from v2xbench.envs.v2x_intersection import batch, episode, gym_env, world
+
+    timed = {name: timers.wrap(getattr(world.World, name), name) for name in WORLD_STAGES}
+    patches: list[tuple[object, str, object]] = [(world.World, n, f) for n, f in timed.items()]
+    stages = tuple(timed.get(f.__name__, f) for f in world.TICK_STAGES)
+    patches += [(world, "TICK_STAGES", stages), (batch, "TICK_STAGES", stages)]
+    patches.append((episode.EpisodeTracker, "after_step", timers.wrap(episode.EpisodeTracker.after_step, "after_step")))
+    if mode == "objects":
+        patches.append((gym_env, "validate_control", timers.wrap(gym_env.validate_control, "validate_control")))
+        patches.append((gym_env, "ego_observation", timers.wrap(gym_env.ego_observation, "observation")))
+    else:
+        patches.append((batch, "validate_controls", timers.wrap(batch.validate_controls, "validate_control")))
+        patches.append((batch.WorldBatch, "_observe", timers.wrap(batch.WorldBatch._observe, "observation")))
+    return patches
+
+
+def _run_objects(ticks: int, clear: Callable[[], None]) -> tuple[float, int, dict]:
+    import gymnasium as gym
+    import numpy as np
+
+    import v2xbench  # noqa: F401  (registers the ids)
+
+    from .suite import OBJECTS_CONFIG
+
+    env = gym.make("V2XIntersection-v0", **OBJECTS_CONFIG)
+    action = np.array([0.3, 0.0, 0.0], np.float32)
+    env.reset(seed=0)
+    for _ in range(50):  # warm-up: kernels compiled or loaded, caches filled
+        _, _, term, trunc, _ = env.step(action)
+        if term or trunc:
+            env.reset(seed=1)
+    env.reset(seed=0)
+    clear()
+    n, t0 = 0, time.perf_counter()
+    while n < ticks:
+        _, _, term, trunc, _ = env.step(action)
+        n += 1
+        if term or trunc:
+            env.reset(seed=n)
+    total = time.perf_counter() - t0
+    env.close()
+    return total, n, dict(OBJECTS_CONFIG)
+
+
+def _run_batched(ticks: int, worlds: int, clear: Callable[[], None]) -> tuple[float, int, dict]:
+    import torch
+    from v2xbench.envs.v2x_intersection import V2XTorchEnv
+
+    torch.set_num_threads(1)
+    env = V2XTorchEnv(num_worlds=worlds)
+    env.set_seed(0)
+    env.rollout(5, break_when_any_done=False)
+    clear()
+    t0 = time.perf_counter()
+    td = env.rollout(ticks, break_when_any_done=False)
+    total = time.perf_counter() - t0
+    return total, int(td.numel()), {"num_worlds": worlds}
+
+
+def profile(mode: str = "objects", ticks: int = 3000, worlds: int = 32) -> dict:
+    """Run the ``mode`` workload for ``ticks`` ticks (per world in ``batched``) under the timers.
+
+    Returns:
+        a JSON-able report: ``us_per_tick`` (per world-step in ``batched``), ``stages`` and
+        ``kernels`` (``{name: {"us": per tick, "calls": per tick}}``, largest first),
+        ``kernel_us`` / ``python_us`` (inside / outside kernels), ``other_us`` (outside the stages).
+
+    Raises:
+        ValueError: unknown ``mode``, or ``ticks`` / ``worlds`` below 1.
+    """
+    if mode not in MODES:
+        raise ValueError(f"profile: unknown mode {mode!r} (modes: {', '.join(MODES)})")
+    if ticks < 1 or worlds < 1:
+        raise ValueError(f"profile: ticks={ticks} and worlds={worlds} must be >= 1")
+    from v2xbench.envs.v2x_intersection.jit import HAVE_JIT
+
+    stage_t, kernel_t = _Timers(), _Timers()
+
+    def clear() -> None:  # the workloads clear the timers after their warm-up
+        stage_t.clear()
+        kernel_t.clear()
+
+    with _patched(_stage_patches(stage_t, mode) + _kernel_patches(kernel_t)):
+        if mode == "objects":
+            total, steps, config = _run_objects(ticks, clear)
+        else:
+            total, steps, config = _run_batched(ticks, worlds, clear)
+
+    def per_tick(t: _Timers) -> dict:
+        rows = sorted(t.seconds, key=lambda k: -t.seconds[k])
+        return {k: {"us": 1e6 * t.seconds[k] / steps, "calls": t.calls[k] / steps} for k in rows}
+
+    stages, kernels = per_tick(stage_t), per_tick(kernel_t)
+    us = 1e6 * total / steps
+    kernel_us = 1e6 * kernel_t.outer / steps
+    return {
+        "benchmark": "tick_profile", "mode": mode, "config": config, "numba": bool(HAVE_JIT),
+        "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), "steps": steps,
+        "us_per_tick": us, "kernel_us": kernel_us, "python_us": us - kernel_us,
+        "other_us": us - 1e6 * stage_t.outer / steps,
+        "kernel_calls": sum(v["calls"] for v in kernels.values()), "stages": stages, "kernels": kernels,
+    }
+
+
+def table(report: dict) -> str:
+    """The report as Markdown: the split, then the stages and the kernels."""
+    unit = "world-step" if report["mode"] == "batched" else "tick"
+    us = report["us_per_tick"]
+    lines = [
+        f"Tick profile, {report['mode']} ({report['config']}), {report['steps']} {unit}s, {report['date']}, "
+        f"numba {'on' if report['numba'] else 'off'}",
+        "",
+        f"{us:.0f} us per {unit} ({1e6 / us:,.0f} per second): {report['kernel_us']:.0f} us inside "
+        f"{report['kernel_calls']:.1f} kernel calls, {report['python_us']:.0f} us of Python around them.",
+        "",
+        "| stage | us per " + unit + " | calls | share |",
+        "| --- | ---: | ---: | ---: |",
+    ]
+    for k, v in report["stages"].items():
+        lines.append(f"| {k} | {v['us']:.1f} | {v['calls']:.2f} | {100 * v['us'] / us:.0f} % |")
+    lines.append(f"| other | {report['other_us']:.1f} | | {100 * report['other_us'] / us:.0f} % |")
+    if report["kernels"]:
+        lines += ["", "| kernel | us per " + unit + " | calls | share |", "| --- | ---: | ---: | ---: |"]
+        for k, v in report["kernels"].items():
+            lines.append(f"| {k} | {v['us']:.1f} | {v['calls']:.2f} | {100 * v['us'] / us:.0f} % |")
+    return "\n".join(lines) + "\n"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--mode", choices=MODES, default="objects", help="workload (default: objects)")
+    p.add_argument("--ticks", type=int, default=3000, help="ticks to time (per world in batched; default 3000)")
+    p.add_argument("--worlds", type=int, default=32, help="worlds of the batched env (default 32)")
+    p.add_argument("--out", default="benchmarks/results", help="directory for profile_<mode>.json and .md")
+
+
+def run(args: argparse.Namespace) -> int:
+    from .suite import _write
+
+    report = profile(args.mode, args.ticks, args.worlds)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    md = table(report)
+    _write(out / f"profile_{args.mode}.json", json.dumps(report, indent=2))
+    _write(out / f"profile_{args.mode}.md", md)
+    print(md)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="v2xbench profile", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(p)
+    return run(p.parse_args(argv))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

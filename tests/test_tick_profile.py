@@ -1,0 +1,65 @@
+"""``v2xbench profile`` (``benchmarks/tick_profile.py``): the report's accounting, and that every
+patched stage and kernel is put back. No timing is asserted."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from v2xbench.benchmarks import tick_profile as tp
+from v2xbench.envs.v2x_intersection import batch, gym_env, jit_traffic, traffic, world
+from v2xbench.envs.v2x_intersection.jit import HAVE_JIT
+
+from v2xbench.cli import main as cli_main
+
+
+def _originals() -> dict:
+    return {"stages": tuple(world.TICK_STAGES), "batch_stages": tuple(batch.TICK_STAGES),
+            "perceive": world.World.perceive, "observation": gym_env.ego_observation,
+            "kernel": traffic.followers_tick_kernel, "inner": jit_traffic.followers_kernel}
+
+
+def _check(report: dict, mode: str) -> None:
+    assert report["mode"] == mode and report["steps"] > 0 and report["us_per_tick"] > 0
+    stages = report["stages"]
+    for name in ("move_followers", "check_events", "after_step"):  # once a tick
+        assert stages[name]["calls"] == pytest.approx(1.0), name
+    for name in ("perceive", "observation"):  # once a tick, and once more for each reset
+        assert stages[name]["calls"] >= 1.0, name
+    # the split adds up: kernels and Python make the tick; the stages and "other" too
+    assert report["kernel_us"] + report["python_us"] == pytest.approx(report["us_per_tick"])
+    assert report["other_us"] < report["us_per_tick"]
+    if HAVE_JIT:
+        kernels = report["kernels"]
+        assert kernels["followers_tick_kernel"]["calls"] == pytest.approx(1.0, abs=0.2)
+        assert "followers_kernel" not in kernels  # called inside a kernel: counted in its caller
+        assert 0 < report["kernel_us"] < report["us_per_tick"]
+        assert kernels["perceive_all_kernel"]["us"] <= stages["perceive"]["us"]
+    else:
+        assert report["kernels"] == {} and report["kernel_us"] == 0
+
+
+def test_objects_profile_restores_what_it_patched():
+    before = _originals()
+    report = tp.profile("objects", ticks=30)
+    _check(report, "objects")
+    assert _originals() == before
+    md = tp.table(report)
+    assert "| move_followers |" in md and "| other |" in md and "us per tick" in md
+
+
+def test_batched_profile(tmp_path):
+    before = _originals()
+    assert cli_main(["profile", "--mode", "batched", "--ticks", "4", "--worlds", "2", "--out", str(tmp_path)]) == 0
+    report = json.loads((tmp_path / "profile_batched.json").read_text())
+    _check(report, "batched")
+    assert report["config"] == {"num_worlds": 2} and report["steps"] == 8
+    assert "world-step" in (tmp_path / "profile_batched.md").read_text()
+    assert _originals() == before
+
+
+def test_bad_arguments():
+    with pytest.raises(ValueError, match="unknown mode"):
+        tp.profile("sensors")
+    with pytest.raises(ValueError, match="ticks=0"):
+        tp.profile("objects", ticks=0)

@@ -13,9 +13,10 @@ It reports microseconds per tick (per world-step in ``batched``) of every stage 
 with calls per tick, and splits the tick into time inside kernels (numba's dispatch included)
 and Python around them. Kernels that call kernels inside numba are counted once, in the caller.
 Each timer adds ~0.2 us per wrapped call, so the stages read a little high; the split is what to
-look at. Stages nest in one place: the route monitor and the ego's contact test run inside
-``check_events``. ``other`` is the tick minus its stages: the env's own glue, Gymnasium's
-wrappers (objects), TorchRL and TensorDict (batched).
+look at. Without numba ``move_traffic`` runs as four stages (``move_ego``, ``update_signals``,
+``move_followers``, ``move_walkers``), each listed; with numba it is one kernel. ``other`` is the
+tick minus its stages: the env's own glue, Gymnasium's wrappers (objects), TorchRL and
+TensorDict (batched).
 
 Run ``v2xbench profile`` (or ``--mode batched``); writes ``OUT/profile_<mode>.json`` and ``.md``.
 Without numba (``V2XBENCH_NO_JIT=1``) there are no kernels and all the time is Python.
@@ -35,9 +36,10 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 MODES = ("objects", "batched")
-#: ``World`` methods timed as stages, in the order a tick runs them
-WORLD_STAGES = ("send_builtin", "move_ego", "update_signals", "move_followers", "move_walkers", "run_scenarios",
-                "check_events", "perceive", "deliver", "reset")
+#: ``World`` methods timed as stages, in the order a tick runs them (without numba, ``move_traffic``
+#: calls the four after it)
+WORLD_STAGES = ("send_builtin", "move_traffic", "move_ego", "update_signals", "move_followers", "move_walkers",
+                "run_scenarios", "check_events", "perceive", "deliver", "reset")
 
 
 class _Timers:

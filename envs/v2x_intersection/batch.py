@@ -6,8 +6,9 @@
 
 1. validates all ``(N, 3)`` actions at once (same checks and clipping as the single env);
 2. advances every world by one tick with its built-in RSU policy (``World.step_builtin``, the
-   fixed step order of :mod:`.world`), stage by stage: each stage runs over all worlds before the
-   next, which keeps each kernel's code and the town's tables in the CPU's caches;
+   fixed step order of :mod:`.world`), stage by stage: each stage (the message, the traffic's
+   move, scenario hooks, events, perception, delivery) runs over all worlds before the next,
+   which keeps each kernel's code and the town's tables in the CPU's caches;
 3. writes each world's observation into row ``i`` of the batch buffers (no per-step stacking of
    dicts) and fills ``(N,)`` reward / terminated / truncated arrays.
 
@@ -157,7 +158,7 @@ class WorldBatch:
         for w in worlds:
             w.send_builtin()
         for i, w in zip(idx, worlds):
-            w.move_ego(controls[i])
+            w.move_traffic(controls[i])
         for stage in TICK_STAGES:
             for w in worlds:
                 stage(w)

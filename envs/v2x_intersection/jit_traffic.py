@@ -200,10 +200,9 @@ def pose_kernel(idx, lane, s, bike, v_new, lane_arr, s_arr, lat_arr, pos, yaw, l
 
 
 @_njit
-def followers_tick_kernel(words, buf, plan_lanes, plan_start, plan_len, succ, succ_start, n_succ, active, hold,
-                          behaviour, pos, yaw, length, width, speed, lane_arr, s_arr, v0_arr, stopped_at_sign,
-                          ignore_rules, wait, accel, scenario, plan, plan_pos, lat_arr, lane_signal, speed_limit,
-                          lane_length, stop_at_end, junction_ahead, stop_lane, major, jcenter, jradius, jcontrol,
+def followers_tick_kernel(lane_signal, plan_lanes, plan_start, plan_len, words, buf, succ, succ_start, n_succ, active,
+                          hold, behaviour, pos, yaw, length, width, speed, lane_arr, s_arr, v0_arr, stopped_at_sign,
+                          ignore_rules, wait, accel, scenario, plan, plan_pos, lat_arr, speed_limit, lane_length, stop_at_end, junction_ahead, stop_lane, major, jcenter, jradius, jcontrol,
                           idm_car, idm_bike, lookahead, setback, dt, blocked_s, stuck_s, left, right, kind,
                           lane_width, change_rate, points, heading, offset, n_points, gs, base):  # pragma: no cover
     """``traffic.step_followers`` in one call, in place on the table's columns: car-following
@@ -211,6 +210,8 @@ def followers_tick_kernel(words, buf, plan_lanes, plan_start, plan_len, succ, su
     random successor drawn from ``words``/``buf``, :mod:`.jit_rng`), lane changes (one draw per
     follower) and the pose update (:func:`pose_kernel`).
 
+    The arguments that change from tick to tick come first (``lane_signal``, the plans); the rest
+    are ``traffic.followers_args``, the same for a whole episode.
     ``plan_lanes[plan_start[p]:plan_start[p] + plan_len[p]]`` is ``World.plans[p]``;
     ``succ[succ_start[l]:succ_start[l] + n_succ[l]]`` are lane ``l``'s successors.
 

@@ -97,6 +97,21 @@ def step_walkers(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, 
     _ends_and_jaywalk(t, net, rng, dt, jaywalk_prob, walking, at_end)
 
 
+def walkers_args(t: ActorTable, net: SidewalkNetwork, lanes: PolylineIndex) -> tuple:
+    """What ``jit_tick.traffic_tick_kernel`` needs for the pedestrians besides the columns the
+    followers use too (the same for a whole episode). A town without sidewalks passes ``lanes``'
+    index arrays in place of theirs (never read: the kernel skips the walkers; same dtypes, so the
+    same compiled kernel)."""
+    ix = net.index if net.index is not None else lanes
+    return (t.path, t.path_s, t.path_dir, t.cross_from, t.cross_to, net.crossings, net.opposite, ix.points,
+            ix.heading, ix.offset, ix.n_points, ix.gs, ix.base, ix.length, ix.owner, PED_LOOKAHEAD, EGO_MARGIN)
+
+
+def ego_is_vehicle(t: ActorTable) -> bool:
+    """Row 0 is an active vehicle (walkers wait only for that)."""
+    return bool(len(t.active) and t.active[0] and int(t.kind[0]) in _VEHICLE_KINDS)
+
+
 def _step_walkers_jit(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, dt: float,
                       jaywalk_prob: float) -> None:
     """:func:`step_walkers` in one kernel, random choices included (drawn from ``rng``'s own
@@ -105,7 +120,7 @@ def _step_walkers_jit(t: ActorTable, net: SidewalkNetwork, rng: np.random.Genera
     words, buf = state_views(rng)
     walkers_tick_kernel(
         words, buf, t.active, t.hold, t.behaviour, t.path, t.path_s, t.path_dir, t.speed, t.lat, t.pos, t.yaw,
-        t.cross_from, t.cross_to, t.scenario, _ego_is_vehicle(t), float(t.pos[0, 0]), float(t.pos[0, 1]),
+        t.cross_from, t.cross_to, t.scenario, ego_is_vehicle(t), float(t.pos[0, 0]), float(t.pos[0, 1]),
         float(t.yaw[0]), float(t.length[0] / 2 + EGO_MARGIN), float(t.width[0] / 2 + EGO_MARGIN), PED_LOOKAHEAD, dt,
         jaywalk_prob * dt, net.crossings, net.opposite, ix.points, ix.heading, ix.offset, ix.n_points, ix.gs,
         ix.base, ix.length, ix.owner)
@@ -156,18 +171,13 @@ def ego_in_the_way(t: ActorTable, points: np.ndarray, margin: float = EGO_MARGIN
 
     Only the ego is tested: walkers do not walk into the car being evaluated, while among
     background actors a wait rule could deadlock (car waits for walker waits for car)."""
-    if not _ego_is_vehicle(t):
+    if not ego_is_vehicle(t):
         return np.zeros(len(points), bool)
     local = world_to_local_2d(points, t.pos[0], float(t.yaw[0]))
     return (np.abs(local[:, 0]) < t.length[0] / 2 + margin) & (np.abs(local[:, 1]) < t.width[0] / 2 + margin)
 
 
 _VEHICLE_KINDS = frozenset(int(k) for k in VEHICLE_CLASSES)
-
-
-def _ego_is_vehicle(t: ActorTable) -> bool:
-    """Row 0 is an active vehicle (walkers wait only for that)."""
-    return bool(len(t.active) and t.active[0] and int(t.kind[0]) in _VEHICLE_KINDS)
 
 
 def _start_crossing(t: ActorTable, i: int, a: np.ndarray, b: np.ndarray) -> None:

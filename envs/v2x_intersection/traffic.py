@@ -123,17 +123,7 @@ def step_followers(t: ActorTable, town: Town, lane_signal: np.ndarray, rng: np.r
     """
     ix = town.index
     if HAVE_JIT:
-        a = _town_arrays(town)
-        words, buf = state_views(rng)
-        plan_lanes, plan_start, plan_len = _flat_plans(plans)
-        return followers_tick_kernel(
-            words, buf, plan_lanes, plan_start, plan_len, a["succ"], a["succ_start"], a["n_succ"], t.active,
-            t.hold, t.behaviour, t.pos, t.yaw, t.length, t.width, t.speed, t.lane, t.s, t.v0, t.stopped_at_sign,
-            t.ignore_rules, t.wait, t.accel, t.scenario, t.plan, t.plan_pos, t.lat, lane_signal, ix.speed_limit,
-            ix.length, ix.stop_at_end, ix.junction_ahead, a["stop_lane"], a["major"], a["center"], a["radius"],
-            a["control"], _IDM_TUPLE, _IDM_BIKE_TUPLE, LOOKAHEAD, STOP_LINE_SETBACK, dt, BLOCKED_RESPAWN_S,
-            STUCK_RESPAWN_S, ix.left, ix.right, ix.kind, ix.width, LANE_CHANGE_RATE, ix.points, ix.heading,
-            ix.offset, ix.n_points, ix.gs, ix.base)
+        return followers_tick_kernel(lane_signal, *flat_plans(plans), *followers_args(t, town, rng, dt))
     idx = np.flatnonzero(t.active & ~t.hold & ((t.behaviour == DRIVER) | (t.behaviour == RIDER)))
     if len(idx) == 0:
         return idx
@@ -157,6 +147,20 @@ def step_followers(t: ActorTable, town: Town, lane_signal: np.ndarray, rng: np.r
     t.pos[idx] = p + lat[:, None] * normal
     t.yaw[idx] = h + np.where(bike, 0.0, np.arctan2(dlat / dt, np.maximum(v_new, 1.0)))
     return np.unique(np.array(respawn, np.int64))
+
+
+def followers_args(t: ActorTable, town: Town, rng: np.random.Generator, dt: float) -> tuple:
+    """The arguments of ``jit_traffic.followers_tick_kernel`` after the per-tick ones (the signal
+    states and the plans): the same for a whole episode (``World`` keeps them from its first tick)."""
+    ix = town.index
+    a = _town_arrays(town)
+    words, buf = state_views(rng)
+    return (words, buf, a["succ"], a["succ_start"], a["n_succ"], t.active, t.hold, t.behaviour, t.pos, t.yaw,
+            t.length, t.width, t.speed, t.lane, t.s, t.v0, t.stopped_at_sign, t.ignore_rules, t.wait, t.accel,
+            t.scenario, t.plan, t.plan_pos, t.lat, ix.speed_limit, ix.length, ix.stop_at_end, ix.junction_ahead,
+            a["stop_lane"], a["major"], a["center"], a["radius"], a["control"], _IDM_TUPLE, _IDM_BIKE_TUPLE,
+            LOOKAHEAD, STOP_LINE_SETBACK, dt, BLOCKED_RESPAWN_S, STUCK_RESPAWN_S, ix.left, ix.right, ix.kind,
+            ix.width, LANE_CHANGE_RATE, ix.points, ix.heading, ix.offset, ix.n_points, ix.gs, ix.base)
 
 
 def _follow(t: ActorTable, town: Town, lane_signal: np.ndarray, dt: float, idx: np.ndarray, lane: np.ndarray,
@@ -263,7 +267,7 @@ _NO_PLANS = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
 _PLANS: dict[int, tuple] = {}  # id(plans) -> (plans, len(plans), flat arrays); holding plans keeps its id
 
 
-def _flat_plans(plans: list[list[int]] | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def flat_plans(plans: list[list[int]] | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``World.plans`` for the kernel: ``(lanes, start, length)`` with plan ``p`` =
     ``lanes[start[p]:start[p] + length[p]]``. Scenarios only append plans (copies of their lane
     lists), so the arrays are rebuilt only when the list grew (cached for the last few lists)."""

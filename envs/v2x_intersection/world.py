@@ -40,8 +40,9 @@ from .jit import HAVE_JIT
 from .jit_perception import object_rows_kernel, perceive_all_kernel, seen_rows_kernel
 from .jit_rng import state_views
 from .jit_spawn import spawn_followers_kernel, spawn_walkers_kernel
+from .jit_tick import traffic_tick_kernel
 from .jit_wire import builtin_message_kernel
-from .pedestrians import SidewalkNetwork, step_walkers
+from .pedestrians import SidewalkNetwork, ego_is_vehicle, step_walkers, walkers_args
 from .physics import CollisionWorld
 from .raycast import Boxes
 from .routes import Route, random_route
@@ -49,7 +50,15 @@ from .rsu import FACING_MAX_ANGLE, KIND_TRIGGER, TRIGGER_PREFERENCE_M, RSUSet, d
 from .signals import SignalPlan
 from .town import get_town
 from .town.model import DRIVING, RAMP
-from .traffic import SPOT_TRIES, free_lane_spot, place_on_lane, respawn_followers, step_followers
+from .traffic import (
+    SPOT_TRIES,
+    flat_plans,
+    followers_args,
+    free_lane_spot,
+    place_on_lane,
+    respawn_followers,
+    step_followers,
+)
 from .visibility import VISIBILITY_SAMPLING, VISIBLE_THRESHOLD, visible_fraction
 from .wire import check_header, max_objects, pack_objects, pack_rows
 
@@ -181,6 +190,7 @@ class World:
         t.pos[0], t.yaw[0] = self.route.points[0], self.route.headings[0]
         t.lane[0] = self.route.lane_ids[0]
         self.table = t
+        self._traffic_args = None  # built on the first tick (move_traffic)
         row = 1
         row = self._spawn_drivers(row, cfg.num_vehicles)
         row = self._spawn_parked(row, cfg.num_parked)
@@ -357,18 +367,35 @@ class World:
         """Steps 3-8 of the tick (after the message is on the channel), stage by stage: the
         stages are separate methods so that ``batch.WorldBatch`` can run each one over all its
         worlds before the next (the same kernel back to back stays in the CPU's caches)."""
-        self.move_ego(control)
+        self.move_traffic(control)
         for stage in TICK_STAGES:
             stage(self)
         return self.deliver()
 
+    def move_traffic(self, control: np.ndarray) -> None:
+        """Steps 3-4c: the ego (:meth:`move_ego`), the signals, NPC vehicles and bicycles, then
+        pedestrians; with numba in one kernel call (``jit_tick.traffic_tick_kernel``)."""
+        if not HAVE_JIT:
+            self.move_ego(control)
+            self.update_signals()
+            self.move_followers()
+            self.move_walkers()
+            return
+        t, cfg = self.table, self.config
+        throttle, steer, brake = _control_floats(control)
+        self._old_pos = t.pos[0].tolist()
+        if self._traffic_args is None:  # the kernel's arguments that hold for the whole episode
+            self._traffic_args = (*self.signals.kernel_args(), *followers_args(t, self.town, self.rng, cfg.dt),
+                                  *walkers_args(t, self.sidewalks, self.town.index))
+        self.lane_signal, self._respawn = traffic_tick_kernel(
+            throttle, steer, brake, self._bicycle_params, (self.tick + 1) * cfg.dt, *flat_plans(self.plans),
+            self.sidewalks.index is not None, ego_is_vehicle(t), cfg.jaywalk_prob * cfg.dt, *self._traffic_args)
+        self.last_control = np.array((throttle, steer, brake))
+
     def move_ego(self, control: np.ndarray) -> None:
         """Step 3: the ego's kinematic bicycle under ``control``."""
         t = self.table
-        if type(control) is np.ndarray and control.dtype == np.float64:
-            throttle, steer, brake = control.tolist()
-        else:
-            throttle, steer, brake = (float(c) for c in control)
+        throttle, steer, brake = _control_floats(control)
         self._old_pos = old = t.pos[0].tolist()  # (x, y) as Python floats
         if HAVE_JIT:
             x, y, yaw, v, a = bicycle_step_scalar(old[0], old[1], t.yaw[0], t.speed[0], throttle, steer, brake,
@@ -507,9 +534,15 @@ class World:
         return self.monitor.progress >= len(self.route.points) - 3
 
 
-#: the stages of a tick between the ego's move (step 3) and the delivery (step 8), in order
-TICK_STAGES = (World.update_signals, World.move_followers, World.move_walkers, World.run_scenarios,
-               World.check_events, World.perceive)
+#: the stages of a tick between the traffic's move (steps 3-4c) and the delivery (step 8), in order
+TICK_STAGES = (World.run_scenarios, World.check_events, World.perceive)
+
+
+def _control_floats(control) -> tuple[float, float, float]:
+    """``(throttle, steer, brake)`` of a checked ``(3,)`` control as Python floats."""
+    if type(control) is np.ndarray and control.dtype == np.float64:
+        return tuple(control.tolist())
+    return tuple(float(c) for c in control)
 
 
 def object_rows(t: ActorTable, idx: np.ndarray, origin: np.ndarray, yaw: float) -> np.ndarray:

@@ -50,11 +50,6 @@ class SignalPlan:
         self._offset = np.array(offset)
         self.num_lanes = len(town.lanes)
 
-    def kernel_args(self) -> tuple:
-        """The arguments of ``jit_traffic.lane_states_kernel`` after the time."""
-        return (self.lanes, self.group, self._period, self._green, self._yellow, self._n_groups, self._offset,
-                self.num_lanes)
-
     def states(self, t: float) -> np.ndarray:
         """``(K,)`` state of each controlled lane at time ``t`` (s)."""
         cycle = self._period * self._n_groups
@@ -67,7 +62,8 @@ class SignalPlan:
     def lane_states(self, t: float) -> np.ndarray:
         """``(num_lanes,)`` state per lane id (``NO_SIGNAL`` where uncontrolled)."""
         if HAVE_JIT:
-            return lane_states_kernel(float(t), *self.kernel_args())
+            return lane_states_kernel(float(t), self.lanes, self.group, self._period, self._green, self._yellow,
+                                      self._n_groups, self._offset, self.num_lanes)
         out = np.full(self.num_lanes, NO_SIGNAL, np.int64)
         out[self.lanes] = self.states(t)
         return out

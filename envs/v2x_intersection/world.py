@@ -374,7 +374,8 @@ class World:
 
     def move_traffic(self, control: np.ndarray) -> None:
         """Steps 3-4c: the ego (:meth:`move_ego`), the signals, NPC vehicles and bicycles, then
-        pedestrians; with numba in one kernel call (``jit_tick.traffic_tick_kernel``)."""
+        pedestrians. With numba the signals come first (their state depends only on the time)
+        and the rest is one kernel call (``jit_tick.traffic_tick_kernel``)."""
         if not HAVE_JIT:
             self.move_ego(control)
             self.update_signals()
@@ -384,11 +385,12 @@ class World:
         t, cfg = self.table, self.config
         throttle, steer, brake = _control_floats(control)
         self._old_pos = t.pos[0].tolist()
+        self.update_signals()
         if self._traffic_args is None:  # the kernel's arguments that hold for the whole episode
-            self._traffic_args = (*self.signals.kernel_args(), *followers_args(t, self.town, self.rng, cfg.dt),
+            self._traffic_args = (*followers_args(t, self.town, self.rng, cfg.dt),
                                   *walkers_args(t, self.sidewalks, self.town.index))
-        self.lane_signal, self._respawn = traffic_tick_kernel(
-            throttle, steer, brake, self._bicycle_params, (self.tick + 1) * cfg.dt, *flat_plans(self.plans),
+        self._respawn = traffic_tick_kernel(
+            throttle, steer, brake, self._bicycle_params, self.lane_signal, *flat_plans(self.plans),
             self.sidewalks.index is not None, ego_is_vehicle(t), cfg.jaywalk_prob * cfg.dt, *self._traffic_args)
         self.last_control = np.array((throttle, steer, brake))
 

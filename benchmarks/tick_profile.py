@@ -44,34 +44,42 @@ WORLD_STAGES = ("send_builtin", "move_traffic", "move_ego", "update_signals", "m
 
 class _Timers:
     """Accumulated seconds and call counts per key; ``outer`` sums only the calls made outside any
-    other timed call of the same timers (a reset's own perception counts once in it)."""
+    other timed call of the same timers (a reset's own perception counts once in it), and
+    ``parent`` / ``top_calls`` tell the stages that only ever run inside another one."""
 
     def __init__(self) -> None:
         self.seconds: dict[str, float] = defaultdict(float)
         self.calls: dict[str, int] = defaultdict(int)
+        self.parent: dict[str, str] = {}  # key -> the timed call it ran inside (the first seen)
+        self.top_calls: dict[str, int] = defaultdict(int)  # calls made outside any other timed call
         self.outer = 0.0
-        self._depth = 0
+        self._stack: list[str] = []
 
     def clear(self) -> None:
         self.seconds.clear()
         self.calls.clear()
+        self.parent.clear()
+        self.top_calls.clear()
         self.outer = 0.0
 
     def wrap(self, fn: Callable, key: str) -> Callable:
-        seconds, calls, clock = self.seconds, self.calls, time.perf_counter
+        seconds, calls, clock, stack = self.seconds, self.calls, time.perf_counter, self._stack
 
         def timed(*args, **kwargs):
-            self._depth += 1
+            if stack:
+                self.parent.setdefault(key, stack[-1])
+            stack.append(key)
             t0 = clock()
             try:
                 return fn(*args, **kwargs)
             finally:
                 dt = clock() - t0
-                self._depth -= 1
+                stack.pop()
                 seconds[key] += dt
                 calls[key] += 1
-                if self._depth == 0:
+                if not stack:
                     self.outer += dt
+                    self.top_calls[key] += 1
 
         timed.__wrapped__ = fn
         return timed
@@ -196,7 +204,8 @@ def profile(mode: str = "objects", ticks: int = 3000, worlds: int = 32) -> dict:
 
     Returns:
         a JSON-able report: ``us_per_tick`` (per world-step in ``batched``), ``stages`` and
-        ``kernels`` (``{name: {"us": per tick, "calls": per tick}}``, largest first),
+        ``kernels`` (``{name: {"us": per tick, "calls": per tick, "inside": the stage that every
+        call ran inside, or None}}``, largest first),
         ``kernel_us`` / ``python_us`` (inside / outside kernels), ``other_us`` (outside the stages).
 
     Raises:
@@ -222,7 +231,8 @@ def profile(mode: str = "objects", ticks: int = 3000, worlds: int = 32) -> dict:
 
     def per_tick(t: _Timers) -> dict:
         rows = sorted(t.seconds, key=lambda k: -t.seconds[k])
-        return {k: {"us": 1e6 * t.seconds[k] / steps, "calls": t.calls[k] / steps} for k in rows}
+        return {k: {"us": 1e6 * t.seconds[k] / steps, "calls": t.calls[k] / steps,
+                    "inside": None if t.top_calls[k] else t.parent.get(k)} for k in rows}
 
     stages, kernels = per_tick(stage_t), per_tick(kernel_t)
     us = 1e6 * total / steps
@@ -251,7 +261,8 @@ def table(report: dict) -> str:
         "| --- | ---: | ---: | ---: |",
     ]
     for k, v in report["stages"].items():
-        lines.append(f"| {k} | {v['us']:.1f} | {v['calls']:.2f} | {100 * v['us'] / us:.0f} % |")
+        name = f"{k} (inside {v['inside']})" if v.get("inside") else k
+        lines.append(f"| {name} | {v['us']:.1f} | {v['calls']:.2f} | {100 * v['us'] / us:.0f} % |")
     lines.append(f"| other | {report['other_us']:.1f} | | {100 * report['other_us'] / us:.0f} % |")
     if report["kernels"]:
         lines += ["", "| kernel | us per " + unit + " | calls | share |", "| --- | ---: | ---: | ---: |"]

@@ -27,6 +27,8 @@ def _check(report: dict, mode: str) -> None:
         assert stages[name]["calls"] == pytest.approx(1.0), name
     for name in ("perceive", "observation"):  # once a tick, and once more for each reset
         assert stages[name]["calls"] >= 1.0, name
+    assert stages["update_signals"]["inside"] == "move_traffic"  # nested stages are named so
+    assert stages["move_traffic"]["inside"] is None and stages["perceive"]["inside"] is None
     # the split adds up: kernels and Python make the tick; the stages and "other" too
     assert report["kernel_us"] + report["python_us"] == pytest.approx(report["us_per_tick"])
     assert report["other_us"] < report["us_per_tick"]
@@ -47,7 +49,7 @@ def test_objects_profile_restores_what_it_patched():
     _check(report, "objects")
     assert _originals() == before
     md = tp.table(report)
-    assert "| move_traffic |" in md and "| other |" in md and "us per tick" in md
+    assert "| update_signals (inside move_traffic) |" in md and "| move_traffic |" in md and "| other |" in md and "us per tick" in md
 
 
 def test_batched_profile(tmp_path):

@@ -241,6 +241,32 @@ def test_world_tick_kernels_match_numpy(monkeypatch, town):
     assert worlds[1].table.wait.max() > 0.0  # someone queued: the stop rules ran
 
 
+def test_move_traffic_follows_a_replaced_generator(monkeypatch):
+    """``World.move_traffic`` keeps its kernel's episode arguments (the generator's state views
+    among them) and rebuilds them when the world's generator is replaced mid-episode: the kernel
+    path then draws from the new generator, as the NumPy path does."""
+    from v2xbench.envs.v2x_intersection import pedestrians, signals, traffic
+    from v2xbench.envs.v2x_intersection import world as world_module
+    from v2xbench.envs.v2x_intersection.config import make_config
+    from v2xbench.envs.v2x_intersection.world import World
+
+    worlds = [World(make_config(num_vehicles=30, num_pedestrians=20, jaywalk_prob=0.05)) for _ in range(2)]
+    for w in worlds:
+        w.reset(seed=1)
+    a = np.array([0.5, 0.0, 0.0])
+    for k in range(40):
+        if k == 10:
+            for w in worlds:
+                w.rng = np.random.default_rng(99)
+        for jit, w in zip((False, True), worlds):
+            with monkeypatch.context() as m:
+                for mod in (world_module, traffic, pedestrians, signals):
+                    m.setattr(mod, "HAVE_JIT", jit)
+                w.step_builtin(a)
+        assert _table_bytes(worlds[0].table) == _table_bytes(worlds[1].table), f"tick {k}"
+        assert worlds[0].rng.bit_generator.state == worlds[1].rng.bit_generator.state, f"tick {k}"
+
+
 @pytest.mark.parametrize("town", ["Town01", "Town03"])
 def test_world_reset_kernels_match_numpy(monkeypatch, town):
     """Populating a world at reset (NPC vehicles, bicycles, pedestrians: ``jit_spawn``) gives the

@@ -202,9 +202,10 @@ def pose_kernel(idx, lane, s, bike, v_new, lane_arr, s_arr, lat_arr, pos, yaw, l
 @_njit
 def followers_tick_kernel(lane_signal, plan_lanes, plan_start, plan_len, words, buf, succ, succ_start, n_succ, active,
                           hold, behaviour, pos, yaw, length, width, speed, lane_arr, s_arr, v0_arr, stopped_at_sign,
-                          ignore_rules, wait, accel, scenario, plan, plan_pos, lat_arr, speed_limit, lane_length, stop_at_end, junction_ahead, stop_lane, major, jcenter, jradius, jcontrol,
-                          idm_car, idm_bike, lookahead, setback, dt, blocked_s, stuck_s, left, right, kind,
-                          lane_width, change_rate, points, heading, offset, n_points, gs, base):  # pragma: no cover
+                          ignore_rules, wait, accel, scenario, plan, plan_pos, lat_arr, speed_limit, lane_length,
+                          stop_at_end, junction_ahead, stop_lane, major, jcenter, jradius, jcontrol, idm_car, idm_bike,
+                          lookahead, setback, dt, blocked_s, stuck_s, left, right, kind, lane_width, change_rate,
+                          points, heading, offset, n_points, gs, base):  # pragma: no cover
     """``traffic.step_followers`` in one call, in place on the table's columns: car-following
     (:func:`followers_kernel`), lane transitions at a lane's end (the plan's next lane, else a
     random successor drawn from ``words``/``buf``, :mod:`.jit_rng`), lane changes (one draw per

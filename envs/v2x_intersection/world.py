@@ -190,7 +190,7 @@ class World:
         t.pos[0], t.yaw[0] = self.route.points[0], self.route.headings[0]
         t.lane[0] = self.route.lane_ids[0]
         self.table = t
-        self._traffic_args = None  # built on the first tick (move_traffic)
+        self._traffic_args: tuple | None = None  # (rng, table, kernel arguments), built by move_traffic
         row = 1
         row = self._spawn_drivers(row, cfg.num_vehicles)
         row = self._spawn_parked(row, cfg.num_parked)
@@ -386,12 +386,13 @@ class World:
         throttle, steer, brake = _control_floats(control)
         self._old_pos = t.pos[0].tolist()
         self.update_signals()
-        if self._traffic_args is None:  # the kernel's arguments that hold for the whole episode
-            self._traffic_args = (*followers_args(t, self.town, self.rng, cfg.dt),
-                                  *walkers_args(t, self.sidewalks, self.town.index))
+        cached = self._traffic_args  # the kernel's arguments that hold for the whole episode
+        if cached is None or cached[0] is not self.rng or cached[1] is not t:  # (rebuilt if either is replaced)
+            cached = self._traffic_args = (self.rng, t, (*followers_args(t, self.town, self.rng, cfg.dt),
+                                                         *walkers_args(t, self.sidewalks, self.town.index)))
         self._respawn = traffic_tick_kernel(
             throttle, steer, brake, self._bicycle_params, self.lane_signal, *flat_plans(self.plans),
-            self.sidewalks.index is not None, ego_is_vehicle(t), cfg.jaywalk_prob * cfg.dt, *self._traffic_args)
+            self.sidewalks.index is not None, ego_is_vehicle(t), cfg.jaywalk_prob * cfg.dt, *cached[2])
         self.last_control = np.array((throttle, steer, brake))
 
     def move_ego(self, control: np.ndarray) -> None:

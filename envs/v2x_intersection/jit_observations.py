@@ -1,7 +1,7 @@
 """numba kernel for the ego observation of ``objects`` mode (``observations.ego_observation``).
 
-One call fills the route window, the visible objects, the received V2X objects with their info
-vector, and returns the distance to the stop line, writing into the caller's arrays (fresh ones
+One call fills the ego vector, the route window, the visible objects, the received V2X objects
+with their info vector, writing into the caller's arrays (fresh ones
 for a single env, rows of the batch buffers for ``batch.WorldBatch``). The operations are those of
 the NumPy path, in the same order and dtype, so both give the same bytes (``tests/test_jit.py``).
 """
@@ -15,12 +15,15 @@ from .jit_perception import route_window_kernel, v2x_rows_kernel, visible_object
 
 
 @_njit
-def ego_obs_kernel(route_out, objects_out, v2x_out, info_out, with_objects, route_points, commands, k0, route_step,
-                   vis, threshold, pos, yaw, speed, kind, length, width, height, actor_id, lane, stop_at_end,
-                   lane_length, setback, points, owner, offset, n_points, gs, base, has_msg, payload, rx, ry, ryaw,
-                   age):  # pragma: no cover
-    """Fill ``route_out (P, 3)``, ``objects_out (M, 11)`` (when ``with_objects``), ``v2x_out
-    (M, 11)`` and ``info_out (6,)`` (zeros unless ``has_msg``: the ``payload`` sent by the unit at
+def ego_obs_kernel(ego_out, route_out, objects_out, v2x_out, info_out, with_objects, route_points, commands, k0,
+                   route_step, vis, threshold, pos, yaw, speed, accel, kind, length, width, height, actor_id, lane,
+                   stop_at_end, lane_length, setback, points, owner, offset, n_points, gs, base, has_msg, payload, rx,
+                   ry, ryaw, age, control, max_steer, wheelbase, lane_signal, stop_sign_lane, light_stop_sign,
+                   route_completion):  # pragma: no cover
+    """Fill ``ego_out (9,)`` (``observations.EGO_FEATURES``: the light of route lane ``lane``, its
+    stop sign where ``stop_sign_lane``, the distance to its stop line, the ego's last ``control``),
+    ``route_out (P, 3)``, ``objects_out (M, 11)`` (when ``with_objects``), ``v2x_out (M, 11)`` and
+    ``info_out (6,)`` (zeros unless ``has_msg``: the ``payload`` sent by the unit at
     ``(rx, ry, ryaw)`` ``age`` ticks ago) for the ego in row 0.
 
     Returns:
@@ -46,10 +49,22 @@ def ego_obs_kernel(route_out, objects_out, v2x_out, info_out, with_objects, rout
     else:
         v2x_out[:] = 0.0
         info_out[:] = 0.0
-    if not stop_at_end[lane]:
-        return -1.0
-    q = np.empty((1, 2))
-    q[0, 0], q[0, 1] = ex, ey
-    _, s_lane, _ = project_kernel(q, points, np.arange(offset[lane], offset[lane] + n_points[lane]), owner, offset,
-                                  n_points, gs, base)
-    return lane_length[lane] - setback - s_lane[0]
+    dist_line = -1.0
+    if stop_at_end[lane]:
+        q = np.empty((1, 2))
+        q[0, 0], q[0, 1] = ex, ey
+        _, s_lane, _ = project_kernel(q, points, np.arange(offset[lane], offset[lane] + n_points[lane]), owner,
+                                      offset, n_points, gs, base)
+        dist_line = lane_length[lane] - setback - s_lane[0]
+    light = np.float64(lane_signal[lane])
+    if light < 0 and stop_sign_lane[lane]:
+        light = np.float64(light_stop_sign)
+    sp = speed[0]
+    ego_out[0] = sp
+    ego_out[1] = accel[0]
+    ego_out[2] = sp * np.tan(control[1] * max_steer) / wheelbase  # yaw rate
+    ego_out[3], ego_out[4], ego_out[5] = control[0], control[1], control[2]
+    ego_out[6] = light
+    ego_out[7] = dist_line
+    ego_out[8] = route_completion
+    return dist_line

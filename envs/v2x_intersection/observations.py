@@ -261,20 +261,14 @@ def fill_objects_observation(world, out: dict) -> None:
     else:
         payload, rx, ry, ryaw, age = _NO_PAYLOAD, 0.0, 0.0, 0.0, 0
     objects = out.get("objects")
-    dist_line = ego_obs_kernel(
-        out["route"], out["v2x_objects"] if objects is None else objects, out["v2x_objects"], out["v2x_info"],
-        objects is not None, r.points, r.commands, k0, cfg.route_step, world.ego_vis, VISIBLE_THRESHOLD, t.pos, t.yaw,
-        t.speed, t.kind, t.length, t.width, t.height, t.actor_id, lane, ix.stop_at_end, ix.length,
-        STOP_LINE_SETBACK, ix.points, ix.owner, ix.offset, ix.n_points, ix.gs, ix.base, has_msg, payload, rx, ry,
-        ryaw, age)
-    light = float(world.lane_signal[lane])
-    if light < 0 and stop_sign_lanes(world.town)[lane]:
-        light = float(LIGHT_STOP_SIGN)
-    control = world.last_control
-    speed = t.speed[0]
-    yaw_rate = speed * np.tan(control[1] * world.params.max_steer) / world.params.wheelbase
-    out["ego"][:] = (speed, t.accel[0], yaw_rate, control[0], control[1], control[2], light, dist_line,
-                     world.monitor.route_completion)
+    pr = world.params
+    ego_obs_kernel(
+        out["ego"], out["route"], out["v2x_objects"] if objects is None else objects, out["v2x_objects"],
+        out["v2x_info"], objects is not None, r.points, r.commands, k0, cfg.route_step, world.ego_vis,
+        VISIBLE_THRESHOLD, t.pos, t.yaw, t.speed, t.accel, t.kind, t.length, t.width, t.height, t.actor_id, lane,
+        ix.stop_at_end, ix.length, STOP_LINE_SETBACK, ix.points, ix.owner, ix.offset, ix.n_points, ix.gs, ix.base,
+        has_msg, payload, rx, ry, ryaw, age, world.last_control, pr.max_steer, pr.wheelbase, world.lane_signal,
+        stop_sign_lanes(world.town), LIGHT_STOP_SIGN, world.monitor.route_completion)
 
 
 _NO_PAYLOAD = np.zeros(0, np.float32)

@@ -1,9 +1,9 @@
 """numba kernel for the ego observation of ``objects`` mode (``observations.ego_observation``).
 
-One call fills the ego vector, the route window, the visible objects, the received V2X objects
-with their info vector, writing into the caller's arrays (fresh ones
-for a single env, rows of the batch buffers for ``batch.WorldBatch``). The operations are those of
-the NumPy path, in the same order and dtype, so both give the same bytes (``tests/test_jit.py``).
+One call fills the ego vector, the route window, the visible objects, and the received V2X
+objects with their info vector, writing into the caller's arrays (fresh ones for a single env,
+rows of the batch buffers for ``batch.WorldBatch``). The operations are those of the NumPy path,
+in the same order and dtype, so both give the same bytes (``tests/test_jit.py``).
 """
 
 from __future__ import annotations

@@ -132,10 +132,7 @@ def encode_message(
         raise ValueError(
             f"unknown encoding {encoding!r}; expected one of {tuple(_ENCODING_DTYPES)}"
         )
-    if not _is_int(sender_id) or not 0 <= sender_id <= _MAX_U16:
-        raise ValueError(f"sender_id must be an integer in [0, {_MAX_U16}], got {sender_id!r}")
-    if not _is_int(tick) or not 0 <= tick <= _MAX_U32:
-        raise ValueError(f"tick must be an integer in [0, {_MAX_U32}], got {tick!r}")
+    check_header(sender_id, tick)
     if header_bytes < HEADER_SIZE:
         raise ValueError(f"header_bytes must be >= {HEADER_SIZE}, got {header_bytes}")
     p = np.asarray(payload)
@@ -155,12 +152,12 @@ def encode_message(
 
 
 def check_header(sender_id: int, tick: int) -> None:
-    """Raise ``ValueError`` unless ``sender_id`` fits the header's uint16 and ``tick`` (an int >= 0)
-    its uint32."""
+    """Raise ``ValueError`` unless ``sender_id`` is an integer that fits the header's uint16 and
+    ``tick`` one that fits its uint32."""
     if not _is_int(sender_id) or not 0 <= sender_id <= _MAX_U16:
         raise ValueError(f"sender_id must be an integer in [0, {_MAX_U16}], got {sender_id!r}")
-    if tick > _MAX_U32:
-        raise ValueError(f"tick must be <= {_MAX_U32}, got {tick}")
+    if not _is_int(tick) or not 0 <= tick <= _MAX_U32:
+        raise ValueError(f"tick must be an integer in [0, {_MAX_U32}], got {tick!r}")
 
 
 def _serialize(sender_id: int, tick: int, enc: np.ndarray, code: int, pad: int) -> bytes:

@@ -19,6 +19,7 @@ from .jit import _njit, _njit_inline
 from .jit_perception import seen_rows_kernel
 from .wire import (
     _TRACK_ID_COL,
+    ENCODING_CODES,
     FLOAT16_TRACK_ID_MODULUS,
     HEADER_SIZE,
     MAGIC,
@@ -42,6 +43,7 @@ def _crc_table() -> np.ndarray:
 _CRC_TABLE = _crc_table()
 _MAGIC0, _MAGIC1 = MAGIC[0], MAGIC[1]
 _TRACK_MOD = np.float32(FLOAT16_TRACK_ID_MODULUS)
+_F16, _F32 = ENCODING_CODES["float16"], ENCODING_CODES["float32"]  # the wire codes of the encodings
 
 
 @_njit_inline
@@ -86,8 +88,8 @@ def _crc_update(crc, data, lo, hi):  # pragma: no cover
 def encode_kernel(values, n, sender, tick, code, pad):  # pragma: no cover
     """:func:`.wire.encode_message`'s bytes for ``values[:n]`` (float32, contiguous, finite and
     within the payload bound: the caller checked them), sent by ``sender`` at ``tick``, with
-    encoding ``code`` (1 float16, 2 float32) and ``pad`` zero bytes after the 16-byte header."""
-    item = 2 if code == 1 else 4
+    encoding ``code`` (``wire.ENCODING_CODES``) and ``pad`` zero bytes after the 16-byte header."""
+    item = 2 if code == _F16 else 4
     hb = HEADER_SIZE + pad
     out = np.zeros(hb + n * item, np.uint8)
     out[0], out[1], out[2], out[3] = _MAGIC0, _MAGIC1, WIRE_VERSION, code
@@ -164,9 +166,9 @@ def decode_kernel(data, header_bytes):  # pragma: no cover
     if data[0] != _MAGIC0 or data[1] != _MAGIC1 or data[2] != WIRE_VERSION:
         return False, 0, 0, none
     code = data[3]
-    if code != 1 and code != 2:
+    if code != _F16 and code != _F32:
         return False, 0, 0, none
-    item = 2 if code == 1 else 4
+    item = 2 if code == _F16 else 4
     sender = np.int64(data[4]) | (np.int64(data[5]) << 8)
     length = np.int64(data[6]) | (np.int64(data[7]) << 8)
     tick = np.int64(0)

@@ -43,6 +43,16 @@ from .jit import HAVE_JIT, first_hit_fan_kernel, ray_box_intervals_kernel, segme
 DTYPE = np.float32
 #: Default end-point tolerance of :func:`segments_blocked` (fraction of the segment length).
 END_EPS = 1e-5
+
+
+def end_tolerances(eps: float) -> tuple:
+    """``(lo, hi)`` in :data:`DTYPE`: the part ``(eps, 1 - eps)`` of a segment that
+    :func:`segments_blocked` tests (what the kernels take as ``lo``, ``hi``)."""
+    return DTYPE(eps), DTYPE(1.0 - eps)
+
+
+#: :func:`end_tolerances` of :data:`END_EPS`
+END_TOLERANCES = end_tolerances(END_EPS)
 #: Default bound on the elements of one ``(rays, boxes)`` temporary array (cache-friendly).
 CHUNK_ELEMS = 1 << 15
 #: Hard upper bound on ``chunk_elems``.
@@ -454,7 +464,7 @@ def segments_blocked(
     if n == 0 or s == 0:
         return out
     o, d, p, same = _setup(starts, dirs, boxes)
-    lo, hi = DTYPE(eps), DTYPE(1.0 - eps)
+    lo, hi = end_tolerances(eps)
     if HAVE_JIT and (per_row is None or per_row.dtype != bool):
         ig = np.zeros((s, 0), np.intp) if per_row is None else np.ascontiguousarray(per_row, np.intp)
         return segments_blocked_kernel(o, d, p.c, p.s, p.bx, p.by, p.hl, p.hw, p.z0, p.z1, ig, lo, hi)

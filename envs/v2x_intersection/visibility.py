@@ -29,7 +29,7 @@ import numpy as np
 
 from .geometry import local_to_world_2d, wrap_angle
 from .jit import HAVE_JIT, visible_fraction_kernel
-from .raycast import DTYPE, END_EPS, Boxes, segments_blocked
+from .raycast import END_TOLERANCES, Boxes, segments_blocked
 
 #: Sample heights as fractions of each box's height above its base.
 LEVELS = (0.15, 0.45, 0.75)
@@ -42,7 +42,7 @@ K = len(LEVELS) * len(_XY)
 _LEVELS = np.asarray(LEVELS)
 #: ``visible_mask`` threshold on the visible fraction: at least 2 of the 15 points.
 VISIBLE_THRESHOLD = 0.1
-_LO, _HI = DTYPE(END_EPS), DTYPE(1.0 - END_EPS)  # segments_blocked's default end-point tolerance
+_LO, _HI = END_TOLERANCES  # segments_blocked's default end-point tolerance
 #: the sample pattern's arguments of ``visible_fraction_kernel`` (levels, pattern, shrink, lo, hi)
 VISIBILITY_SAMPLING = (_LEVELS, _XY, 0.5 * XY_SHRINK, _LO, _HI)
 

@@ -383,8 +383,7 @@ class World:
             self.move_walkers()
             return
         t, cfg = self.table, self.config
-        throttle, steer, brake = _control_floats(control)
-        self._old_pos = t.pos[0].tolist()
+        throttle, steer, brake = self._take_control(control)
         self.update_signals()
         cached = self._traffic_args  # the kernel's arguments that hold for the whole episode
         if cached is None or cached[0] is not self.rng or cached[1] is not t:  # (rebuilt if either is replaced)
@@ -393,13 +392,23 @@ class World:
         self._respawn = traffic_tick_kernel(
             throttle, steer, brake, self._bicycle_params, self.lane_signal, *flat_plans(self.plans),
             self.sidewalks.index is not None, ego_is_vehicle(t), cfg.jaywalk_prob * cfg.dt, *cached[2])
+
+    def _take_control(self, control: np.ndarray) -> tuple[float, float, float]:
+        """Keep the ego's position before its move (for ``check_events``) and ``control`` as
+        ``last_control``; returns ``(throttle, steer, brake)`` as Python floats."""
+        if type(control) is np.ndarray and control.dtype == np.float64:
+            throttle, steer, brake = control.tolist()
+        else:
+            throttle, steer, brake = (float(c) for c in control)
+        self._old_pos = self.table.pos[0].tolist()  # (x, y) as Python floats
         self.last_control = np.array((throttle, steer, brake))
+        return throttle, steer, brake
 
     def move_ego(self, control: np.ndarray) -> None:
         """Step 3: the ego's kinematic bicycle under ``control``."""
         t = self.table
-        throttle, steer, brake = _control_floats(control)
-        self._old_pos = old = t.pos[0].tolist()  # (x, y) as Python floats
+        throttle, steer, brake = self._take_control(control)
+        old = self._old_pos
         if HAVE_JIT:
             x, y, yaw, v, a = bicycle_step_scalar(old[0], old[1], t.yaw[0], t.speed[0], throttle, steer, brake,
                                                   *self._bicycle_params)
@@ -408,7 +417,6 @@ class World:
                                            self.params, self.config.dt)
         t.pos[0] = (x, y)
         t.yaw[0], t.speed[0], t.accel[0] = yaw, v, a
-        self.last_control = np.array((throttle, steer, brake))
 
     def update_signals(self) -> None:
         """Step 4a: the traffic lights' state at the end of this tick."""
@@ -539,13 +547,6 @@ class World:
 
 #: the stages of a tick between the traffic's move (steps 3-4c) and the delivery (step 8), in order
 TICK_STAGES = (World.run_scenarios, World.check_events, World.perceive)
-
-
-def _control_floats(control) -> tuple[float, float, float]:
-    """``(throttle, steer, brake)`` of a checked ``(3,)`` control as Python floats."""
-    if type(control) is np.ndarray and control.dtype == np.float64:
-        return tuple(control.tolist())
-    return tuple(float(c) for c in control)
 
 
 def object_rows(t: ActorTable, idx: np.ndarray, origin: np.ndarray, yaw: float) -> np.ndarray:

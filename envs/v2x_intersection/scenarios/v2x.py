@@ -19,7 +19,7 @@ from ..geometry import row_norms, world_to_local_2d
 from ..jit import HAVE_JIT
 from ..jit_sight import KEEP_RADIUS_M, sight_fraction_kernel
 from ..pedestrians import ego_in_the_way
-from ..raycast import DTYPE, END_EPS, Boxes, segments_blocked
+from ..raycast import END_TOLERANCES, Boxes, segments_blocked
 from ..rsu import KIND_TRIGGER, deploy
 from ..signals import RED, YELLOW
 from ..town.model import DRIVING, MERGE, PARKING, Town
@@ -159,9 +159,6 @@ def park_vehicle(
     return size
 
 
-_LO, _HI = DTYPE(END_EPS), DTYPE(1.0 - END_EPS)  # segments_blocked's end tolerances
-
-
 def sight_blocked(world, eyes: np.ndarray, targets: np.ndarray, extra: list[tuple] = ()) -> float:
     """Fraction of the sight lines from ``eyes (E, 3)`` to ``targets (T, 3)`` blocked by the town's
     buildings and the ``extra`` boxes ``(x, y, length, width, yaw, height)`` (e.g. a truck just
@@ -172,7 +169,7 @@ def sight_blocked(world, eyes: np.ndarray, targets: np.ndarray, extra: list[tupl
         ex = np.array([e[:6] for e in extra], float).reshape(-1, 6)
         return sight_fraction_kernel(np.ascontiguousarray(eyes, float), np.ascontiguousarray(targets, float), sb,
                                      sh, *world.static_trig, ex, np.cos(ex[:, 4]), np.sin(ex[:, 4]), KEEP_RADIUS_M,
-                                     _LO, _HI)
+                                     *END_TOLERANCES)
     keep = row_norms(sb[:, :2] - targets[:, :2].mean(0)) < KEEP_RADIUS_M
     rows = np.concatenate([sb[keep], np.array([e[:5] for e in extra], float).reshape(-1, 5)])
     heights = np.concatenate([sh[keep], np.array([e[5] for e in extra], float)])

@@ -93,3 +93,33 @@ def test_junctions_are_not_synchronized():
     town = get_town("Town12")
     offsets = [j.offset_s for j in signal_junctions(town)]
     assert len(set(np.round(offsets, 6))) == len(offsets)
+
+
+def test_kept_lane_states_equal_fresh_ones(town_plan):
+    """lane_states reuses its last answer until the next phase boundary: every tick of a long
+    run, and times on and next to the boundaries, equal a plan that never reuses (a new plan
+    per call), and a time earlier than the kept one is computed afresh."""
+    town, plan = town_plan
+    cached = SignalPlan(town)
+    ends = []
+    for j in signal_junctions(town):
+        period = j.green_s + j.yellow_s + j.all_red_s
+        for g in range(len(j.phase_groups)):
+            for b in (j.green_s, j.green_s + j.yellow_s, period):
+                ends.append(g * period + b - j.offset_s)
+    near = [e + d for e in ends for d in (-1e-5, -1e-7, 0.0, 1e-7, 1e-5)]
+    ticks = [(k + 1) * 0.1 for k in range(3000)]
+    reused = 0
+    for t in ticks + sorted(t for t in near if t >= 0.0) + [0.0, 7.3, 2.0]:
+        before = cached._last
+        got = cached.lane_states(t)
+        reused += before is not None and got is before[2]
+        np.testing.assert_array_equal(got, SignalPlan(town).lane_states(t), err_msg=f"t={t}")
+    assert reused > len(ticks) // 2  # the point of it: most ticks reuse
+
+
+def test_lane_states_without_controlled_lanes_is_constant():
+    town = next(get_town(n) for n in ("Town02", "Town04", "Town05", "Town06") if not signal_junctions(get_town(n)))
+    plan = SignalPlan(town)
+    a = plan.lane_states(0.0)
+    assert np.all(a == NO_SIGNAL) and plan.lane_states(1e6) is a

@@ -7,6 +7,8 @@ then yellow, then all red), so no two signal-green flows cross. States: ``GREEN`
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .jit import HAVE_JIT
@@ -14,6 +16,8 @@ from .jit_traffic import lane_states_kernel
 from .town.model import SIGNAL, Town
 
 NO_SIGNAL, GREEN, YELLOW, RED = -1, 0, 1, 2
+#: s, margin kept before a phase boundary when reusing the last lane states (``SignalPlan.lane_states``)
+BOUNDARY_SLACK_S = 1e-6
 STATE_NAMES = ("green", "yellow", "red")
 
 
@@ -49,6 +53,7 @@ class SignalPlan:
         self._n_groups = np.array(n_groups)
         self._offset = np.array(offset)
         self.num_lanes = len(town.lanes)
+        self._last: tuple[float, float, np.ndarray] | None = None  # (t, valid until, lane states)
 
     def states(self, t: float) -> np.ndarray:
         """``(K,)`` state of each controlled lane at time ``t`` (s)."""
@@ -60,10 +65,37 @@ class SignalPlan:
         return np.where(phase == self.group, state, RED)
 
     def lane_states(self, t: float) -> np.ndarray:
-        """``(num_lanes,)`` state per lane id (``NO_SIGNAL`` where uncontrolled)."""
+        """``(num_lanes,)`` state per lane id (``NO_SIGNAL`` where uncontrolled).
+
+        The states change only at phase boundaries, so the last answer is kept and returned
+        again (the same array: read it, never write into it) for any later ``t`` before the
+        next boundary (:meth:`_valid_until`); a tick's call then costs a comparison instead of a
+        kernel call."""
+        last = self._last
+        if last is not None and last[0] <= t < last[1]:
+            return last[2]
         if HAVE_JIT:
-            return lane_states_kernel(float(t), self.lanes, self.group, self._period, self._green, self._yellow,
-                                      self._n_groups, self._offset, self.num_lanes)
-        out = np.full(self.num_lanes, NO_SIGNAL, np.int64)
-        out[self.lanes] = self.states(t)
+            out = lane_states_kernel(float(t), self.lanes, self.group, self._period, self._green, self._yellow,
+                                     self._n_groups, self._offset, self.num_lanes)
+        else:
+            out = np.full(self.num_lanes, NO_SIGNAL, np.int64)
+            out[self.lanes] = self.states(t)
+        self._last = (t, self._valid_until(t), out)
         return out
+
+    def _valid_until(self, t: float) -> float:
+        """A time before which no controlled lane changes state after ``t``: the nearest phase
+        boundary (end of green, of yellow, of the phase) less ``BOUNDARY_SLACK_S``, far above the
+        float64 rounding of ``states``' arithmetic, so every ``t' in [t, valid_until)`` gives the
+        same states as ``t``. ``t`` itself where a plan has a non-positive period."""
+        if len(self.lanes) == 0:
+            return math.inf
+        if not (self._period > 0.0).all():
+            return t
+        cycle = np.maximum(self._period * self._n_groups, 1e-9)
+        tm = (t + self._offset) % cycle
+        within = tm - np.floor(tm / self._period) * self._period
+        ends_green = self._green
+        ends_yellow = self._green + self._yellow
+        nxt = np.where(within < ends_green, ends_green, np.where(within < ends_yellow, ends_yellow, self._period))
+        return t + float((nxt - within).min()) - BOUNDARY_SLACK_S

@@ -37,7 +37,13 @@ from .dynamics import VehicleParams, bicycle_step, bicycle_step_scalar
 from .geometry import row_norms, world_to_local_2d
 from .infractions import EventMonitor
 from .jit import HAVE_JIT
-from .jit_perception import object_rows_kernel, perceive_all_kernel, seen_rows_kernel
+from .jit_box_grid import box_grid
+from .jit_perception import (
+    object_rows_kernel,
+    occluder_arrays,
+    perceive_all_kernel,
+    seen_rows_kernel,
+)
 from .jit_rng import state_views
 from .jit_spawn import spawn_followers_kernel, spawn_walkers_kernel
 from .jit_tick import traffic_tick_kernel
@@ -125,6 +131,11 @@ class World:
         self.static_heights = heights
         self.static_kinds = kinds
         self.static_trig = (np.cos(statics[:, 4]), np.sin(statics[:, 4]))  # their yaw cos, sin (for the kernels)
+        grids = self.town.cache("static_box_grid")  # (the static boxes depend only on the town)
+        if "grid" not in grids:
+            grids["grid"] = box_grid(statics[:, :2], statics[:, 2], statics[:, 3])
+        self.static_grid = grids["grid"]
+        self._occluders = None  # perceive's occluder arrays (jit_perception.occluder_arrays), built per episode
 
     # ------------------------------------------------------------------ setup
     def _static_boxes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -478,11 +489,15 @@ class World:
         """Step 7: visible fraction of every actor from the ego and from each active RSU."""
         cfg, t = self.config, self.table
         if HAVE_JIT:
+            occ = self._occluders
+            if occ is None or occ[0].shape[0] != len(t) + len(self.static_boxes):
+                occ = self._occluders = occluder_arrays(len(t), self.static_boxes, self.static_heights,
+                                                        *self.static_trig)
             self.active_rsu, self.ego_vis, self.rsu_vis = perceive_all_kernel(
                 self.rsus.pose, self.rsus.kind, KIND_TRIGGER, TRIGGER_PREFERENCE_M, FACING_MAX_ANGLE, int(cfg.rsu_slots), t.pos,
-                t.length, t.width, t.yaw, t.height, t.active, self.static_boxes, self.static_heights,
-                *self.static_trig, EGO_SENSOR_Z, float(cfg.ego_range) ** 2, float(cfg.ego_range),
-                float(cfg.rsu_range) ** 2, float(cfg.rsu_range), 0.5 * RSU_HFOV, *VISIBILITY_SAMPLING)
+                t.length, t.width, t.yaw, t.height, t.active, *occ, *self.static_grid, EGO_SENSOR_Z,
+                float(cfg.ego_range) ** 2, float(cfg.ego_range), float(cfg.rsu_range) ** 2, float(cfg.rsu_range),
+                0.5 * RSU_HFOV, *VISIBILITY_SAMPLING)
             return
         self.active_rsu = select_active(self.rsus, t.pos[0], float(t.yaw[0]), cfg.rsu_range, cfg.rsu_slots)
         boxes = self.occluders()

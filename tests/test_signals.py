@@ -123,3 +123,18 @@ def test_lane_states_without_controlled_lanes_is_constant():
     plan = SignalPlan(town)
     a = plan.lane_states(0.0)
     assert np.all(a == NO_SIGNAL) and plan.lane_states(1e6) is a
+
+
+def test_valid_until_kernel_matches_numpy(town_plan):
+    from v2xbench.envs.v2x_intersection.jit import HAVE_JIT
+    from v2xbench.envs.v2x_intersection.jit_traffic import phase_valid_until_kernel
+    from v2xbench.envs.v2x_intersection.signals import BOUNDARY_SLACK_S
+
+    if not HAVE_JIT:
+        pytest.skip("numba not installed")
+    town, plan = town_plan
+    for t in np.random.default_rng(1).uniform(0.0, 900.0, 200):
+        got = phase_valid_until_kernel(float(t), plan._period, plan._green, plan._yellow, plan._n_groups,
+                                       plan._offset, BOUNDARY_SLACK_S)
+        assert t < got <= t + max(plan._period.max(), 1.0)
+        assert got == pytest.approx(plan._valid_until(float(t)), rel=1e-12, abs=1e-9)

@@ -354,3 +354,24 @@ def lane_states_kernel(t, lanes, group, period, green, yellow, n_groups, offset,
         state = _GREEN if within < green[k] else (_YELLOW if within < green[k] + yellow[k] else _RED)
         out[lanes[k]] = state if phase == group[k] else _RED
     return out
+
+
+@_njit
+def phase_valid_until_kernel(t, period, green, yellow, n_groups, offset, slack):  # pragma: no cover
+    """``signals.SignalPlan._valid_until``: ``t`` plus the time to the nearest phase boundary
+    (end of green, of yellow, of the phase) of any controlled lane, less ``slack``; ``t`` where a
+    period is not positive, ``inf`` without lanes."""
+    until = np.inf
+    for k in range(period.shape[0]):
+        if not period[k] > 0.0:
+            return t
+        tm = (t + offset[k]) % _np_max(period[k] * n_groups[k], 1e-9)
+        within = tm - np.floor(tm / period[k]) * period[k]
+        if within < green[k]:
+            nxt = green[k]
+        elif within < green[k] + yellow[k]:
+            nxt = green[k] + yellow[k]
+        else:
+            nxt = period[k]
+        until = min(until, t + (nxt - within) - slack)
+    return until

@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 from .jit import HAVE_JIT
-from .jit_traffic import lane_states_kernel
+from .jit_traffic import lane_states_kernel, phase_valid_until_kernel
 from .town.model import SIGNAL, Town
 
 NO_SIGNAL, GREEN, YELLOW, RED = -1, 0, 1, 2
@@ -75,12 +75,16 @@ class SignalPlan:
         if last is not None and last[0] <= t < last[1]:
             return last[2]
         if HAVE_JIT:
-            out = lane_states_kernel(float(t), self.lanes, self.group, self._period, self._green, self._yellow,
+            t = float(t)
+            out = lane_states_kernel(t, self.lanes, self.group, self._period, self._green, self._yellow,
                                      self._n_groups, self._offset, self.num_lanes)
+            until = phase_valid_until_kernel(t, self._period, self._green, self._yellow, self._n_groups,
+                                             self._offset, BOUNDARY_SLACK_S)
         else:
             out = np.full(self.num_lanes, NO_SIGNAL, np.int64)
             out[self.lanes] = self.states(t)
-        self._last = (t, self._valid_until(t), out)
+            until = self._valid_until(t)
+        self._last = (t, until, out)
         return out
 
     def _valid_until(self, t: float) -> float:

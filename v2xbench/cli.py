@@ -9,6 +9,7 @@ Commands:
     leaderboard leaderboard table, plots and per-scenario breakdown from evaluation results
     bench       benchmark suite (speed vs highway-env, sensors, batched worlds, eval time, memory)
     profile     where a tick's time goes: per stage and per numba kernel (objects or batched)
+    fingerprint hash of what fixed runs compute (same hashes = same bytes, for speed work)
     collect     expert data collection into TensorDict memmap shards (resumable)
     data        validate a collected data set (missing / corrupt shards)
     qa          build Chat-V2XBench from a data set, print its statistics, score answers
@@ -152,6 +153,12 @@ def _bench(args: argparse.Namespace) -> int:
 
 def _profile(args: argparse.Namespace) -> int:
     from v2xbench.benchmarks.tick_profile import run
+
+    return run(args)
+
+
+def _fingerprint(args: argparse.Namespace) -> int:
+    from v2xbench.benchmarks.fingerprint import run
 
     return run(args)
 
@@ -308,6 +315,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     _profile_arguments(pf)
     pf.set_defaults(func=_profile)
+    fp = sub.add_parser("fingerprint", help="hash of what fixed runs compute (same hashes = same bytes)",
+                        description="Drive fixed configurations and hash every tick's observation, reward, "
+                        "info, events and world state (benchmarks/fingerprint.py); --out saves the hashes, "
+                        "--check compares with saved ones (exit 1 on a difference).")
+    from v2xbench.benchmarks.fingerprint import add_arguments as _fingerprint_arguments
+
+    _fingerprint_arguments(fp)
+    fp.set_defaults(func=_fingerprint)
     lb = sub.add_parser("leaderboard", help="leaderboard table and plots from evaluation result dirs")
     lb.add_argument("results", nargs="+", help="result directories (each with a summary.json)")
     lb.add_argument("--out", default="leaderboard")

@@ -10,6 +10,7 @@ Commands:
     bench       benchmark suite (speed vs highway-env, sensors, batched worlds, eval time, memory)
     profile     where a tick's time goes: per stage and per numba kernel (objects or batched)
     fingerprint hash of what fixed runs compute (same hashes = same bytes, for speed work)
+    ab          same-minute A/B of a tick's cost: this checkout against a git revision
     collect     expert data collection into TensorDict memmap shards (resumable)
     data        validate a collected data set (missing / corrupt shards)
     qa          build Chat-V2XBench from a data set, print its statistics, score answers
@@ -159,6 +160,12 @@ def _profile(args: argparse.Namespace) -> int:
 
 def _fingerprint(args: argparse.Namespace) -> int:
     from v2xbench.benchmarks.fingerprint import run
+
+    return run(args)
+
+
+def _ab(args: argparse.Namespace) -> int:
+    from v2xbench.benchmarks.ab import run
 
     return run(args)
 
@@ -323,6 +330,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     _fingerprint_arguments(fp)
     fp.set_defaults(func=_fingerprint)
+    abp = sub.add_parser("ab", help="same-minute A/B of a tick's cost: this checkout against a git revision",
+                         description="Interleaved runs of a git revision (in a temporary worktree) and this "
+                         "checkout, CPU time per tick (benchmarks/ab.py); prints both series and the median "
+                         "ratio.")
+    from v2xbench.benchmarks.ab import add_arguments as _ab_arguments
+
+    _ab_arguments(abp)
+    abp.set_defaults(func=_ab)
     lb = sub.add_parser("leaderboard", help="leaderboard table and plots from evaluation result dirs")
     lb.add_argument("results", nargs="+", help="result directories (each with a summary.json)")
     lb.add_argument("--out", default="leaderboard")

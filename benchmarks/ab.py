@@ -1,0 +1,136 @@
+"""Same-minute A/B of the tick's cost: this checkout against another git revision.
+
+On a shared 2-core machine the cost of a tick drifts by +-25 % within minutes, so two versions
+compare only when measured in the same minutes, alternately. ``v2xbench ab REV`` checks ``REV``
+out into a temporary git worktree and runs ``--pairs`` pairs of fresh processes, the revision
+then this checkout, each timing CPU seconds per tick of one workload:
+
+- ``objects``: ``gym.make`` on test50 route 0, constant action, resets included (the suite's
+  objects row), 300 ticks of warm-up then ``--ticks`` timed;
+- ``batched``: the native TorchRL env with 32 worlds and random actions, per world-step.
+
+It prints both series and the median of the pairwise ratios (REV / this: above 1 means this
+checkout is faster), and writes them as JSON with ``--out``. The revision's code is imported from
+the worktree (this checkout's editable install is bypassed), so both sides use the same
+installed dependencies; numba compiles the revision's kernels into the worktree on its first run,
+during the warm-up.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+#: the child process: ``python -c CHILD <mode> <ticks> [package dir]``
+CHILD = r"""
+import sys, time
+if len(sys.argv) > 3:  # import the revision: bypass the editable install, put its tree first
+    sys.meta_path = [f for f in sys.meta_path if "editable" not in (type(f).__module__ + type(f).__name__).lower()]
+    sys.path.insert(0, sys.argv[3])
+import numpy as np
+mode, ticks = sys.argv[1], int(sys.argv[2])
+if mode == "objects":
+    import gymnasium as gym
+    import v2xbench  # noqa: F401
+    env = gym.make("V2XIntersection-v0", suite="test50", route_index=0)
+    act = np.array([0.3, 0.0, 0.0], np.float32)
+    def run(n, seed):
+        env.reset(seed=seed)
+        for k in range(n):
+            _, _, term, trunc, _ = env.step(act)
+            if term or trunc:
+                env.reset(seed=seed + k + 1)
+    run(300, 1)
+    c0 = time.process_time()
+    run(ticks, 0)
+    print(1e6 * (time.process_time() - c0) / ticks)
+else:
+    import torch
+    torch.set_num_threads(1)
+    from v2xbench.envs.v2x_intersection import V2XTorchEnv
+    env = V2XTorchEnv(num_worlds=32)
+    env.set_seed(0)
+    env.rollout(20, break_when_any_done=False)
+    steps = max(ticks // 32, 10)
+    c0 = time.process_time()
+    env.rollout(steps, break_when_any_done=False)
+    print(1e6 * (time.process_time() - c0) / (steps * 32))
+"""
+
+_PARTS = ("envs", "agents", "collectors", "benchmarks")
+
+
+def _package_dir(tree: Path, into: Path) -> Path:
+    """A directory holding a ``v2xbench`` package assembled from ``tree`` by symlinks (the layout
+    that pyproject's package-dir mapping gives)."""
+    pkg = into / "v2xbench"
+    pkg.mkdir(parents=True)
+    for f in (tree / "v2xbench").iterdir():
+        (pkg / f.name).symlink_to(f)
+    for part in _PARTS:
+        (pkg / part).symlink_to(tree / part)
+    return into
+
+
+def _measure(mode: str, ticks: int, pkg: Path | None) -> float:
+    cmd = [sys.executable, "-c", CHILD, mode, str(ticks)] + ([str(pkg)] if pkg else [])
+    out = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    if out.returncode != 0:
+        raise RuntimeError(f"measurement failed ({'revision' if pkg else 'this checkout'}):\n{out.stderr[-2000:]}")
+    return float(out.stdout.strip().splitlines()[-1])
+
+
+def ab(rev: str, mode: str = "objects", pairs: int = 5, ticks: int = 4000, repo: Path | None = None) -> dict:
+    """Interleaved A/B of ``rev`` (A) against the checkout at ``repo`` (B); us per tick (objects)
+    or per world-step (batched)."""
+    repo = Path(repo or Path(__file__).resolve().parents[1])
+    with tempfile.TemporaryDirectory(prefix="v2xbench-ab-") as tmp:
+        tree = Path(tmp) / "tree"
+        subprocess.run(["git", "-C", str(repo), "worktree", "add", "--detach", "-f", str(tree), rev],
+                       check=True, capture_output=True)
+        try:
+            sha = subprocess.run(["git", "-C", str(tree), "rev-parse", "--short", "HEAD"], check=True,
+                                 capture_output=True, text=True).stdout.strip()
+            pkg = _package_dir(tree, Path(tmp) / "pkg")
+            a, b = [], []
+            for k in range(pairs):
+                a.append(_measure(mode, ticks, pkg))
+                b.append(_measure(mode, ticks, None))
+                print(f"pair {k + 1}/{pairs}: {rev} {a[-1]:.1f} us, this checkout {b[-1]:.1f} us", flush=True)
+        finally:
+            subprocess.run(["git", "-C", str(repo), "worktree", "remove", "--force", str(tree)], check=False,
+                           capture_output=True)
+    ratios = [x / y for x, y in zip(a, b)]
+    unit = "us per tick" if mode == "objects" else "us per world-step"
+    return {"revision": rev, "commit": sha, "mode": mode, "unit": unit, "revision_us": a, "this_us": b,
+            "median_ratio": statistics.median(ratios)}
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("rev", help="git revision to compare this checkout with (e.g. HEAD~3, a commit, a branch)")
+    p.add_argument("--mode", choices=("objects", "batched"), default="objects")
+    p.add_argument("--pairs", type=int, default=5, help="pairs of runs (default 5)")
+    p.add_argument("--ticks", type=int, default=4000, help="timed ticks per run (world-steps in batched)")
+    p.add_argument("--out", default=None, help="write the result as JSON")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.pairs < 1 or args.ticks < 1:
+        raise SystemExit("--pairs and --ticks must be positive")
+    res = ab(args.rev, args.mode, args.pairs, args.ticks)
+    fmt = lambda xs: " / ".join(f"{x:.0f}" for x in xs)  # noqa: E731
+    print(f"{args.mode}, {res['unit']}: {args.rev} ({res['commit']}) {fmt(res['revision_us'])} -> "
+          f"this checkout {fmt(res['this_us'])}; median ratio {res['median_ratio']:.3f} "
+          f"(above 1: this checkout is faster)")
+    if args.out:
+        out = Path(args.out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = out.with_suffix(out.suffix + ".tmp")
+        tmp.write_text(json.dumps(res, indent=2) + "\n")
+        tmp.replace(out)
+    return 0

@@ -151,7 +151,11 @@ def _stage_patches(timers: _Timers, mode: str) -> list[tuple[object, str, object
         patches.append((gym_env, "validate_control", timers.wrap(gym_env.validate_control, "validate_control")))
         patches.append((gym_env, "ego_observation", timers.wrap(gym_env.ego_observation, "observation")))
     else:
+        from v2xbench.envs.v2x_intersection import jit_batch
+
         patches.append((batch, "validate_controls", timers.wrap(batch.validate_controls, "validate_control")))
+        # with numba the batch moves the traffic of all its worlds in one call (jit_batch)
+        patches.append((jit_batch.TrafficBatch, "step", timers.wrap(jit_batch.TrafficBatch.step, "move_traffic")))
         patches.append((batch.WorldBatch, "_observe", timers.wrap(batch.WorldBatch._observe, "observation")))
     return patches
 

@@ -20,11 +20,14 @@ def _originals() -> dict:
             "followers": traffic.followers_tick_kernel}
 
 
-def _check(report: dict, mode: str) -> None:
+def _check(report: dict, mode: str, worlds: int = 1) -> None:
     assert report["mode"] == mode and report["steps"] > 0 and report["us_per_tick"] > 0
     stages = report["stages"]
-    for name in ("move_traffic", "check_events", "after_step"):  # once a tick
+    for name in ("check_events", "after_step"):  # once a tick
         assert stages[name]["calls"] == pytest.approx(1.0), name
+    # the batch moves the traffic of all its worlds in one call (jit_batch) when numba is there
+    one_call = mode == "batched" and HAVE_JIT and worlds > 1
+    assert stages["move_traffic"]["calls"] == pytest.approx(1.0 / worlds if one_call else 1.0)
     for name in ("perceive", "observation"):  # once a tick, and once more for each reset
         assert stages[name]["calls"] >= 1.0, name
     assert stages["update_signals"]["inside"] == "move_traffic"  # nested stages are named so
@@ -34,7 +37,11 @@ def _check(report: dict, mode: str) -> None:
     assert report["other_us"] < report["us_per_tick"]
     if HAVE_JIT:
         kernels = report["kernels"]
-        assert kernels["traffic_tick_kernel"]["calls"] == pytest.approx(1.0)
+        if one_call:
+            assert kernels["traffic_batch_kernel"]["calls"] == pytest.approx(1.0 / worlds)
+            assert "traffic_tick_kernel" not in kernels  # called inside the batch kernel
+        else:
+            assert kernels["traffic_tick_kernel"]["calls"] == pytest.approx(1.0)
         for inner in ("followers_tick_kernel", "followers_kernel"):  # called inside a kernel: counted in it
             assert inner not in kernels
         assert 0 < report["kernel_us"] < report["us_per_tick"]
@@ -57,7 +64,7 @@ def test_batched_profile(tmp_path):
     before = _originals()
     assert cli_main(["profile", "--mode", "batched", "--ticks", "4", "--worlds", "2", "--out", str(tmp_path)]) == 0
     report = json.loads((tmp_path / "profile_batched.json").read_text())
-    _check(report, "batched")
+    _check(report, "batched", worlds=2)
     assert report["config"] == {"num_worlds": 2} and report["steps"] == 8
     assert "world-step" in (tmp_path / "profile_batched.md").read_text()
     assert _originals() == before

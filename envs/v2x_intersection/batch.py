@@ -34,6 +34,7 @@ from gymnasium.vector.utils import batch_space
 from .config import make_config
 from .episode import EpisodeTracker, v2x_bps
 from .jit import HAVE_JIT
+from .jit_batch import TrafficBatch
 from .observations import ego_action_space, ego_observation, ego_space, fill_objects_observation
 from .world import TICK_STAGES, StepError, World
 
@@ -107,6 +108,8 @@ class WorldBatch:
         # objects mode with numba: the observation kernel writes straight into row views of the buffers
         direct = HAVE_JIT and self.config.obs_mode == "objects"
         self._rows = [{k: v[i] for k, v in self.obs.items()} for i in range(num_worlds)] if direct else None
+        # with numba, the traffic's move of all worlds is one kernel call (jit_batch)
+        self._traffic = TrafficBatch(self.worlds) if HAVE_JIT and num_worlds > 1 else None
 
     def _observe(self, i: int) -> None:
         """Write world ``i``'s observation into row ``i`` of the buffers."""
@@ -157,8 +160,9 @@ class WorldBatch:
         worlds = [self.worlds[i] for i in idx]
         for w in worlds:
             w.send_builtin()
-        for i, w in zip(idx, worlds):
-            w.move_traffic(controls[i])
+        if self._traffic is None or not self._traffic.step(list(idx), controls):
+            for i, w in zip(idx, worlds):
+                w.move_traffic(controls[i])
         for stage in TICK_STAGES:
             for w in worlds:
                 stage(w)

@@ -393,16 +393,24 @@ class World:
             self.move_followers()
             self.move_walkers()
             return
-        t, cfg = self.table, self.config
         throttle, steer, brake = self._take_control(control)
         self.update_signals()
-        cached = self._traffic_args  # the kernel's arguments that hold for the whole episode
-        if cached is None or cached[0] is not self.rng or cached[1] is not t:  # (rebuilt if either is replaced)
-            cached = self._traffic_args = (self.rng, t, (*followers_args(t, self.town, self.rng, cfg.dt),
-                                                         *walkers_args(t, self.sidewalks, self.town.index)))
-        self._respawn = traffic_tick_kernel(
-            throttle, steer, brake, self._bicycle_params, self.lane_signal, *flat_plans(self.plans),
-            self.sidewalks.index is not None, ego_is_vehicle(t), cfg.jaywalk_prob * cfg.dt, *cached[2])
+        c = self._traffic_consts()
+        self._respawn = traffic_tick_kernel(throttle, steer, brake, c[0], self.lane_signal, *flat_plans(self.plans),
+                                            c[1], ego_is_vehicle(self.table), c[2], *c[3:])
+
+    def _traffic_consts(self) -> tuple:
+        """``traffic_tick_kernel``'s arguments that hold for the whole episode: ``(bicycle params,
+        the town has sidewalks, jaywalking probability per tick, *traffic.followers_args,
+        *pedestrians.walkers_args)``, built on the first tick (again if the world's generator or
+        table is replaced)."""
+        t, cached = self.table, self._traffic_args
+        if cached is None or cached[0] is not self.rng or cached[1] is not t:
+            cfg = self.config
+            cached = self._traffic_args = (self.rng, t, (
+                self._bicycle_params, self.sidewalks.index is not None, cfg.jaywalk_prob * cfg.dt,
+                *followers_args(t, self.town, self.rng, cfg.dt), *walkers_args(t, self.sidewalks, self.town.index)))
+        return cached[2]
 
     def _take_control(self, control: np.ndarray) -> tuple[float, float, float]:
         """Keep the ego's position before its move (for ``check_events``) and ``control`` as

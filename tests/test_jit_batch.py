@@ -1,0 +1,66 @@
+"""``jit_batch.TrafficBatch``: one kernel call moves the worlds of a batch exactly as one call per
+world does, through resets, partial steps, a replaced generator and a forced fallback."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from v2xbench.envs.v2x_intersection.batch import WorldBatch
+from v2xbench.envs.v2x_intersection.jit import HAVE_JIT
+
+pytestmark = pytest.mark.skipif(not HAVE_JIT, reason="numba not installed")
+
+
+def _state(b: WorldBatch) -> list:
+    out = []
+    for w in b.worlds:
+        t = w.table
+        out += [t.pos.copy(), t.speed.copy(), t.lane.copy(), t.s.copy(), t.path_s.copy(), t.active.copy(),
+                np.array(w._respawn)]
+    return out + [{k: v.copy() for k, v in b.obs.items()}, b.reward.copy()]
+
+
+def _drive(batched: bool, break_after: int | None = None) -> list:
+    b = WorldBatch(4, town="Town01", num_vehicles=25, num_pedestrians=10, jaywalk_prob=0.2)
+    if not batched:
+        b._traffic = None
+    b.reset([10, 11, 12, 13])
+    rng = np.random.default_rng(0)
+    states = []
+    for k in range(120):
+        if break_after is not None and k == break_after:  # lists that cannot take the worlds' arguments
+            b._traffic._sync = lambda ids: (_ for _ in ()).throw(TypeError("forced"))
+        actions = rng.uniform([0.0, -0.3, 0.0], [1.0, 0.3, 0.2], (4, 3))
+        active = np.ones(4, bool)
+        if k % 7 == 3:
+            active[k % 4] = False  # a partial step, as Gymnasium's autoreset makes
+        if k == 40:
+            b.worlds[2].rng = np.random.default_rng(99)  # a replaced generator: arguments rebuilt
+        b.step(actions, active=active)
+        for i in np.flatnonzero(b.terminated | b.truncated):
+            b.reset_world(int(i), 100 + k)
+        if k == 60:
+            b.reset_world(1, 7)  # a reset mid-run: new table, new arguments
+        states.append(_state(b))
+    return states
+
+
+def _same(a: list, b: list) -> None:
+    assert len(a) == len(b)
+    for x, y in zip(a, b):
+        for u, v in zip(x, y):
+            if isinstance(u, dict):
+                for key in u:
+                    np.testing.assert_array_equal(u[key], v[key])
+            else:
+                np.testing.assert_array_equal(u, v)
+
+
+def test_batch_kernel_matches_one_call_per_world():
+    _same(_drive(True), _drive(False))
+
+
+def test_fallback_when_the_lists_cannot_hold_the_arguments():
+    states = _drive(True, break_after=50)
+    _same(states, _drive(False))
+

@@ -4,8 +4,10 @@ Called once per world, ``jit_tick.traffic_tick_kernel`` costs ~11 us of numba's 
 (79 arguments to type and unbox) and runs with cold caches. :class:`TrafficBatch` keeps each
 world's arguments in numba typed lists, refreshed only when they change (a reset, a new lane-state
 array, a new plan), and :func:`traffic_batch_kernel` calls the same kernel world after world,
-so the batch pays one dispatch per tick. Each world sees exactly the call it would make alone
-(``tests/test_batch.py`` compares the batch with single envs, byte for byte).
+so the batch pays one dispatch per tick. A single world (``World.move_traffic``) uses a batch of
+one: :func:`traffic_one_kernel` takes 7 arguments instead of 79. Each world sees exactly the call
+it would make alone (``tests/test_jit_batch.py`` and ``tests/test_batch.py`` compare, byte for
+byte).
 """
 
 from __future__ import annotations
@@ -73,6 +75,15 @@ def traffic_batch_kernel(order, controls, ego_ok, consts, signals, plans):  # pr
     return rows, counts
 
 
+@_njit
+def traffic_one_kernel(throttle, steer, brake, ego_ok, consts, signals, plans):  # pragma: no cover
+    """``traffic_tick_kernel`` for the one world of :class:`TrafficBatch` lists of length 1."""
+    c = consts[0]
+    p = plans[0]
+    return traffic_tick_kernel(throttle, steer, brake, c[0], signals[0], p[0], p[1], p[2], c[1], ego_ok, c[2],
+                               *c[3:])
+
+
 class TrafficBatch:
     """``World.move_traffic`` for the worlds of a batch in one kernel call (numba only).
 
@@ -133,4 +144,19 @@ class TrafficBatch:
         for k, i in enumerate(ids):
             self.worlds[i]._respawn = rows[start:start + counts[k]]
             start += counts[k]
+        return True
+
+    def step_one(self, throttle: float, steer: float, brake: float) -> bool:
+        """:meth:`step` for a batch of one world whose control is taken and lane states updated
+        (``World.move_traffic``): one call of 7 arguments instead of 79."""
+        if self._broken:
+            return False
+        w = self.worlds[0]
+        try:
+            self._sync([0])
+        except Exception:  # noqa: BLE001 - as in step
+            self._broken = True
+            self._lists = None
+            return False
+        w._respawn = traffic_one_kernel(throttle, steer, brake, ego_is_vehicle(w.table), *self._lists)
         return True

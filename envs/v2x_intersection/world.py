@@ -37,6 +37,7 @@ from .dynamics import VehicleParams, bicycle_step, bicycle_step_scalar
 from .geometry import row_norms, world_to_local_2d
 from .infractions import EventMonitor
 from .jit import HAVE_JIT
+from .jit_batch import TrafficBatch
 from .jit_box_grid import box_grid
 from .jit_perception import (
     object_rows_kernel,
@@ -112,6 +113,7 @@ class World:
             max_payload_floats=config.max_payload_floats, encoding=config.encoding, dt=config.dt,
         )
         self.town = None
+        self._traffic_one: TrafficBatch | None = None  # move_traffic's one-world batch (jit_batch), numba only
         self._load_town(config.town)
         self.ended = True
         self.tick = 0
@@ -386,7 +388,8 @@ class World:
     def move_traffic(self, control: np.ndarray) -> None:
         """Steps 3-4c: the ego (:meth:`move_ego`), the signals, NPC vehicles and bicycles, then
         pedestrians. With numba the signals come first (their state depends only on the time)
-        and the rest is one kernel call (``jit_tick.traffic_tick_kernel``)."""
+        and the rest is one kernel call (``jit_tick.traffic_tick_kernel``, through a one-world
+        ``jit_batch.TrafficBatch`` that keeps its 79 arguments in typed lists)."""
         if not HAVE_JIT:
             self.move_ego(control)
             self.update_signals()
@@ -395,9 +398,13 @@ class World:
             return
         throttle, steer, brake = self._take_control(control)
         self.update_signals()
-        c = self._traffic_consts()
-        self._respawn = traffic_tick_kernel(throttle, steer, brake, c[0], self.lane_signal, *flat_plans(self.plans),
-                                            c[1], ego_is_vehicle(self.table), c[2], *c[3:])
+        if self._traffic_one is None:
+            self._traffic_one = TrafficBatch([self])
+        if not self._traffic_one.step_one(throttle, steer, brake):
+            c = self._traffic_consts()
+            self._respawn = traffic_tick_kernel(throttle, steer, brake, c[0], self.lane_signal,
+                                                *flat_plans(self.plans), c[1], ego_is_vehicle(self.table), c[2],
+                                                *c[3:])
 
     def _traffic_consts(self) -> tuple:
         """``traffic_tick_kernel``'s arguments that hold for the whole episode: ``(bicycle params,

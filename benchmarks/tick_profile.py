@@ -156,6 +156,7 @@ def _stage_patches(timers: _Timers, mode: str) -> list[tuple[object, str, object
         patches.append((batch, "validate_controls", timers.wrap(batch.validate_controls, "validate_control")))
         # with numba the batch moves the traffic of all its worlds in one call (jit_batch)
         patches.append((jit_batch.TrafficBatch, "step", timers.wrap(jit_batch.TrafficBatch.step, "move_traffic")))
+        patches.append((jit_batch.PerceiveBatch, "step", timers.wrap(jit_batch.PerceiveBatch.step, "perceive")))
         patches.append((batch.WorldBatch, "_observe", timers.wrap(batch.WorldBatch._observe, "observation")))
     return patches
 

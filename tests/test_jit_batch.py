@@ -1,5 +1,6 @@
-"""``jit_batch.TrafficBatch``: one kernel call moves the worlds of a batch exactly as one call per
-world does, through resets, partial steps, a replaced generator and a forced fallback."""
+"""``jit_batch``: one kernel call moves (``TrafficBatch``) and perceives (``PerceiveBatch``) for the
+worlds of a batch exactly as one call per world does, through resets, partial steps, a replaced
+generator and forced fallbacks."""
 
 from __future__ import annotations
 
@@ -16,20 +17,21 @@ def _state(b: WorldBatch) -> list:
     for w in b.worlds:
         t = w.table
         out += [t.pos.copy(), t.speed.copy(), t.lane.copy(), t.s.copy(), t.path_s.copy(), t.active.copy(),
-                np.array(w._respawn)]
+                np.array(w._respawn), w.ego_vis.copy(), w.rsu_vis.copy(), w.active_rsu.copy()]
     return out + [{k: v.copy() for k, v in b.obs.items()}, b.reward.copy()]
 
 
 def _drive(batched: bool, break_after: int | None = None) -> list:
-    b = WorldBatch(4, town="Town01", num_vehicles=25, num_pedestrians=10, jaywalk_prob=0.2)
+    b = WorldBatch(4, town="Town01", num_vehicles=25, num_pedestrians=10, jaywalk_prob=0.2, rsu_slots=2)
     if not batched:
-        b._traffic = None
+        b._traffic = b._perceive = None
     b.reset([10, 11, 12, 13])
     rng = np.random.default_rng(0)
     states = []
     for k in range(120):
         if break_after is not None and k == break_after:  # lists that cannot take the worlds' arguments
-            b._traffic._sync = lambda ids: (_ for _ in ()).throw(TypeError("forced"))
+            for part in (b._traffic, b._perceive):
+                part.args.entries = lambda w: (object(),)  # numba cannot type it
         actions = rng.uniform([0.0, -0.3, 0.0], [1.0, 0.3, 0.2], (4, 3))
         active = np.ones(4, bool)
         if k % 7 == 3:
@@ -63,4 +65,26 @@ def test_batch_kernel_matches_one_call_per_world():
 def test_fallback_when_the_lists_cannot_hold_the_arguments():
     states = _drive(True, break_after=50)
     _same(states, _drive(False))
+
+
+def test_one_world_batches_match_the_kernels_called_directly(monkeypatch):
+    """World.move_traffic and World.perceive go through one-world batches; with those broken
+    they call the kernels with all their arguments: the same runs."""
+    from v2xbench.envs.v2x_intersection import jit_batch
+
+    def run() -> list:
+        b = WorldBatch(1, town="Town03", num_vehicles=20, num_pedestrians=8, rsu_slots=2)
+        b.reset([5])
+        out = []
+        for k in range(150):
+            b.step(np.array([[0.6, 0.1 * np.sin(k / 9), 0.0]]))
+            if b.terminated[0] or b.truncated[0]:
+                b.reset_world(0, 6 + k)
+            out.append(_state(b))
+        return out
+
+    direct = run()
+    with monkeypatch.context() as m:
+        m.setattr(jit_batch.ArgLists, "sync", lambda self, ids: False)
+        _same(direct, run())
 

@@ -34,7 +34,7 @@ from gymnasium.vector.utils import batch_space
 from .config import make_config
 from .episode import EpisodeTracker, v2x_bps
 from .jit import HAVE_JIT
-from .jit_batch import TrafficBatch
+from .jit_batch import PerceiveBatch, TrafficBatch
 from .observations import ego_action_space, ego_observation, ego_space, fill_objects_observation
 from .world import TICK_STAGES, StepError, World
 
@@ -110,6 +110,7 @@ class WorldBatch:
         self._rows = [{k: v[i] for k, v in self.obs.items()} for i in range(num_worlds)] if direct else None
         # with numba, the traffic's move of all worlds is one kernel call (jit_batch)
         self._traffic = TrafficBatch(self.worlds) if HAVE_JIT and num_worlds > 1 else None
+        self._perceive = PerceiveBatch(self.worlds) if HAVE_JIT and num_worlds > 1 else None
 
     def _observe(self, i: int) -> None:
         """Write world ``i``'s observation into row ``i`` of the buffers."""
@@ -149,7 +150,7 @@ class WorldBatch:
                 that has ended; the episode tracker's own end is left to the caller's resets).
         """
         controls = validate_controls(actions, self.n)
-        idx = range(self.n) if active is None else [int(i) for i in np.flatnonzero(np.asarray(active, bool))]
+        idx = list(range(self.n)) if active is None else [int(i) for i in np.flatnonzero(np.asarray(active, bool))]
         for i in idx:  # check them all first: a bad world raises before any world has moved
             if self.trackers[i] is None:
                 raise StepError(f"world {i}: step() called before reset()")
@@ -160,12 +161,15 @@ class WorldBatch:
         worlds = [self.worlds[i] for i in idx]
         for w in worlds:
             w.send_builtin()
-        if self._traffic is None or not self._traffic.step(list(idx), controls):
+        if self._traffic is None or not self._traffic.step(idx, controls):
             for i, w in zip(idx, worlds):
                 w.move_traffic(controls[i])
-        for stage in TICK_STAGES:
+        for stage in TICK_STAGES[:-1]:
             for w in worlds:
                 stage(w)
+        if self._perceive is None or not self._perceive.step(idx):  # TICK_STAGES[-1]: World.perceive
+            for w in worlds:
+                TICK_STAGES[-1](w)
         events = [w.deliver() for w in worlds]
         for i, ev in zip(idx, events):
             r, te, tc, info = self.trackers[i].after_step(ev, self.with_infos)

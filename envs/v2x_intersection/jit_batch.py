@@ -12,9 +12,12 @@ byte).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from .jit import HAVE_JIT, _njit
+from .jit_perception import perceive_all_kernel
 from .jit_tick import traffic_tick_kernel
 from .pedestrians import ego_is_vehicle
 from .traffic import flat_plans
@@ -84,44 +87,67 @@ def traffic_one_kernel(throttle, steer, brake, ego_ok, consts, signals, plans): 
                                *c[3:])
 
 
-class TrafficBatch:
-    """``World.move_traffic`` for the worlds of a batch in one kernel call (numba only).
+class ArgLists:
+    """Kernel arguments of ``N`` worlds in numba typed lists: one list per group of arguments,
+    entry ``i`` for world ``i``, built on the first :meth:`sync` and then refreshed entry by entry
+    when the object ``entries(world)`` gives for a group is not the one the entry was built from
+    (the callers keep each group in one object for as long as it holds: a cached tuple, the
+    lane-state array, ``traffic.flat_plans``' cached tuple).
 
-    The typed lists are built on the first :meth:`step` and updated entry by entry when a world's
-    arguments change. Should the worlds' arguments not share one numba type (they do for every
-    configuration of one batch), :meth:`step` returns ``False`` and the caller moves the worlds
-    one by one.
+    Should the worlds' arguments not share one numba type (they do for every configuration of one
+    batch), :meth:`sync` returns ``False`` from then on and the caller calls its kernel per world.
     """
+
+    def __init__(self, worlds: list, entries: Callable[[object], tuple]) -> None:
+        self.worlds = worlds
+        self.entries = entries
+        self.lists: tuple | None = None
+        self._keys: list[list] = []  # per group, the object each entry was built from
+        self.broken = False
+
+    def sync(self, ids) -> bool:
+        """Refresh the entries of worlds ``ids``; ``False``: the lists cannot be used."""
+        if self.broken:
+            return False
+        try:
+            if self.lists is None:
+                rows = [self.entries(w) for w in self.worlds]
+                lists = tuple(new_list(x) for x in rows[0])
+                for row in rows[1:]:
+                    for lst, x in zip(lists, row):
+                        list_append(lst, x)
+                self.lists = lists
+                self._keys = [[row[j] for row in rows] for j in range(len(lists))]
+                return True
+            for i in ids:
+                for j, x in enumerate(self.entries(self.worlds[i])):
+                    if x is not self._keys[j][i]:
+                        list_set(self.lists[j], i, x)
+                        self._keys[j][i] = x
+        except Exception:  # noqa: BLE001 - a type the lists cannot hold: fall back for good
+            self.broken = True
+            self.lists = None
+            return False
+        return True
+
+
+def _traffic_entries(w) -> tuple:
+    return w._traffic_consts(), w.lane_signal, flat_plans(w.plans)
+
+
+class TrafficBatch:
+    """``World.move_traffic`` for the worlds of a batch in one kernel call (numba only), through
+    :class:`ArgLists` (groups: the episode's arguments, the lane states, the plans)."""
 
     def __init__(self, worlds: list) -> None:
         self.worlds = worlds
-        self._lists: tuple | None = None  # (consts, signals, plans) typed lists, one entry per world
-        self._keys: list[list] = [[None] * len(worlds) for _ in range(3)]  # what each entry was built from
-        self._broken = False
-
-    def _entries(self, w) -> tuple:
-        return w._traffic_consts(), w.lane_signal, flat_plans(w.plans)
-
-    def _sync(self, ids: list[int]) -> None:
-        if self._lists is None:
-            firsts = self._entries(self.worlds[0])
-            lists = tuple(new_list(x) for x in firsts)
-            for w in self.worlds[1:]:
-                for lst, x in zip(lists, self._entries(w)):
-                    list_append(lst, x)
-            self._lists = lists
-            self._keys = [[e[j] for e in (self._entries(w) for w in self.worlds)] for j in range(3)]
-            return
-        for i in ids:
-            for j, (lst, x) in enumerate(zip(self._lists, self._entries(self.worlds[i]))):
-                if x is not self._keys[j][i]:
-                    list_set(lst, i, x)
-                    self._keys[j][i] = x
+        self.args = ArgLists(worlds, _traffic_entries)
 
     def step(self, ids: list[int], controls: np.ndarray) -> bool:
         """Move worlds ``ids`` under ``controls[i]`` (checked ``(N, 3)``); ``False``: not done,
-        move them one by one."""
-        if self._broken or any(getattr(w, "table", None) is None for w in self.worlds):
+        move them one by one (``World.move_traffic`` then repeats the control bookkeeping and the
+        lane-state update with the same results: nothing has moved yet)."""
+        if self.args.broken or any(getattr(w, "table", None) is None for w in self.worlds):
             return False
         n = len(self.worlds)
         ctl = np.zeros((n, 3))
@@ -131,15 +157,9 @@ class TrafficBatch:
             ctl[i] = w._take_control(controls[i])
             w.update_signals()
             ego_ok[i] = ego_is_vehicle(w.table)
-        try:
-            self._sync(ids)
-        except Exception:  # noqa: BLE001 - a type the lists cannot hold: fall back for good
-            # (World.move_traffic repeats _take_control and update_signals with the same results:
-            # nothing has moved yet)
-            self._broken = True
-            self._lists = None
+        if not self.args.sync(ids):
             return False
-        rows, counts = traffic_batch_kernel(np.asarray(ids, np.int64), ctl, ego_ok, *self._lists)
+        rows, counts = traffic_batch_kernel(np.asarray(ids, np.int64), ctl, ego_ok, *self.args.lists)
         start = 0
         for k, i in enumerate(ids):
             self.worlds[i]._respawn = rows[start:start + counts[k]]
@@ -149,14 +169,84 @@ class TrafficBatch:
     def step_one(self, throttle: float, steer: float, brake: float) -> bool:
         """:meth:`step` for a batch of one world whose control is taken and lane states updated
         (``World.move_traffic``): one call of 7 arguments instead of 79."""
-        if self._broken:
+        if not self.args.sync((0,)):
             return False
         w = self.worlds[0]
-        try:
-            self._sync([0])
-        except Exception:  # noqa: BLE001 - as in step
-            self._broken = True
-            self._lists = None
+        w._respawn = traffic_one_kernel(throttle, steer, brake, ego_is_vehicle(w.table), *self.args.lists)
+        return True
+
+
+@_njit
+def perceive_one_kernel(consts):  # pragma: no cover
+    """``jit_perception.perceive_all_kernel`` with the arguments of entry 0 of ``consts``."""
+    return perceive_all_kernel(*consts[0])
+
+
+@_njit
+def perceive_batch_kernel(order, consts):  # pragma: no cover
+    """``perceive_all_kernel`` for worlds ``order`` (``consts[w]``: world ``w``'s arguments).
+
+    Returns:
+        ``(active (M, slots), vis)``: world ``order[k]``'s ``ego_vis (n,)`` then ``rsu_vis (slots,
+        n)`` (row-major) follow each other in ``vis``, world after world.
+    """
+    m = order.shape[0]
+    parts = List()
+    total = 0
+    slots = 0
+    for k in range(m):
+        r = perceive_all_kernel(*consts[order[k]])
+        slots = r[0].shape[0]
+        total += r[1].shape[0] + r[2].size
+        parts.append(r)
+    active = np.empty((m, slots), np.int64)
+    vis = np.empty(total)
+    j = 0
+    for k in range(m):
+        a, ego, rsu = parts[k]
+        for q in range(slots):
+            active[k, q] = a[q]
+        for q in range(ego.shape[0]):
+            vis[j] = ego[q]
+            j += 1
+        for u in range(rsu.shape[0]):
+            for q in range(rsu.shape[1]):
+                vis[j] = rsu[u, q]
+                j += 1
+    return active, vis
+
+
+def _perceive_entries(w) -> tuple:
+    return (w._perceive_consts(),)
+
+
+class PerceiveBatch:
+    """``World.perceive`` for the worlds of a batch in one kernel call (numba only), through
+    :class:`ArgLists` (one group: the episode's arguments; perception has no others)."""
+
+    def __init__(self, worlds: list) -> None:
+        self.worlds = worlds
+        self.args = ArgLists(worlds, _perceive_entries)
+
+    def step(self, ids: list[int]) -> bool:
+        """Perceive in worlds ``ids``; ``False``: not done, call ``World.perceive`` per world."""
+        if not self.args.sync(ids):
             return False
-        w._respawn = traffic_one_kernel(throttle, steer, brake, ego_is_vehicle(w.table), *self._lists)
+        active, vis = perceive_batch_kernel(np.asarray(ids, np.int64), *self.args.lists)
+        j = 0
+        for k, i in enumerate(ids):
+            w = self.worlds[i]
+            n, slots = len(w.table), active.shape[1]
+            w.active_rsu = active[k]
+            w.ego_vis = vis[j:j + n]
+            w.rsu_vis = vis[j + n:j + n + slots * n].reshape(slots, n)
+            j += n + slots * n
+        return True
+
+    def step_one(self) -> bool:
+        """:meth:`step` for a batch of one world: one argument instead of 32."""
+        if not self.args.sync((0,)):
+            return False
+        w = self.worlds[0]
+        w.active_rsu, w.ego_vis, w.rsu_vis = perceive_one_kernel(*self.args.lists)
         return True

@@ -37,7 +37,7 @@ from .dynamics import VehicleParams, bicycle_step, bicycle_step_scalar
 from .geometry import row_norms, world_to_local_2d
 from .infractions import EventMonitor
 from .jit import HAVE_JIT
-from .jit_batch import TrafficBatch
+from .jit_batch import PerceiveBatch, TrafficBatch
 from .jit_box_grid import box_grid
 from .jit_perception import (
     object_rows_kernel,
@@ -114,6 +114,7 @@ class World:
         )
         self.town = None
         self._traffic_one: TrafficBatch | None = None  # move_traffic's one-world batch (jit_batch), numba only
+        self._perceive_one: PerceiveBatch | None = None  # perceive's (jit_batch)
         self._load_town(config.town)
         self.ended = True
         self.tick = 0
@@ -138,6 +139,7 @@ class World:
             grids["grid"] = box_grid(statics[:, :2], statics[:, 2], statics[:, 3])
         self.static_grid = grids["grid"]
         self._occluders = None  # perceive's occluder arrays (jit_perception.occluder_arrays), built per episode
+        self._perceive_args: tuple | None = None  # (table, rsus, occluders, kernel arguments)
 
     # ------------------------------------------------------------------ setup
     def _static_boxes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -503,16 +505,11 @@ class World:
     def perceive(self) -> None:
         """Step 7: visible fraction of every actor from the ego and from each active RSU."""
         cfg, t = self.config, self.table
-        if HAVE_JIT:
-            occ = self._occluders
-            if occ is None or occ[0].shape[0] != len(t) + len(self.static_boxes):
-                occ = self._occluders = occluder_arrays(len(t), self.static_boxes, self.static_heights,
-                                                        *self.static_trig)
-            self.active_rsu, self.ego_vis, self.rsu_vis = perceive_all_kernel(
-                self.rsus.pose, self.rsus.kind, KIND_TRIGGER, TRIGGER_PREFERENCE_M, FACING_MAX_ANGLE, int(cfg.rsu_slots), t.pos,
-                t.length, t.width, t.yaw, t.height, t.active, *occ, *self.static_grid, EGO_SENSOR_Z,
-                float(cfg.ego_range) ** 2, float(cfg.ego_range), float(cfg.rsu_range) ** 2, float(cfg.rsu_range),
-                0.5 * RSU_HFOV, *VISIBILITY_SAMPLING)
+        if HAVE_JIT:  # one kernel call, through a one-world jit_batch.PerceiveBatch (1 argument, not 32)
+            if self._perceive_one is None:
+                self._perceive_one = PerceiveBatch([self])
+            if not self._perceive_one.step_one():
+                self.active_rsu, self.ego_vis, self.rsu_vis = perceive_all_kernel(*self._perceive_consts())
             return
         self.active_rsu = select_active(self.rsus, t.pos[0], float(t.yaw[0]), cfg.rsu_range, cfg.rsu_slots)
         boxes = self.occluders()
@@ -527,6 +524,22 @@ class World:
                                                   max_range=cfg.ego_range)
         self.rsu_vis = np.zeros((cfg.rsu_slots, n))
         self._rsu_perception(boxes, targets)
+
+    def _perceive_consts(self) -> tuple:
+        """``perceive_all_kernel``'s arguments (all hold for the episode: the kernel reads the
+        table's columns in place), kept until the table, the RSUs or the occluder arrays change."""
+        t, cfg = self.table, self.config
+        occ = self._occluders
+        if occ is None or occ[0].shape[0] != len(t) + len(self.static_boxes):
+            occ = self._occluders = occluder_arrays(len(t), self.static_boxes, self.static_heights, *self.static_trig)
+        cached = self._perceive_args
+        if cached is None or cached[0] is not t or cached[1] is not self.rsus or cached[2] is not occ:
+            cached = self._perceive_args = (t, self.rsus, occ, (
+                self.rsus.pose, self.rsus.kind, KIND_TRIGGER, TRIGGER_PREFERENCE_M, FACING_MAX_ANGLE,
+                int(cfg.rsu_slots), t.pos, t.length, t.width, t.yaw, t.height, t.active, *occ, *self.static_grid,
+                EGO_SENSOR_Z, float(cfg.ego_range) ** 2, float(cfg.ego_range), float(cfg.rsu_range) ** 2,
+                float(cfg.rsu_range), 0.5 * RSU_HFOV, *VISIBILITY_SAMPLING))
+        return cached[3]
 
     def _rsu_perception(self, boxes: Boxes, targets: np.ndarray) -> None:
         cfg, t = self.config, self.table

@@ -112,6 +112,22 @@ class WorldBatch:
         self._traffic = TrafficBatch(self.worlds) if HAVE_JIT and num_worlds > 1 else None
         self._perceive = PerceiveBatch(self.worlds) if HAVE_JIT and num_worlds > 1 else None
 
+    def __getstate__(self) -> dict:
+        """For copy and pickle: without the jit_batch holders (numba's typed lists cannot be
+        pickled); :meth:`__setstate__` makes new ones over the copied worlds, and new row views of
+        the copied observation buffers."""
+        state = self.__dict__.copy()
+        state["_traffic"] = state["_perceive"] = None
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        if self._rows is not None:  # row views of the copy's own buffers (a copied view is not a view)
+            self._rows = [{k: v[i] for k, v in self.obs.items()} for i in range(self.n)]
+        many = HAVE_JIT and self.n > 1
+        self._traffic = TrafficBatch(self.worlds) if many else None
+        self._perceive = PerceiveBatch(self.worlds) if many else None
+
     def _observe(self, i: int) -> None:
         """Write world ``i``'s observation into row ``i`` of the buffers."""
         if self._rows is not None:

@@ -120,6 +120,14 @@ class World:
         self.tick = 0
         self.spec = None  # the RouteSpec of the current episode when it comes from a suite
 
+    def __getstate__(self) -> dict:
+        """For copy and pickle: without the kernels' cached arguments (numba's typed lists cannot be
+        pickled, and the generator-state views must be those of the copy); rebuilt on use."""
+        state = self.__dict__.copy()
+        state["_traffic_one"] = state["_perceive_one"] = None
+        state["_traffic_args"] = state["_perceive_args"] = None
+        return state
+
     def _load_town(self, name: str) -> None:
         """Switch to town ``name`` (towns and their derived tables are cached)."""
         if self.town is not None and self.town.name == name:

@@ -8,7 +8,8 @@ constant action; one ``env.step`` = one 0.1 s tick. highway-env: ``intersection-
 ``highway-fast-v0`` with their default configs and the idle action; one ``env.step`` there is one
 policy step (``simulation_frequency / policy_frequency`` physics frames, 1 s of simulated time in
 ``intersection-v0``). Two ratios are printed: env steps per second, and simulated seconds per wall
-second (fairer, since the step lengths differ). Single process, ``torch`` not involved.
+second (fairer, since the step lengths differ). Single process, ``torch`` not involved. Both are
+timed after a few untimed steps from the same reset (numba's kernels load on their first call).
 """
 
 from __future__ import annotations
@@ -22,10 +23,20 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 _CPU_RATE: dict = {}
+#: untimed V2XBench steps before the clock starts (highway-env gets 2, ~0.1 s of its time)
+WARMUP_STEPS = 100
 
 
-def _rate(env, action, steps: int, seed: int = 0) -> float:
-    """Env steps per wall second (the rate per CPU second is left in ``_CPU_RATE[id(env)]``)."""
+def _rate(env, action, steps: int, seed: int = 0, warmup: int = 0) -> float:
+    """Env steps per wall second (the rate per CPU second is left in ``_CPU_RATE[id(env)]``),
+    timed after ``warmup`` untimed steps (numba loads each kernel from its disk cache on its
+    first call in a process: ~160 ms over V2XBench's first 50 steps, which 3,000 timed steps
+    would read as ~50 us a step)."""
+    env.reset(seed=seed)
+    for k in range(warmup):
+        _, _, term, trunc, _ = env.step(action)
+        if term or trunc:
+            env.reset(seed=seed + 1 + k)
     env.reset(seed=seed)
     n = 0
     t0, c0 = time.perf_counter(), time.process_time()
@@ -50,7 +61,7 @@ def measure(steps: int, config: dict | None = None) -> dict:
     env.reset(seed=0)
     w = env.unwrapped.world
     actors = int(w.table.active.sum())
-    ours = _rate(env, np.array([0.3, 0.0, 0.0], np.float32), steps)
+    ours = _rate(env, np.array([0.3, 0.0, 0.0], np.float32), steps, warmup=WARMUP_STEPS)
     rows = {"v2xbench_objects": {"steps_per_s": ours, "steps_per_cpu_s": _CPU_RATE[id(env)], "actors": actors,
                                  "sim_s_per_step": 0.1,
                                  "sim_s_per_wall_s": ours * 0.1, "config": dict(config or {}),
@@ -65,7 +76,7 @@ def measure(steps: int, config: dict | None = None) -> dict:
             idle = 1  # IDLE in DiscreteMetaAction
             cfg = he.unwrapped.config
             frames = cfg["simulation_frequency"] // cfg["policy_frequency"]
-            rate = _rate(he, idle, max(steps // 10, 20))
+            rate = _rate(he, idle, max(steps // 10, 20), warmup=2)
             sim = 1.0 / cfg["policy_frequency"]
             rows[name] = {"steps_per_s": rate, "steps_per_cpu_s": _CPU_RATE[id(he)], "frames_per_step": frames,
                           "sim_s_per_step": sim,

@@ -8,7 +8,7 @@ clock starts at the first batch. Each worker steps its worlds ``STEPS_PER_BATCH`
 batch (a batch of ``N * 32`` frames, as RL batches of a few thousand frames): each batch costs
 a round trip between the workers and the main process, which at 4 steps per batch took ~12 % of
 the throughput at ``N = 64`` (8,228 / 8,337 against 9,281 / 9,674 agent-steps/s, 2026-11-25).
-At least 4 batches are timed.
+At least 4 batches and ``MIN_SECONDS`` of wall time are timed.
 """
 
 from __future__ import annotations
@@ -17,6 +17,9 @@ import time
 
 #: env steps of each worker per collector batch
 STEPS_PER_BATCH = 32
+#: s, least wall time of a collector row: 4 batches (~1 s at N = 64) gave 7,353 to 11,103
+#: agent-steps/s for the same code in four runs
+MIN_SECONDS = 4.0
 
 
 def _make(n: int, config: dict):
@@ -25,8 +28,9 @@ def _make(n: int, config: dict):
     return lambda: V2XTorchEnv(num_worlds=n, **config)
 
 
-def measure_one(n: int, steps: int, config: dict | None = None) -> dict:
-    """Agent-steps/s for ``n`` worlds with about ``steps`` agent-steps timed."""
+def measure_one(n: int, steps: int, config: dict | None = None, min_seconds: float = 0.0) -> dict:
+    """Agent-steps/s for ``n`` worlds with at least ``steps`` agent-steps (and, for ``n >= 2``, 4
+    collector batches and ``min_seconds`` of wall time) timed."""
     import torch
 
     config = dict(config or {})
@@ -51,7 +55,7 @@ def measure_one(n: int, steps: int, config: dict | None = None) -> dict:
         it = iter(col)
         next(it)  # warm-up batch: workers are up and every world has been reset
         got, t0 = 0, time.perf_counter()
-        while got < frames:
+        while got < frames or time.perf_counter() - t0 < min_seconds:
             got += next(it).numel()
         dt = time.perf_counter() - t0
     finally:
@@ -59,9 +63,11 @@ def measure_one(n: int, steps: int, config: dict | None = None) -> dict:
     return {"worlds": n, "processes": 2, "agent_steps": got, "seconds": dt, "agent_steps_per_s": got / dt}
 
 
-def measure(worlds=(1, 4, 16, 64), steps: int = 2000, config: dict | None = None) -> dict:
+def measure(worlds=(1, 4, 16, 64), steps: int = 2000, config: dict | None = None,
+            min_seconds: float = MIN_SECONDS) -> dict:
     """One row per ``N`` in ``worlds``."""
-    return {"rows": [measure_one(n, steps, config) for n in worlds], "goal_agent_steps_per_s": 20000.0}
+    return {"rows": [measure_one(n, steps, config, min_seconds) for n in worlds],
+            "goal_agent_steps_per_s": 20000.0, "min_seconds": min_seconds}
 
 
 if __name__ == "__main__":

@@ -187,20 +187,6 @@ def _box_blocks(ox, oy, oz, d0, d1, d2, c, s, bx, by, hl, hw, z0, z1, lo, hi):  
     return _fmax(t_in, lo) < _fmin(t_out, hi)
 
 
-@_njit_inline
-def keeps_box(j, sx, sy, center, length, width, extra, reach):  # pragma: no cover
-    """Whether box ``j`` may block a sight line from ``(sx, sy)`` no longer than ``reach``
-    (its bounding circle, + 1 mm, comes within ``reach``) and is not in ``extra``."""
-    dx, dy = center[j, 0] - sx, center[j, 1] - sy
-    rad = 0.5 * np.sqrt(length[j] * length[j] + width[j] * width[j]) + 1e-3
-    if dx * dx + dy * dy < (reach + rad) * (reach + rad) * 1.000001:
-        for q in range(extra.shape[0]):
-            if extra[q] == j:
-                return False
-        return True
-    return False
-
-
 @_njit
 def points_blocked_kernel(sensor, pts, cand, own, extra, center, cos_yaw, sin_yaw, length, width, z0, height,
                           reach, lo, hi):  # pragma: no cover
@@ -222,20 +208,16 @@ def points_blocked_kernel(sensor, pts, cand, own, extra, center, cos_yaw, sin_ya
     keep = np.empty(n, np.int64)
     k = 0
     for j in range(n):
-        if keeps_box(j, sx, sy, center, length, width, extra, reach):
-            keep[k] = j
-            k += 1
-    return blocked_by_kernel(sensor, pts, cand, own, keep[:k], center, cos_yaw, sin_yaw, length, width, z0, height,
-                             lo, hi)
-
-
-@_njit
-def blocked_by_kernel(sensor, pts, cand, own, keep, center, cos_yaw, sin_yaw, length, width, z0, height, lo,
-                      hi):  # pragma: no cover
-    """:func:`points_blocked_kernel` after its scan: ``keep`` are the boxes that may block
-    (ascending, as the scan finds them)."""
-    k = keep.shape[0]
-    sx, sy = sensor[0], sensor[1]
+        dx, dy = center[j, 0] - sx, center[j, 1] - sy
+        rad = 0.5 * np.sqrt(length[j] * length[j] + width[j] * width[j]) + 1e-3
+        if dx * dx + dy * dy < (reach + rad) * (reach + rad) * 1.000001:
+            ig = False
+            for q in range(extra.shape[0]):
+                if extra[q] == j:
+                    ig = True
+            if not ig:
+                keep[k] = j
+                k += 1
     c32 = np.empty(k, np.float32)
     s32 = np.empty(k, np.float32)
     bx = np.empty(k, np.float32)
@@ -375,28 +357,6 @@ def visible_fraction_kernel(sensor, center, cos_yaw, sin_yaw, length, width, z0,
     Returns:
         ``(M,)`` visible fraction.
     """
-    pts, ok, own, reach2 = sample_points_kernel(sensor, center, cos_yaw, sin_yaw, length, width, z0, height, targets,
-                                                max_r2, use_fov, sensor_yaw, half_fov, levels, pattern, shrink)
-    cand = np.flatnonzero(ok)
-    if cand.shape[0]:
-        blocked = points_blocked_kernel(sensor, pts, cand, own[cand], extra, center, cos_yaw, sin_yaw, length,
-                                        width, z0, height, np.sqrt(reach2) + 1.0, lo, hi)
-        for q in range(cand.shape[0]):
-            if blocked[q]:
-                ok[cand[q]] = False
-    return point_fractions(ok, targets.shape[0], levels.shape[0] * pattern.shape[0])
-
-
-@_njit
-def sample_points_kernel(sensor, center, cos_yaw, sin_yaw, length, width, z0, height, targets, max_r2, use_fov,
-                         sensor_yaw, half_fov, levels, pattern, shrink):  # pragma: no cover
-    """The sample points of :func:`visible_fraction_kernel`'s targets (``kk`` per target) and
-    which of them are in range and field of view.
-
-    Returns:
-        ``(pts (M*kk, 3), ok (M*kk,), own (M*kk,) target box, reach2)``, ``reach2`` the largest
-        squared distance of a point in ``ok`` (-1 when none).
-    """
     m = targets.shape[0]
     nl, nxy = levels.shape[0], pattern.shape[0]
     kk = nl * nxy
@@ -434,12 +394,13 @@ def sample_points_kernel(sensor, center, cos_yaw, sin_yaw, length, width, z0, he
                     ok[i] = True
                     if acc > reach2:
                         reach2 = acc
-    return pts, ok, own, reach2
-
-
-@_njit
-def point_fractions(ok, m, kk):  # pragma: no cover
-    """``(m,)`` share of each target's ``kk`` consecutive points in ``ok``."""
+    cand = np.flatnonzero(ok)
+    if cand.shape[0]:
+        blocked = points_blocked_kernel(sensor, pts, cand, own[cand], extra, center, cos_yaw, sin_yaw, length,
+                                        width, z0, height, np.sqrt(reach2) + 1.0, lo, hi)
+        for q in range(cand.shape[0]):
+            if blocked[q]:
+                ok[cand[q]] = False
     out = np.empty(m)
     for a in range(m):
         cnt = 0

@@ -10,16 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .jit import (
-    _njit,
-    blocked_by_kernel,
-    keeps_box,
-    point_fractions,
-    pose_at_kernel,
-    project_refine,
-    sample_points_kernel,
-)
-from .jit_box_grid import boxes_near
+from .jit import _njit, pose_at_kernel, project_refine, visible_fraction_kernel
 from .jit_grid import project_grid_kernel
 
 
@@ -149,42 +140,36 @@ def rsu_to_ego_kernel(rows, x, y, yaw, ex, ey, eyaw):  # pragma: no cover
     return out
 
 
-def occluder_arrays(n: int, static_boxes: np.ndarray, static_heights: np.ndarray, static_cos: np.ndarray,
-                    static_sin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The boxes that block sight, as :func:`perceive_kernel` reads them: ``(xy (n + S, 2), geo (6,
-    n + S))``, ``geo``'s rows cos(yaw), sin(yaw), length, width, base height, height; ``n`` actor
-    rows first (written by the kernel each tick), then the ``S`` static boxes (written here once)."""
-    ns = len(static_boxes)
-    xy = np.zeros((n + ns, 2))
-    geo = np.zeros((6, n + ns))
-    xy[n:] = static_boxes[:, :2]
-    geo[0, n:], geo[1, n:] = static_cos, static_sin
-    geo[2, n:], geo[3, n:] = static_boxes[:, 2], static_boxes[:, 3]
-    geo[5, n:] = static_heights
-    return xy, geo
-
-
 @_njit
-def perceive_kernel(pos, length, width, yaw, height, active, boxes_xy, boxes, grid_x0, grid_y0, grid_cell, grid_nx,
-                    grid_ny, grid_start, grid_ids, ego_z, ego_r2, ego_range, rsu_pose, rsu_r2, rsu_range, half_fov,
-                    levels, pattern, shrink, lo, hi):  # pragma: no cover
+def perceive_kernel(pos, length, width, yaw, height, active, static_boxes, static_heights, static_cos, static_sin,
+                    ego_z, ego_r2, ego_range, rsu_pose, rsu_r2, rsu_range, half_fov, levels, pattern, shrink, lo,
+                    hi):  # pragma: no cover
     """``world.World.perceive`` after the RSU selection: visible fraction of every active actor
     (rows >= 1) from the ego's sensor and from each selected RSU (``rsu_pose (slots, 4)``, NaN
     rows for empty slots), against all actors and static boxes as occluders.
-
-    ``boxes_xy``, ``boxes``: :func:`occluder_arrays` (the actor rows are written here);
-    ``grid_*``: ``jit_box_grid.box_grid`` of the static boxes.
 
     Returns:
         ``(ego_vis (N,), rsu_vis (slots, N))``.
     """
     n = pos.shape[0]
-    cos_yaw, sin_yaw, blen, bwid, z0, bh = boxes[0], boxes[1], boxes[2], boxes[3], boxes[4], boxes[5]
+    ns = static_boxes.shape[0]
+    center = np.empty((n + ns, 2))
+    cos_yaw = np.empty(n + ns)
+    sin_yaw = np.empty(n + ns)
+    blen = np.empty(n + ns)
+    bwid = np.empty(n + ns)
+    bh = np.empty(n + ns)
     for i in range(n):
-        boxes_xy[i, 0], boxes_xy[i, 1] = pos[i, 0], pos[i, 1]
+        center[i, 0], center[i, 1] = pos[i, 0], pos[i, 1]
         cos_yaw[i], sin_yaw[i] = np.cos(yaw[i]), np.sin(yaw[i])
         blen[i], bwid[i] = length[i], width[i]
         bh[i] = height[i] if active[i] else 0.0
+    for k in range(ns):
+        center[n + k, 0], center[n + k, 1] = static_boxes[k, 0], static_boxes[k, 1]
+        cos_yaw[n + k], sin_yaw[n + k] = static_cos[k], static_sin[k]
+        blen[n + k], bwid[n + k] = static_boxes[k, 2], static_boxes[k, 3]
+        bh[n + k] = static_heights[k]
+    z0 = np.zeros(n + ns)
     ego_vis = np.zeros(n)
     slots = rsu_pose.shape[0]
     rsu_vis = np.zeros((slots, n))
@@ -211,21 +196,8 @@ def perceive_kernel(pos, length, width, yaw, height, active, boxes_xy, boxes, gr
         if cnt == 0:
             continue
         sensor[0], sensor[1], sensor[2] = sx, sy, sz
-        # jit.visible_fraction_kernel, with the static boxes that may block found in the grid
-        pts, ok, own, reach2 = sample_points_kernel(sensor, boxes_xy, cos_yaw, sin_yaw, blen, bwid, z0, bh,
-                                                    near[:cnt], r2, fov, syaw, half_fov if fov else 0.0, levels,
-                                                    pattern, shrink)
-        cand = np.flatnonzero(ok)
-        if cand.shape[0]:
-            reach = np.sqrt(reach2) + 1.0
-            keep = _occluders_near(sx, sy, reach, n, boxes_xy, blen, bwid, extra, grid_x0, grid_y0, grid_cell,
-                                   grid_nx, grid_ny, grid_start, grid_ids)
-            blocked = blocked_by_kernel(sensor, pts, cand, own[cand], keep, boxes_xy, cos_yaw, sin_yaw, blen, bwid,
-                                        z0, bh, lo, hi)
-            for k in range(cand.shape[0]):
-                if blocked[k]:
-                    ok[cand[k]] = False
-        vis = point_fractions(ok, cnt, levels.shape[0] * pattern.shape[0])
+        vis = visible_fraction_kernel(sensor, center, cos_yaw, sin_yaw, blen, bwid, z0, bh, near[:cnt], extra, r2,
+                                      fov, syaw, half_fov if fov else 0.0, levels, pattern, shrink, lo, hi)
         for a in range(cnt):
             if q == 0:
                 ego_vis[near[a]] = vis[a]
@@ -235,36 +207,9 @@ def perceive_kernel(pos, length, width, yaw, height, active, boxes_xy, boxes, gr
 
 
 @_njit
-def _occluders_near(sx, sy, reach, n, center, length, width, extra, grid_x0, grid_y0, grid_cell, grid_nx, grid_ny,
-                    grid_start, grid_ids):  # pragma: no cover
-    """The boxes ``jit.points_blocked_kernel``'s scan keeps, in its order: the ``n`` actor rows
-    scanned, then the static boxes (rows ``n + id``) of the grid cells near the sensor
-    (``jit_box_grid.boxes_near``; all of them when a value is not finite, as the scan)."""
-    total = center.shape[0]
-    keep = np.empty(total, np.int64)
-    k = 0
-    for j in range(n):
-        if keeps_box(j, sx, sy, center, length, width, extra, reach):
-            keep[k] = j
-            k += 1
-    if np.isfinite(sx) and np.isfinite(sy) and np.isfinite(reach):
-        for sid in boxes_near(sx, sy, reach, grid_x0, grid_y0, grid_cell, grid_nx, grid_ny, grid_start, grid_ids):
-            if keeps_box(n + sid, sx, sy, center, length, width, extra, reach):
-                keep[k] = n + sid
-                k += 1
-    else:
-        for j in range(n, total):
-            if keeps_box(j, sx, sy, center, length, width, extra, reach):
-                keep[k] = j
-                k += 1
-    return keep[:k]
-
-
-@_njit
 def perceive_all_kernel(rsu_pose, rsu_kind, trigger_kind, preference, max_angle, slots, pos, length, width, yaw,
-                        height, active, boxes_xy, boxes, grid_x0, grid_y0, grid_cell, grid_nx, grid_ny, grid_start,
-                        grid_ids, ego_z, ego_r2, ego_range, rsu_r2, rsu_range, half_fov, levels, pattern, shrink, lo,
-                        hi):  # pragma: no cover
+                        height, active, static_boxes, static_heights, static_cos, static_sin, ego_z, ego_r2, ego_range,
+                        rsu_r2, rsu_range, half_fov, levels, pattern, shrink, lo, hi):  # pragma: no cover
     """``world.World.perceive`` in one call: the RSU selection (:func:`select_active_kernel`;
     all ``-1`` without units), then :func:`perceive_kernel` from the selected units' poses.
 
@@ -282,9 +227,9 @@ def perceive_all_kernel(rsu_pose, rsu_kind, trigger_kind, preference, max_angle,
         if u >= 0:
             for j in range(4):
                 pose[k, j] = rsu_pose[u, j]
-    ego_vis, rsu_vis = perceive_kernel(pos, length, width, yaw, height, active, boxes_xy, boxes, grid_x0, grid_y0,
-                                       grid_cell, grid_nx, grid_ny, grid_start, grid_ids, ego_z, ego_r2, ego_range,
-                                       pose, rsu_r2, rsu_range, half_fov, levels, pattern, shrink, lo, hi)
+    ego_vis, rsu_vis = perceive_kernel(pos, length, width, yaw, height, active, static_boxes, static_heights,
+                                       static_cos, static_sin, ego_z, ego_r2, ego_range, pose, rsu_r2, rsu_range,
+                                       half_fov, levels, pattern, shrink, lo, hi)
     return active_rsu, ego_vis, rsu_vis
 
 

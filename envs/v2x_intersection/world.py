@@ -38,10 +38,8 @@ from .geometry import row_norms, world_to_local_2d
 from .infractions import EventMonitor
 from .jit import HAVE_JIT
 from .jit_batch import PerceiveBatch, TrafficBatch
-from .jit_box_grid import box_grid
 from .jit_perception import (
     object_rows_kernel,
-    occluder_arrays,
     perceive_all_kernel,
     seen_rows_kernel,
 )
@@ -142,12 +140,7 @@ class World:
         self.static_heights = heights
         self.static_kinds = kinds
         self.static_trig = (np.cos(statics[:, 4]), np.sin(statics[:, 4]))  # their yaw cos, sin (for the kernels)
-        grids = self.town.cache("static_box_grid")  # (the static boxes depend only on the town)
-        if "grid" not in grids:
-            grids["grid"] = box_grid(statics[:, :2], statics[:, 2], statics[:, 3])
-        self.static_grid = grids["grid"]
-        self._occluders = None  # perceive's occluder arrays (jit_perception.occluder_arrays), built per episode
-        self._perceive_args: tuple | None = None  # (table, rsus, occluders, kernel arguments)
+        self._perceive_args: tuple | None = None  # (table, rsus, kernel arguments)
 
     # ------------------------------------------------------------------ setup
     def _static_boxes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -535,19 +528,17 @@ class World:
 
     def _perceive_consts(self) -> tuple:
         """``perceive_all_kernel``'s arguments (all hold for the episode: the kernel reads the
-        table's columns in place), kept until the table, the RSUs or the occluder arrays change."""
+        table's columns in place), kept until the table or the RSUs change."""
         t, cfg = self.table, self.config
-        occ = self._occluders
-        if occ is None or occ[0].shape[0] != len(t) + len(self.static_boxes):
-            occ = self._occluders = occluder_arrays(len(t), self.static_boxes, self.static_heights, *self.static_trig)
         cached = self._perceive_args
-        if cached is None or cached[0] is not t or cached[1] is not self.rsus or cached[2] is not occ:
-            cached = self._perceive_args = (t, self.rsus, occ, (
+        if cached is None or cached[0] is not t or cached[1] is not self.rsus:
+            cached = self._perceive_args = (t, self.rsus, (
                 self.rsus.pose, self.rsus.kind, KIND_TRIGGER, TRIGGER_PREFERENCE_M, FACING_MAX_ANGLE,
-                int(cfg.rsu_slots), t.pos, t.length, t.width, t.yaw, t.height, t.active, *occ, *self.static_grid,
-                EGO_SENSOR_Z, float(cfg.ego_range) ** 2, float(cfg.ego_range), float(cfg.rsu_range) ** 2,
-                float(cfg.rsu_range), 0.5 * RSU_HFOV, *VISIBILITY_SAMPLING))
-        return cached[3]
+                int(cfg.rsu_slots), t.pos, t.length, t.width, t.yaw, t.height, t.active, self.static_boxes,
+                self.static_heights, *self.static_trig, EGO_SENSOR_Z, float(cfg.ego_range) ** 2,
+                float(cfg.ego_range), float(cfg.rsu_range) ** 2, float(cfg.rsu_range), 0.5 * RSU_HFOV,
+                *VISIBILITY_SAMPLING))
+        return cached[2]
 
     def _rsu_perception(self, boxes: Boxes, targets: np.ndarray) -> None:
         cfg, t = self.config, self.table

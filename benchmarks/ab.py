@@ -28,6 +28,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from .suite import _write as write_atomic
+
 #: the child process: ``python -c CHILD <mode> <ticks> [package dir]``
 CHILD = r"""
 import sys, time
@@ -137,7 +139,5 @@ def run(args: argparse.Namespace) -> int:
     if args.out:
         out = Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = out.with_suffix(out.suffix + ".tmp")
-        tmp.write_text(json.dumps(res, indent=2) + "\n")
-        tmp.replace(out)
+        write_atomic(out, json.dumps(res, indent=2) + "\n")
     return 0

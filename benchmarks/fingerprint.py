@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .suite import _write as write_atomic
+
 
 def _update(h, x) -> None:
     """Feed ``x`` (nested dicts / lists / arrays / tensors / scalars) into hash ``h``."""
@@ -153,9 +155,7 @@ def run(args: argparse.Namespace) -> int:
     if args.out:
         out = Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = out.with_suffix(out.suffix + ".tmp")
-        tmp.write_text(json.dumps(got, indent=2) + "\n")
-        tmp.replace(out)
+        write_atomic(out, json.dumps(got, indent=2) + "\n")
         print(f"wrote {out}")
     if args.check:
         want = json.loads(Path(args.check).read_text())

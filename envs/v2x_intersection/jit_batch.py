@@ -1,13 +1,15 @@
-"""The traffic's move (``World.move_traffic``) of many worlds in one numba call.
+"""The traffic's move (``World.move_traffic``) and perception (``World.perceive``) of many worlds,
+each in one numba call.
 
-Called once per world, ``jit_tick.traffic_tick_kernel`` costs ~11 us of numba's dispatch alone
-(79 arguments to type and unbox) and runs with cold caches. :class:`TrafficBatch` keeps each
+Called once per world, ``jit_tick.traffic_tick_kernel`` costs ~10 us of numba's dispatch alone
+(79 arguments to type and unbox; ``perceive_all_kernel`` takes 27). :class:`ArgLists` keeps each
 world's arguments in numba typed lists, refreshed only when they change (a reset, a new lane-state
-array, a new plan), and :func:`traffic_batch_kernel` calls the same kernel world after world,
-so the batch pays one dispatch per tick. A single world (``World.move_traffic``) uses a batch of
-one: :func:`traffic_one_kernel` takes 7 arguments instead of 79. Each world sees exactly the call
-it would make alone (``tests/test_jit_batch.py`` and ``tests/test_batch.py`` compare, byte for
-byte).
+array, a new plan), and :func:`traffic_batch_kernel` / :func:`perceive_batch_kernel` call the same
+kernels world after world, so a batch pays one dispatch per tick and stage
+(:class:`TrafficBatch`, :class:`PerceiveBatch`). A single world uses a batch of one:
+:func:`traffic_one_kernel` takes 7 arguments, :func:`perceive_one_kernel` 1. Each world sees
+exactly the call it would make alone (``tests/test_jit_batch.py`` and ``tests/test_batch.py``
+compare, byte for byte).
 """
 
 from __future__ import annotations
@@ -244,7 +246,7 @@ class PerceiveBatch:
         return True
 
     def step_one(self) -> bool:
-        """:meth:`step` for a batch of one world: one argument instead of 32."""
+        """:meth:`step` for a batch of one world: one argument instead of 27."""
         if not self.args.sync((0,)):
             return False
         w = self.worlds[0]

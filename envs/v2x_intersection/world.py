@@ -38,11 +38,7 @@ from .geometry import row_norms, world_to_local_2d
 from .infractions import EventMonitor
 from .jit import HAVE_JIT
 from .jit_batch import PerceiveBatch, TrafficBatch
-from .jit_perception import (
-    object_rows_kernel,
-    perceive_all_kernel,
-    seen_rows_kernel,
-)
+from .jit_perception import object_rows_kernel, perceive_all_kernel, seen_rows_kernel
 from .jit_rng import state_views
 from .jit_spawn import spawn_followers_kernel, spawn_walkers_kernel
 from .jit_tick import traffic_tick_kernel
@@ -506,7 +502,7 @@ class World:
     def perceive(self) -> None:
         """Step 7: visible fraction of every actor from the ego and from each active RSU."""
         cfg, t = self.config, self.table
-        if HAVE_JIT:  # one kernel call, through a one-world jit_batch.PerceiveBatch (1 argument, not 32)
+        if HAVE_JIT:  # one kernel call, through a one-world jit_batch.PerceiveBatch (1 argument, not 27)
             if self._perceive_one is None:
                 self._perceive_one = PerceiveBatch([self])
             if not self._perceive_one.step_one():

@@ -128,14 +128,18 @@ class World:
             return
         self.town = get_town(name)
         self.signals = SignalPlan(self.town)
-        self.sidewalks = SidewalkNetwork(self.town)
-        self._drive_lanes = np.array([ln.id for ln in self.town.lanes if ln.kind in (DRIVING, RAMP)
-                                      and ln.length > 15.0])
-        statics, heights, kinds = self._static_boxes()
-        self.static_boxes = statics  # (S, 5) x, y, length, width, yaw
-        self.static_heights = heights
-        self.static_kinds = kinds
-        self.static_trig = (np.cos(statics[:, 4]), np.sin(statics[:, 4]))  # their yaw cos, sin (for the kernels)
+        # the town's derived tables, shared by every world in it (one copy in the CPU's caches when a
+        # batch steps many worlds of one town); nothing writes to them
+        store = self.town.cache("world")
+        if "tables" not in store:
+            statics, heights, kinds = self._static_boxes()
+            store["tables"] = (SidewalkNetwork(self.town), statics, heights, kinds,
+                               (np.cos(statics[:, 4]), np.sin(statics[:, 4])),
+                               np.array([ln.id for ln in self.town.lanes if ln.kind in (DRIVING, RAMP)
+                                         and ln.length > 15.0]))
+        (self.sidewalks, self.static_boxes, self.static_heights, self.static_kinds, self.static_trig,
+         self._drive_lanes) = store["tables"]
+        # static_boxes: (S, 5) x, y, length, width, yaw; static_trig: their yaw's cos, sin (for the kernels)
         self._perceive_args: tuple | None = None  # (table, rsus, kernel arguments)
 
     # ------------------------------------------------------------------ setup

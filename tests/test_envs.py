@@ -30,6 +30,20 @@ def test_gym_make_in_fresh_interpreter():
     assert "'objects'" in out.stdout and "'v2x_objects'" in out.stdout
 
 
+def test_numpy_apis_do_not_import_torch():
+    """gym.make, make_vec and parallel_env need no torch (its import costs seconds); V2XTorchEnv
+    is still importable from the package, on first use."""
+    code = (
+        "import sys, gymnasium as gym, v2xbench; from v2xbench.envs.v2x_intersection import parallel_env;"
+        "gym.make('V2XIntersection-v0', num_vehicles=3).reset(seed=1);"
+        "gym.make_vec('V2XIntersection-v0', num_envs=2, num_vehicles=3).reset(seed=1);"
+        "parallel_env(num_vehicles=3).reset(seed=1); print('torch' in sys.modules);"
+        "from v2xbench.envs.v2x_intersection import V2XTorchEnv; print(V2XTorchEnv.__name__, 'torch' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", "V2XTorchEnv", "True"]
+
+
 def test_gymnasium_check_env():
     env = gym.make("V2XIntersection-v0", **SMALL)
     check_env(env.unwrapped, skip_render_check=False)

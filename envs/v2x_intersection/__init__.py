@@ -5,13 +5,32 @@
 - :class:`V2XTorchEnv` - native batched TorchRL ``EnvBase``.
 
 All three wrap one :class:`World`; configuration keys are the fields of :class:`EnvConfig`.
+
+``V2XTorchEnv`` is imported on first use: torch, tensordict and TorchRL take ~4 s to import, which
+``gym.make`` and ``parallel_env`` (NumPy only) do not need.
 """
+
+from typing import TYPE_CHECKING
 
 from .config import EnvConfig, make_config
 from .gym_env import V2XIntersectionEnv
 from .parallel_env import V2XParallelEnv, parallel_env
-from .torchrl_env import V2XTorchEnv
 from .world import StepError, World
+
+if TYPE_CHECKING:
+    from .torchrl_env import V2XTorchEnv
 
 __all__ = ["EnvConfig", "StepError", "V2XIntersectionEnv", "V2XParallelEnv", "V2XTorchEnv", "World",
            "make_config", "parallel_env"]
+
+
+def __getattr__(name: str):
+    if name == "V2XTorchEnv":  # imported on first use (torch is heavy to import)
+        from .torchrl_env import V2XTorchEnv
+
+        return V2XTorchEnv
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | {"V2XTorchEnv"})

@@ -177,6 +177,8 @@ class Flow:
         """A vehicle stopped for a while by the ego standing in its way steers around it (the
         ego's own driver may be waiting for that very vehicle: a deadlock otherwise)."""
         t = world.table
+        if r not in self.dodge and not t.wait[r] > DODGE_AFTER_S:
+            return  # the common case, decided without the geometry below
         rel = world_to_local_2d(t.pos[0], t.pos[r], float(t.yaw[r]))
         reach = 0.5 * (t.length[0] + t.length[r]) + 1.0
         if r in self.dodge:
@@ -199,9 +201,10 @@ class Flow:
 
     def path_s(self, t) -> np.ndarray:
         """Path arc length of each flow row (``nan`` where inactive)."""
-        pos = np.clip(t.plan_pos[self.rows], 0, len(self.path) - 1)
-        s = self.cum[pos] + t.s[self.rows]
-        return np.where(t.active[self.rows] & (t.plan[self.rows] == self.plan), s, np.nan)
+        rows = self.rows
+        pos = np.minimum(np.maximum(t.plan_pos[rows], 0), len(self.path) - 1)  # np.clip, cheaper
+        s = self.cum[pos] + t.s[rows]
+        return np.where(t.active[rows] & (t.plan[rows] == self.plan), s, np.nan)
 
     def place(self, world, row: int, s: float, speed: float) -> None:
         """Put flow row ``row`` at path arc length ``s`` driving at ``speed``."""
@@ -250,18 +253,23 @@ class Flow:
     def step(self, world) -> None:
         """Keep speeds, retire vehicles past the sink, spawn at the source, break deadlocks."""
         t, ix = world.table, world.town.index
+        rows = self.rows
         s = self.path_s(t)
-        for r, sr in zip(self.rows, s):
-            if not t.active[r] or sr > self.end_s:
-                if t.active[r] or t.pos[r, 0] != FAR[0]:
-                    park(t, r)
-                self.dodge.pop(int(r), None)
-                continue
-            turning = ix.turn[t.lane[r]] in (LEFT, RIGHT)
-            t.v0[r] = 1.0 if turning else self.speed / ix.speed_limit[t.lane[r]]
-            self._dodge(world, int(r))
-        s = self.path_s(t)
-        free = self.rows[~t.active[self.rows]]
+        active = t.active[rows]
+        gone = ~active | (s > self.end_s)  # (s is nan where inactive)
+        for r in rows[gone].tolist():
+            if t.active[r] or t.pos[r, 0] != FAR[0]:
+                park(t, r)
+            self.dodge.pop(r, None)
+        on = rows[~gone]
+        if len(on):
+            lane = t.lane[on]
+            turning = (ix.turn[lane] == LEFT) | (ix.turn[lane] == RIGHT)
+            t.v0[on] = np.where(turning, 1.0, self.speed / ix.speed_limit[lane])
+            for r in on.tolist():  # rows only touch their own columns (and read the ego's)
+                self._dodge(world, r)
+        s = np.where(gone, np.nan, s)  # path_s after the parking above (nothing else moved)
+        free = rows[~t.active[rows]]
         ahead = s[np.isfinite(s)] - self.start_s
         if (
             len(free)

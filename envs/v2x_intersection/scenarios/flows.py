@@ -156,6 +156,7 @@ class Flow:
         ix, t = world.town.index, world.table
         self.path = [int(x) for x in path]
         self.cum = np.concatenate([[0.0], np.cumsum(ix.length[self.path])])
+        self._cum = self.cum.tolist()
         self.start_s = float(max(start_s, 0.0))
         self.end_s = float(min(end_s if end_s is not None else np.inf, self.cum[-1] - 1.0))
         self.rows = np.asarray(rows, np.int64)
@@ -177,8 +178,6 @@ class Flow:
         """A vehicle stopped for a while by the ego standing in its way steers around it (the
         ego's own driver may be waiting for that very vehicle: a deadlock otherwise)."""
         t = world.table
-        if r not in self.dodge and not t.wait[r] > DODGE_AFTER_S:
-            return  # the common case, decided without the geometry below
         rel = world_to_local_2d(t.pos[0], t.pos[r], float(t.yaw[r]))
         reach = 0.5 * (t.length[0] + t.length[r]) + 1.0
         if r in self.dodge:
@@ -201,10 +200,16 @@ class Flow:
 
     def path_s(self, t) -> np.ndarray:
         """Path arc length of each flow row (``nan`` where inactive)."""
-        rows = self.rows
-        pos = np.minimum(np.maximum(t.plan_pos[rows], 0), len(self.path) - 1)  # np.clip, cheaper
-        s = self.cum[pos] + t.s[rows]
-        return np.where(t.active[rows] & (t.plan[rows] == self.plan), s, np.nan)
+        return np.array(self._path_s(t, t.active[self.rows].tolist()))
+
+    def _path_s(self, t, active: list) -> list[float]:
+        """:meth:`path_s` as Python floats, given ``t.active`` of the rows (a few rows: Python
+        numbers cost less than NumPy's calls; the sums are the same floats)."""
+        rows, last, cum = self.rows, len(self.path) - 1, self._cum
+        out = []
+        for a, plan, k, s in zip(active, t.plan[rows].tolist(), t.plan_pos[rows].tolist(), t.s[rows].tolist()):
+            out.append(cum[min(max(k, 0), last)] + s if a and plan == self.plan else np.nan)
+        return out
 
     def place(self, world, row: int, s: float, speed: float) -> None:
         """Put flow row ``row`` at path arc length ``s`` driving at ``speed``."""
@@ -254,28 +259,24 @@ class Flow:
         """Keep speeds, retire vehicles past the sink, spawn at the source, break deadlocks."""
         t, ix = world.table, world.town.index
         rows = self.rows
-        s = self.path_s(t)
-        active = t.active[rows]
-        gone = ~active | (s > self.end_s)  # (s is nan where inactive)
-        for r in rows[gone].tolist():
-            if t.active[r] or t.pos[r, 0] != FAR[0]:
-                park(t, r)
-            self.dodge.pop(r, None)
-        on = rows[~gone]
-        if len(on):
-            lane = t.lane[on]
-            turning = (ix.turn[lane] == LEFT) | (ix.turn[lane] == RIGHT)
-            t.v0[on] = np.where(turning, 1.0, self.speed / ix.speed_limit[lane])
-            for r in on.tolist():  # rows only touch their own columns (and read the ego's)
+        # per-row values as Python numbers: a few rows, where NumPy's per-call cost dominates
+        active, lanes, wait = t.active[rows].tolist(), t.lane[rows].tolist(), t.wait[rows].tolist()
+        s = self._path_s(t, active)  # nan where inactive
+        free, ahead = [], []
+        for k, r in enumerate(rows.tolist()):
+            if not active[k] or s[k] > self.end_s:
+                if active[k] or t.pos[r, 0] != FAR[0]:
+                    park(t, r)
+                self.dodge.pop(r, None)
+                free.append(r)  # inactive now
+                continue
+            if s[k] == s[k]:  # path_s after the parking above: rows only touch their own columns
+                ahead.append(s[k] - self.start_s)
+            turning = ix.turn[lanes[k]] in (LEFT, RIGHT)
+            t.v0[r] = 1.0 if turning else self.speed / ix.speed_limit[lanes[k]]
+            if r in self.dodge or wait[k] > DODGE_AFTER_S:
                 self._dodge(world, r)
-        s = np.where(gone, np.nan, s)  # path_s after the parking above (nothing else moved)
-        free = rows[~t.active[rows]]
-        ahead = s[np.isfinite(s)] - self.start_s
-        if (
-            len(free)
-            and (len(ahead) == 0 or ahead.min() >= self._gap)
-            and self._free(world, self.start_s, 8.0)
-        ):
+        if free and (not ahead or min(ahead) >= self._gap) and self._free(world, self.start_s, 8.0):
             self.place(world, free[0], self.start_s, self.speed)
             self._gap = float(world.rng.uniform(*self.spacing))
 

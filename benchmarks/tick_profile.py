@@ -7,7 +7,12 @@ from Python are wrapped with a timer. Then the run drives one of two workloads:
 - ``objects``: the suite's objects row (``suite.OBJECTS_CONFIG``: ``gym.make``, a test50 route
   with its scenario, a constant action, resets included), one process;
 - ``batched``: one native TorchRL env of ``worlds`` worlds (``V2XTorchEnv``, random actions,
-  TorchRL's ``rollout``), in this process.
+  TorchRL's ``rollout``), in this process;
+- ``test50``: every route of the test50 suite (the first ``routes`` of them) in turn, ``ticks /
+  routes`` ticks each (``gym.make``, a constant action, resets included; the routes' construction
+  is not timed), after an untimed pass of a few ticks over them all. Its report adds the time of
+  each scenario type's hooks (``Scenario.tick`` and ``check_passed``, which the stages
+  ``run_scenarios`` and ``check_events`` include) per tick that a scenario of the type is live.
 
 It reports microseconds per tick (per world-step in ``batched``) of every stage and every kernel,
 with calls per tick, and splits the tick into time inside kernels (numba's dispatch included)
@@ -18,7 +23,8 @@ look at. Without numba ``move_traffic`` runs as four stages (``move_ego``, ``upd
 tick minus its stages: the env's own glue, Gymnasium's wrappers (objects), TorchRL and
 TensorDict (batched).
 
-Run ``v2xbench profile`` (or ``--mode batched``); writes ``OUT/profile_<mode>.json`` and ``.md``.
+Run ``v2xbench profile`` (or ``--mode batched`` / ``test50``); writes ``OUT/profile_<mode>.json``
+and ``.md``.
 Without numba (``V2XBENCH_NO_JIT=1``) there are no kernels and all the time is Python.
 """
 
@@ -35,7 +41,9 @@ from collections.abc import Callable, Iterator
 from datetime import datetime, timezone
 from pathlib import Path
 
-MODES = ("objects", "batched")
+MODES = ("objects", "batched", "test50")
+#: test50 routes (all of them)
+TEST50_ROUTES = 50
 #: ``World`` methods timed as stages, in the order a tick runs them (without numba, ``move_traffic``
 #: calls the four after it)
 WORLD_STAGES = ("send_builtin", "move_traffic", "move_ego", "update_signals", "move_followers", "move_walkers",
@@ -82,6 +90,45 @@ class _Timers:
                     self.top_calls[key] += 1
 
         timed.__wrapped__ = fn
+        return timed
+
+
+class _ScenarioTimers:
+    """Seconds in each scenario type's hooks, and the ticks in which one was live: a hook called
+    inside another hook (``check_passed`` from ``tick``) counts once, in the outer one."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = defaultdict(float)
+        self.ticks: dict[str, int] = defaultdict(int)
+        self._depth = 0
+
+    def clear(self) -> None:
+        self.seconds.clear()
+        self.ticks.clear()
+
+    def watch(self, world) -> None:
+        """Time the hooks of ``world``'s scenarios (call after each reset: new scenarios)."""
+        for sc in world.scenarios:
+            name = type(sc).__name__
+            sc.tick = self._wrap(sc.tick, name, count=True)
+            sc.check_passed = self._wrap(sc.check_passed, name, count=False)
+
+    def _wrap(self, fn: Callable, name: str, count: bool) -> Callable:
+        clock = time.perf_counter
+
+        def timed(*args, **kwargs):
+            if count:
+                self.ticks[name] += 1
+            if self._depth:
+                return fn(*args, **kwargs)
+            self._depth += 1
+            t0 = clock()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                self.seconds[name] += clock() - t0
+                self._depth -= 1
+
         return timed
 
 
@@ -147,7 +194,7 @@ def _stage_patches(timers: _Timers, mode: str) -> list[tuple[object, str, object
     stages = tuple(timed.get(f.__name__, f) for f in world.TICK_STAGES)
     patches += [(world, "TICK_STAGES", stages), (batch, "TICK_STAGES", stages)]
     patches.append((episode.EpisodeTracker, "after_step", timers.wrap(episode.EpisodeTracker.after_step, "after_step")))
-    if mode == "objects":
+    if mode in ("objects", "test50"):  # gym.make's single env
         patches.append((gym_env, "validate_control", timers.wrap(gym_env.validate_control, "validate_control")))
         patches.append((gym_env, "ego_observation", timers.wrap(gym_env.ego_observation, "observation")))
     else:
@@ -189,6 +236,41 @@ def _run_objects(ticks: int, clear: Callable[[], None]) -> tuple[float, int, dic
     return total, n, dict(OBJECTS_CONFIG)
 
 
+def _run_test50(ticks: int, routes: int, clear: Callable[[], None],
+                scenarios: _ScenarioTimers) -> tuple[float, int, dict]:
+    import gymnasium as gym
+    import numpy as np
+
+    import v2xbench  # noqa: F401  (registers the ids)
+
+    action = np.array([0.4, 0.0, 0.0], np.float32)
+    per = max(ticks // routes, 1)
+
+    def drive(env, n: int, timed: bool) -> float:
+        """``n`` ticks (resets included) of ``env``; seconds taken."""
+        w = env.unwrapped.world
+        t0 = time.perf_counter()
+        env.reset(seed=0)
+        if timed:
+            scenarios.watch(w)
+        for k in range(n):
+            _, _, term, trunc, _ = env.step(action)
+            if term or trunc:
+                env.reset(seed=k + 1)
+                if timed:
+                    scenarios.watch(w)
+        return time.perf_counter() - t0
+
+    envs = [gym.make("V2XIntersection-v0", suite="test50", route_index=i) for i in range(routes)]
+    for env in envs:  # warm-up: every route's kernels compiled or loaded
+        drive(env, 20, timed=False)
+    clear()
+    total = sum(drive(env, per, timed=True) for env in envs)
+    for env in envs:
+        env.close()
+    return total, per * routes, {"suite": "test50", "routes": routes, "ticks_per_route": per}
+
+
 def _run_batched(ticks: int, worlds: int, clear: Callable[[], None]) -> tuple[float, int, dict]:
     import torch
     from v2xbench.envs.v2x_intersection import V2XTorchEnv
@@ -204,33 +286,41 @@ def _run_batched(ticks: int, worlds: int, clear: Callable[[], None]) -> tuple[fl
     return total, int(td.numel()), {"num_worlds": worlds}
 
 
-def profile(mode: str = "objects", ticks: int = 3000, worlds: int = 32) -> dict:
-    """Run the ``mode`` workload for ``ticks`` ticks (per world in ``batched``) under the timers.
+def profile(mode: str = "objects", ticks: int = 3000, worlds: int = 32, routes: int = TEST50_ROUTES) -> dict:
+    """Run the ``mode`` workload for ``ticks`` ticks (per world in ``batched``; over ``routes``
+    routes in ``test50``) under the timers.
 
     Returns:
         a JSON-able report: ``us_per_tick`` (per world-step in ``batched``), ``stages`` and
         ``kernels`` (``{name: {"us": per tick, "calls": per tick, "inside": the stage that every
         call ran inside, or None}}``, largest first),
-        ``kernel_us`` / ``python_us`` (inside / outside kernels), ``other_us`` (outside the stages).
+        ``kernel_us`` / ``python_us`` (inside / outside kernels), ``other_us`` (outside the stages);
+        in ``test50`` also ``scenarios`` (``{type: {"us_live": us per tick a scenario of the type
+        was live, "ticks": those ticks, "us": us per tick of the run}}``, largest ``us`` first).
 
     Raises:
-        ValueError: unknown ``mode``, or ``ticks`` / ``worlds`` below 1.
+        ValueError: unknown ``mode``, or ``ticks`` / ``worlds`` / ``routes`` out of range.
     """
     if mode not in MODES:
         raise ValueError(f"profile: unknown mode {mode!r} (modes: {', '.join(MODES)})")
     if ticks < 1 or worlds < 1:
         raise ValueError(f"profile: ticks={ticks} and worlds={worlds} must be >= 1")
+    if not 1 <= routes <= TEST50_ROUTES:
+        raise ValueError(f"profile: routes={routes} must be in [1, {TEST50_ROUTES}]")
     from v2xbench.envs.v2x_intersection.jit import HAVE_JIT
 
-    stage_t, kernel_t = _Timers(), _Timers()
+    stage_t, kernel_t, scen_t = _Timers(), _Timers(), _ScenarioTimers()
 
     def clear() -> None:  # the workloads clear the timers after their warm-up
         stage_t.clear()
         kernel_t.clear()
+        scen_t.clear()
 
     with _patched(_stage_patches(stage_t, mode) + _kernel_patches(kernel_t)):
         if mode == "objects":
             total, steps, config = _run_objects(ticks, clear)
+        elif mode == "test50":
+            total, steps, config = _run_test50(ticks, routes, clear, scen_t)
         else:
             total, steps, config = _run_batched(ticks, worlds, clear)
 
@@ -242,13 +332,19 @@ def profile(mode: str = "objects", ticks: int = 3000, worlds: int = 32) -> dict:
     stages, kernels = per_tick(stage_t), per_tick(kernel_t)
     us = 1e6 * total / steps
     kernel_us = 1e6 * kernel_t.outer / steps
-    return {
+    report = {
         "benchmark": "tick_profile", "mode": mode, "config": config, "numba": bool(HAVE_JIT),
         "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), "steps": steps,
         "us_per_tick": us, "kernel_us": kernel_us, "python_us": us - kernel_us,
         "other_us": us - 1e6 * stage_t.outer / steps,
         "kernel_calls": sum(v["calls"] for v in kernels.values()), "stages": stages, "kernels": kernels,
     }
+    if mode == "test50":
+        names = sorted(scen_t.seconds, key=lambda k: -scen_t.seconds[k])
+        report["scenarios"] = {k: {"us_live": 1e6 * scen_t.seconds[k] / max(scen_t.ticks[k], 1),
+                                   "ticks": scen_t.ticks[k], "us": 1e6 * scen_t.seconds[k] / steps}
+                               for k in names}
+    return report
 
 
 def table(report: dict) -> str:
@@ -273,6 +369,11 @@ def table(report: dict) -> str:
         lines += ["", "| kernel | us per " + unit + " | calls | share |", "| --- | ---: | ---: | ---: |"]
         for k, v in report["kernels"].items():
             lines.append(f"| {k} | {v['us']:.1f} | {v['calls']:.2f} | {100 * v['us'] / us:.0f} % |")
+    if report.get("scenarios"):
+        lines += ["", "| scenario type (hooks) | us per live tick | live ticks | us per tick | share |",
+                  "| --- | ---: | ---: | ---: | ---: |"]
+        for k, v in report["scenarios"].items():
+            lines.append(f"| {k} | {v['us_live']:.1f} | {v['ticks']} | {v['us']:.1f} | {100 * v['us'] / us:.0f} % |")
     return "\n".join(lines) + "\n"
 
 
@@ -280,13 +381,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", choices=MODES, default="objects", help="workload (default: objects)")
     p.add_argument("--ticks", type=int, default=3000, help="ticks to time (per world in batched; default 3000)")
     p.add_argument("--worlds", type=int, default=32, help="worlds of the batched env (default 32)")
+    p.add_argument("--routes", type=int, default=TEST50_ROUTES,
+                   help=f"test50 mode: the first ROUTES routes (default all {TEST50_ROUTES})")
     p.add_argument("--out", default="benchmarks/results", help="directory for profile_<mode>.json and .md")
 
 
 def run(args: argparse.Namespace) -> int:
     from .suite import _write
 
-    report = profile(args.mode, args.ticks, args.worlds)
+    report = profile(args.mode, args.ticks, args.worlds, args.routes)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     md = table(report)

@@ -71,8 +71,29 @@ def test_batched_profile(tmp_path):
     assert _originals() == before
 
 
+def test_test50_profile_times_each_scenario_type(tmp_path):
+    before = _originals()
+    assert cli_main(["profile", "--mode", "test50", "--ticks", "30", "--routes", "3", "--out", str(tmp_path)]) == 0
+    report = json.loads((tmp_path / "profile_test50.json").read_text())
+    _check(report, "test50")
+    assert report["config"] == {"suite": "test50", "routes": 3, "ticks_per_route": 10} and report["steps"] == 30
+    scen = report["scenarios"]
+    # test50 routes 0-2 (ParkingExit, NonSignalizedJunctionLeftTurn; ...): each live scenario timed
+    assert {"ParkingExit", "NonSignalizedJunctionLeftTurn"} <= set(scen)
+    for v in scen.values():
+        assert v["ticks"] >= 10 and v["us_live"] > 0
+        assert v["us"] == pytest.approx(v["us_live"] * v["ticks"] / report["steps"])
+    # the hooks run inside the stages run_scenarios and check_events
+    hooks = sum(v["us"] for v in scen.values())
+    assert hooks <= report["stages"]["run_scenarios"]["us"] + report["stages"]["check_events"]["us"]
+    assert "| scenario type (hooks) |" in (tmp_path / "profile_test50.md").read_text()
+    assert _originals() == before
+
+
 def test_bad_arguments():
     with pytest.raises(ValueError, match="unknown mode"):
         tp.profile("sensors")
     with pytest.raises(ValueError, match="ticks=0"):
         tp.profile("objects", ticks=0)
+    with pytest.raises(ValueError, match="routes=51"):
+        tp.profile("test50", routes=51)

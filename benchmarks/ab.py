@@ -7,7 +7,10 @@ then this checkout, each timing CPU seconds per tick of one workload:
 
 - ``objects``: ``gym.make`` on test50 route 0, constant action, resets included (the suite's
   objects row), 300 ticks of warm-up then ``--ticks`` timed;
-- ``batched``: the native TorchRL env with 32 worlds and random actions, per world-step.
+- ``batched``: the native TorchRL env with 32 worlds and random actions, per world-step;
+- ``test50``: every test50 route in turn (``--ticks`` / 50 ticks each, constant action, resets
+  included; the routes built and 20 ticks of each driven before the clock starts), the workload
+  of ``v2xbench profile --mode test50``, with all 38 scenario types' hooks.
 
 It prints both series and the median of the pairwise ratios (REV / this: above 1 means this
 checkout is faster), and writes them as JSON with ``--out``. Both sides are imported the same way:
@@ -38,7 +41,25 @@ if len(sys.argv) > 3:  # import the revision: bypass the editable install, put i
     sys.path.insert(0, sys.argv[3])
 import numpy as np
 mode, ticks = sys.argv[1], int(sys.argv[2])
-if mode == "objects":
+if mode == "test50":
+    import gymnasium as gym
+    import v2xbench  # noqa: F401
+    envs = [gym.make("V2XIntersection-v0", suite="test50", route_index=i) for i in range(50)]
+    act = np.array([0.4, 0.0, 0.0], np.float32)
+    def drive(env, n):
+        env.reset(seed=0)
+        for k in range(n):
+            _, _, term, trunc, _ = env.step(act)
+            if term or trunc:
+                env.reset(seed=k + 1)
+    for env in envs:
+        drive(env, 20)
+    per = max(ticks // 50, 1)
+    c0 = time.process_time()
+    for env in envs:
+        drive(env, per)
+    print(1e6 * (time.process_time() - c0) / (per * 50))
+elif mode == "objects":
     import gymnasium as gym
     import v2xbench  # noqa: F401
     env = gym.make("V2XIntersection-v0", suite="test50", route_index=0)
@@ -66,6 +87,7 @@ else:
     print(1e6 * (time.process_time() - c0) / (steps * 32))
 """
 
+MODES = ("objects", "batched", "test50")
 _PARTS = ("envs", "agents", "collectors", "benchmarks")
 #: ticks of the untimed run of each side before the pairs (every kernel compiled or cached)
 WARMUP_TICKS = 2000
@@ -92,8 +114,8 @@ def _measure(mode: str, ticks: int, pkg: Path | None) -> float:
 
 
 def ab(rev: str, mode: str = "objects", pairs: int = 5, ticks: int = 4000, repo: Path | None = None) -> dict:
-    """Interleaved A/B of ``rev`` (A) against the checkout at ``repo`` (B); us per tick (objects)
-    or per world-step (batched)."""
+    """Interleaved A/B of ``rev`` (A) against the checkout at ``repo`` (B); us per tick (objects,
+    test50) or per world-step (batched)."""
     repo = Path(repo or Path(__file__).resolve().parents[1])
     with tempfile.TemporaryDirectory(prefix="v2xbench-ab-") as tmp:
         tree = Path(tmp) / "tree"
@@ -115,14 +137,14 @@ def ab(rev: str, mode: str = "objects", pairs: int = 5, ticks: int = 4000, repo:
             subprocess.run(["git", "-C", str(repo), "worktree", "remove", "--force", str(tree)], check=False,
                            capture_output=True)
     ratios = [x / y for x, y in zip(a, b)]
-    unit = "us per tick" if mode == "objects" else "us per world-step"
+    unit = "us per world-step" if mode == "batched" else "us per tick"
     return {"revision": rev, "commit": sha, "mode": mode, "unit": unit, "revision_us": a, "this_us": b,
             "median_ratio": statistics.median(ratios)}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("rev", help="git revision to compare this checkout with (e.g. HEAD~3, a commit, a branch)")
-    p.add_argument("--mode", choices=("objects", "batched"), default="objects")
+    p.add_argument("--mode", choices=MODES, default="objects")
     p.add_argument("--pairs", type=int, default=5, help="pairs of runs (default 5)")
     p.add_argument("--ticks", type=int, default=4000, help="timed ticks per run (world-steps in batched)")
     p.add_argument("--out", default=None, help="write the result as JSON")

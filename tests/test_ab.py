@@ -20,8 +20,9 @@ def test_package_dir_imports_from_the_given_tree(tmp_path):
     assert world_file.startswith(str(pkg)) and ab_file.startswith(str(pkg))
 
 
-def test_child_measures_this_checkout():
-    us = ab._measure("objects", 20, None)
+@pytest.mark.parametrize("mode, ticks", [("objects", 20), ("test50", 50)])
+def test_child_measures_this_checkout(mode, ticks):
+    us = ab._measure(mode, ticks, None)
     assert 0.0 < us < 1e6
 
 

@@ -11,6 +11,12 @@ Two code versions that print the same hashes computed the same bytes on these ru
 ``--out F`` writes the hashes as JSON; ``--check F`` compares with such a file and exits 1 on a
 difference (naming the configurations). ``--only NAME`` runs the configurations whose name
 contains NAME.
+
+Hashes compare code versions on one machine. Across machines they can differ with the same
+code: NumPy picks its SIMD code for ``arctan2``, ``power``, ``exp``, ``log``, ``hypot`` ... by the
+CPU (on AVX-512 CPUs it differs from other CPUs' results by an ulp on a few percent of inputs),
+and those last bits grow into different trajectories. The file records the NumPy version and
+the SIMD extensions NumPy found (``_platform``), and ``--check`` says when they differ.
 """
 
 from __future__ import annotations
@@ -148,23 +154,40 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--check", default=None, help="compare with hashes saved by --out; exit 1 on a difference")
 
 
+#: key of the fingerprint file's platform record (not a configuration)
+PLATFORM_KEY = "_platform"
+
+
+def platform_record() -> dict:
+    """What decides the last bits of NumPy's transcendental functions here: NumPy's version and
+    the SIMD extensions it dispatches to on this CPU."""
+    simd = np.show_config(mode="dicts").get("SIMD Extensions", {})
+    return {"numpy": np.__version__, "simd": sorted(simd.get("found", []))}
+
+
 def run(args: argparse.Namespace) -> int:
     path = "NumPy" if os.environ.get("V2XBENCH_NO_JIT", "") not in ("", "0") else "numba"
     print(f"behaviour fingerprint ({path} path)")
     got = fingerprint(args.only)
+    here = platform_record()
     if args.out:
         out = Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)
-        write_atomic(out, json.dumps(got, indent=2) + "\n")
+        write_atomic(out, json.dumps({PLATFORM_KEY: here, **got}, indent=2) + "\n")
         print(f"wrote {out}")
     if args.check:
         want = json.loads(Path(args.check).read_text())
+        saved = want.pop(PLATFORM_KEY, None)
         bad = [k for k in got if k in want and want[k] != got[k]]
         missing = [k for k in got if k not in want]
         for k in bad:
             print(f"DIFFERENT: {k}: {want[k]} -> {got[k]}", file=sys.stderr)
         if missing:
             print(f"not in {args.check}: {', '.join(missing)}", file=sys.stderr)
+        if bad and saved is not None and saved != here:
+            print(f"note: {args.check} was saved with NumPy {saved['numpy']} dispatching to {saved['simd']}, this run "
+                  f"has NumPy {here['numpy']} with {here['simd']}: NumPy's arctan2, power, exp ... can differ in the "
+                  "last bit between these, so compare code versions on one machine", file=sys.stderr)
         if bad:
             return 1
         print(f"same as {args.check} ({len(got) - len(missing)} configurations)")

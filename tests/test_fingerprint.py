@@ -22,8 +22,14 @@ def test_check_flags_a_difference(tmp_path, monkeypatch, capsys):
     saved = tmp_path / "fp.json"
     args = argparse.Namespace(only=None, out=str(saved), check=None)
     assert fp.run(args) == 0
-    assert set(json.loads(saved.read_text())) == {"tiny", "tiny torch"}
+    assert set(json.loads(saved.read_text())) == {"tiny", "tiny torch", fp.PLATFORM_KEY}
+    assert json.loads(saved.read_text())[fp.PLATFORM_KEY] == fp.platform_record()
     assert fp.run(argparse.Namespace(only="torch", out=None, check=str(saved))) == 0
-    saved.write_text(json.dumps({"tiny": "0" * 16}))
+    saved.write_text(json.dumps({"tiny": "0" * 16}))  # an older file, with no platform record
     assert fp.run(argparse.Namespace(only=None, out=None, check=str(saved))) == 1
-    assert "DIFFERENT: tiny" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "DIFFERENT: tiny" in err and "NumPy" not in err
+    # saved on a machine where NumPy dispatched to other SIMD code: --check says so
+    saved.write_text(json.dumps({"tiny": "0" * 16, fp.PLATFORM_KEY: {"numpy": "0.0", "simd": ["NONE"]}}))
+    assert fp.run(argparse.Namespace(only=None, out=None, check=str(saved))) == 1
+    assert "dispatching to ['NONE']" in capsys.readouterr().err

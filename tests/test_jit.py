@@ -165,6 +165,32 @@ def test_idm_matches_numpy(monkeypatch):
         np.testing.assert_array_equal(a, b)
 
 
+def test_libm_functions_are_the_c_library_elementwise():
+    """The fallbacks' transcendental functions give math's (the C library's) bits element by
+    element on every CPU (NumPy's ufuncs need not, on AVX-512), broadcast like ufuncs, and
+    answer NaN or inf where math raises, as NumPy does."""
+    import math
+
+    from v2xbench.envs.v2x_intersection import libm
+
+    rng = np.random.default_rng(5)
+    x, y = rng.uniform(-10, 10, 2000), rng.uniform(-10, 10, 2000)
+    pairs = ((libm.arctan2, math.atan2, (y, x)), (libm.hypot, math.hypot, (x, y)),
+             (libm.power, math.pow, (np.abs(x), np.full_like(x, 4.0))), (libm.tan, math.tan, (x,)),
+             (libm.arcsin, math.asin, (x / 10,)))
+    for ours, ref, args in pairs:
+        got = ours(*args)
+        assert got.dtype == np.float64 and got.shape == x.shape
+        assert got.tobytes() == np.array([ref(*t) for t in zip(*args)]).tobytes(), ours.__name__
+    assert libm.arctan2(np.ones((3, 1)), np.ones(4)).shape == (3, 4)
+    assert float(libm.tan(0.5)) == math.tan(0.5)
+    with np.errstate(invalid="ignore", over="ignore"):
+        for ours, ufunc, args in ((libm.arcsin, np.arcsin, (2.0,)), (libm.tan, np.tan, (np.inf,)),
+                                  (libm.power, np.power, (-2.0, 0.5)), (libm.power, np.power, (10.0, 400.0)),
+                                  (libm.power, np.power, (-10.0, 401.0)), (libm.arctan2, np.arctan2, (np.nan, 1.0))):
+            np.testing.assert_array_equal(ours(*args), ufunc(*args))
+
+
 def test_window_project_matches_numpy(monkeypatch):
     from v2xbench.agents.expert import route_track
     from v2xbench.envs.v2x_intersection.route_files import (

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import libm
 from .jit import HAVE_JIT, _njit, idm_kernel
 
 
@@ -45,7 +46,7 @@ def bicycle_step(
     v_new = np.clip(v + accel * dt, 0.0, params.max_speed)
     accel = (v_new - v) / dt
     delta = steer * params.max_steer
-    yaw_rate = v_new * np.tan(delta) / params.wheelbase
+    yaw_rate = v_new * libm.tan(delta) / params.wheelbase
     yaw_new = yaw + yaw_rate * dt
     yaw_new = (yaw_new + np.pi) % (2 * np.pi) - np.pi
     x_new = x + v_new * np.cos(yaw_new) * dt
@@ -121,7 +122,7 @@ def idm_accel(v: np.ndarray, v0: np.ndarray, gap: np.ndarray, dv: np.ndarray, p:
                           p.delta, p.max_brake)
     v0 = np.maximum(v0, 0.1)
     s_star = p.min_gap + np.maximum(0.0, v * p.time_headway + v * dv / (2.0 * np.sqrt(p.accel * p.decel)))
-    free = 1.0 - (v / v0) ** p.delta
+    free = 1.0 - libm.power(v / v0, p.delta)
     with np.errstate(divide="ignore", invalid="ignore"):
         inter = np.where(np.isfinite(gap), (s_star / np.maximum(gap, 0.1)) ** 2, 0.0)
     return np.clip(p.accel * (free - inter), -p.max_brake, p.accel)

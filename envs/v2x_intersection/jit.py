@@ -4,7 +4,9 @@ numba is installed with the package but optional at run time: when it is missing
 ``V2XBENCH_NO_JIT=1`` is set, :data:`HAVE_JIT` is ``False`` and callers take their
 NumPy path. Every kernel repeats the NumPy path's float operations in the same order and dtype
 (no fastmath, no fused multiply-add), so both paths give bit-identical results; the tests check
-that on random scenes.
+that on random scenes. Where a kernel calls ``arctan2``, ``power``, ``tan``, ``hypot`` or
+``arcsin``, its NumPy path takes them from :mod:`.libm` (the C library, as numba does), since
+NumPy's own ufuncs differ from it by an ulp on CPUs with AVX-512.
 
 Kernels are cached on disk (``cache=True``). numba checks only the caller's own source file, so
 after editing a kernel that others in another module call, delete the stale caches

@@ -32,6 +32,7 @@ import math
 import numpy as np
 from gymnasium import spaces
 
+from . import libm
 from .channel import message_space
 from .geometry import (
     local_to_world_2d,
@@ -219,7 +220,7 @@ def ego_observation(world) -> dict[str, np.ndarray]:
     if ix.stop_at_end[lane]:
         _, s_lane, _ = ix.project(ego_xy[None], point_ids=ix.lane_point_ids(lane))
         dist_line = float(ix.length[lane] - STOP_LINE_SETBACK - s_lane[0])
-    yaw_rate = t.speed[0] * np.tan(world.last_control[1] * world.params.max_steer) / world.params.wheelbase
+    yaw_rate = t.speed[0] * float(libm.tan(world.last_control[1] * world.params.max_steer)) / world.params.wheelbase
     ego = np.array([t.speed[0], t.accel[0], yaw_rate, *world.last_control, light, dist_line,
                     world.monitor.route_completion], np.float32)
     v2x, info = _v2x(world, ego_xy, ego_yaw)

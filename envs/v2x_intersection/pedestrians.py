@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import libm
 from .actors import WALKER, ActorTable
 from .classes import VEHICLE_CLASSES
 from .draws import signs
@@ -76,7 +77,7 @@ def step_walkers(t: ActorTable, net: SidewalkNetwork, rng: np.random.Generator, 
         blocked = ego_in_the_way(t, t.pos[crossing] + u * PED_LOOKAHEAD) & (t.scenario[crossing] < 0)
         step = np.where(blocked, 0.0, t.speed[crossing] * dt)
         t.pos[crossing] += u * np.minimum(step, dist)[:, None]
-        t.yaw[crossing] = np.arctan2(u[:, 1], u[:, 0])
+        t.yaw[crossing] = libm.arctan2(u[:, 1], u[:, 0])
         done = crossing[(dist <= step) & (t.scenario[crossing] < 0)]  # scenario walkers stop at the end
         t.speed[crossing[(dist <= step) & (t.scenario[crossing] >= 0)]] = 0.0
         if len(done):

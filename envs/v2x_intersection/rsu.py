@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import libm
 from .geometry import pose_matrix, wrap_angle
 from .jit import HAVE_JIT
 from .jit_perception import select_active_kernel, sidewalk_snap_kernel
@@ -184,7 +185,7 @@ def select_active(rsus: RSUSet, ego_xy: np.ndarray, ego_yaw: float, max_range: f
     d = rsus.pose[:, :2] - ego_xy
     dist = np.linalg.norm(d, axis=1)
     ahead = d @ np.array([np.cos(ego_yaw), np.sin(ego_yaw)]) > -10.0
-    to_ego = np.arctan2(-d[:, 1], -d[:, 0])
+    to_ego = libm.arctan2(-d[:, 1], -d[:, 0])
     facing = np.abs(wrap_angle(to_ego - rsus.pose[:, 3])) < FACING_MAX_ANGLE
     ok = ahead & facing & (dist < max_range)
     # a unit placed for a scenario's conflict point wins over nearer general-purpose units

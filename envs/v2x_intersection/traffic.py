@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import libm
 from .actors import DRIVER, EGO, PARKED, RIDER, STATIC, ActorTable
 from .draws import pick
 from .dynamics import IDMParams, idm_accel
@@ -145,7 +146,7 @@ def step_followers(t: ActorTable, town: Town, lane_signal: np.ndarray, rng: np.r
     p, h = ix.pose_at(lane, s)
     normal = np.stack([-np.sin(h), np.cos(h)], -1)
     t.pos[idx] = p + lat[:, None] * normal
-    t.yaw[idx] = h + np.where(bike, 0.0, np.arctan2(dlat / dt, np.maximum(v_new, 1.0)))
+    t.yaw[idx] = h + np.where(bike, 0.0, libm.arctan2(dlat / dt, np.maximum(v_new, 1.0)))
     return np.unique(np.array(respawn, np.int64))
 
 

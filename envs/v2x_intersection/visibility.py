@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import libm
 from .geometry import local_to_world_2d, wrap_angle
 from .jit import HAVE_JIT, visible_fraction_kernel
 from .raycast import END_TOLERANCES, Boxes, segments_blocked
@@ -114,7 +115,7 @@ def visible_fraction(
     rel2 = np.einsum("ij,ij->i", rel, rel)
     ok = rel2 <= float(max_range) ** 2
     if hfov is not None and hfov < 2.0 * np.pi:
-        bearing = np.arctan2(rel[:, 1], rel[:, 0])
+        bearing = libm.arctan2(rel[:, 1], rel[:, 0])
         ok &= np.abs(wrap_angle(bearing - sensor_yaw)) <= 0.5 * hfov
     cand = np.flatnonzero(ok)
     if len(cand):

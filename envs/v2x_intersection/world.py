@@ -474,12 +474,10 @@ class World:
         tick counter moves on."""
         t, old = self.table, self._old_pos
         contacts = self.collisions.ego_contacts(t)
-        if HAVE_JIT:  # np.linalg.norm of the (2,) step: sqrt of the dot product, the same float
-            x, y = t.pos[0].tolist()
-            dx, dy = x - old[0], y - old[1]
-            moved = math.sqrt(dx * dx + dy * dy)
-        else:
-            moved = float(np.linalg.norm(t.pos[0] - np.array(old)))
+        # on both paths (np.linalg.norm takes BLAS's dot, which may fuse the multiply-adds)
+        x, y = t.pos[0].tolist()
+        dx, dy = x - old[0], y - old[1]
+        moved = math.sqrt(dx * dx + dy * dy)
         self.last_events = self.monitor.update(self.tick + 1, t, contacts, self.lane_signal, moved)
         for sc in self.scenarios:  # the progress just moved: a route's last scenario may be passed
             sc.check_passed(self)

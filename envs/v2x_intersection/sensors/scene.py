@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import libm
 from ..classes import BICYCLE, TRAFFIC_CONE, TRAFFIC_LIGHT, TRAFFIC_SIGN
 from ..jit import HAVE_JIT
 from ..raycast import Boxes
@@ -197,14 +198,14 @@ class Scene:
             return cull_kernel(b.center, self.radius, self.active, float(origin[0]), float(origin[1]),
                                float(yaw), float(half_fov), float(max_range), depth, ex)
         rel = b.center - np.asarray(origin, dtype=np.float64)[:2]
-        dist = np.hypot(rel[:, 0], rel[:, 1])
+        dist = libm.hypot(rel[:, 0], rel[:, 1])
         r = self.radius
         keep = self.active & (dist - r < max_range)
         if max_depth is not None:
             keep &= rel @ np.array([np.cos(yaw), np.sin(yaw)]) - r < max_depth
         if half_fov < np.pi:
-            ang = np.abs((np.arctan2(rel[:, 1], rel[:, 0]) - yaw + np.pi) % (2 * np.pi) - np.pi)
-            slack = np.arcsin(np.clip(r / np.maximum(dist, 1e-9), 0.0, 1.0))
+            ang = np.abs((libm.arctan2(rel[:, 1], rel[:, 0]) - yaw + np.pi) % (2 * np.pi) - np.pi)
+            slack = libm.arcsin(np.clip(r / np.maximum(dist, 1e-9), 0.0, 1.0))
             keep &= (ang <= half_fov + slack) | (dist <= r)
         if exclude is not None:
             keep[np.asarray(exclude, dtype=np.int64)] = False

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import time
 
+from .settle import settle
+
 #: env steps of each worker per collector batch
 STEPS_PER_BATCH = 32
 #: s, least wall time of a collector row: 4 batches (~1 s at N = 64) gave 7,353 to 11,103
@@ -39,6 +41,7 @@ def measure_one(n: int, steps: int, config: dict | None = None, min_seconds: flo
         env = _make(1, config)()
         env.set_seed(0)
         env.rollout(5)
+        settle()
         t0 = time.perf_counter()
         td = env.rollout(steps, break_when_any_done=False)
         dt = time.perf_counter() - t0

@@ -22,6 +22,8 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
+from .settle import settle
+
 _CPU_RATE: dict = {}
 #: untimed V2XBench steps before the clock starts (highway-env gets 2, ~0.1 s of its time)
 WARMUP_STEPS = 100
@@ -38,6 +40,7 @@ def _rate(env, action, steps: int, seed: int = 0, warmup: int = 0) -> float:
         if term or trunc:
             env.reset(seed=seed + 1 + k)
     env.reset(seed=seed)
+    settle()
     n = 0
     t0, c0 = time.perf_counter(), time.process_time()
     while n < steps:

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import time
 
+from .settle import settle
+
 
 def population(total: int) -> dict:
     """Config counts for about ``total`` actors including the ego."""
@@ -33,6 +35,7 @@ def measure(actors=(10, 25, 50, 100, 150, 200), steps: int = 300, seed: int = 0)
         active = int(env.unwrapped.world.table.active.sum())
         for _ in range(5):
             env.step(action)
+        settle()
         n, t0, c0 = 0, time.perf_counter(), time.process_time()
         while n < steps:
             _, _, term, trunc, _ = env.step(action)

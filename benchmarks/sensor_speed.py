@@ -28,6 +28,8 @@ import time  # noqa: E402
 from datetime import datetime, timezone  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+from .settle import settle  # noqa: E402
+
 GOAL_TICKS_PER_S = 100.0
 
 
@@ -97,6 +99,7 @@ def measure(
         parts.setdefault(name, []).append(_timed(fn))
 
     step_ms = []
+    settle()
     for _ in range(ticks):
         if world.ended:
             world.reset(seed=seed + 1)

@@ -41,6 +41,8 @@ from collections.abc import Callable, Iterator
 from datetime import datetime, timezone
 from pathlib import Path
 
+from .settle import settle
+
 MODES = ("objects", "batched", "test50")
 #: test50 routes (all of them)
 TEST50_ROUTES = 50
@@ -224,6 +226,7 @@ def _run_objects(ticks: int, clear: Callable[[], None]) -> tuple[float, int, dic
         if term or trunc:
             env.reset(seed=1)
     env.reset(seed=0)
+    settle()
     clear()
     n, t0 = 0, time.perf_counter()
     while n < ticks:
@@ -264,6 +267,7 @@ def _run_test50(ticks: int, routes: int, clear: Callable[[], None],
     envs = [gym.make("V2XIntersection-v0", suite="test50", route_index=i) for i in range(routes)]
     for env in envs:  # warm-up: every route's kernels compiled or loaded
         drive(env, 20, timed=False)
+    settle()
     clear()
     total = sum(drive(env, per, timed=True) for env in envs)
     for env in envs:
@@ -279,6 +283,7 @@ def _run_batched(ticks: int, worlds: int, clear: Callable[[], None]) -> tuple[fl
     env = V2XTorchEnv(num_worlds=worlds)
     env.set_seed(0)
     env.rollout(5, break_when_any_done=False)
+    settle()
     clear()
     t0 = time.perf_counter()
     td = env.rollout(ticks, break_when_any_done=False)

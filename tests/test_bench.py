@@ -60,3 +60,27 @@ def test_plot_and_readme_update(tmp_path):
 def test_unknown_row_is_an_error():
     with pytest.raises(ValueError, match="unknown row"):
         suite.run_rows(("nope",), quick=True)
+
+
+def test_settle_collects_cyclic_garbage():
+    """``settle`` (called before every timed loop) runs a full collection: garbage in a
+    reference cycle is gone after it."""
+    import gc
+    import weakref
+
+    from v2xbench.benchmarks.settle import settle
+
+    class Node:
+        pass
+
+    a, b = Node(), Node()
+    a.other, b.other = b, a
+    ref = weakref.ref(a)
+    gc.disable()
+    try:
+        del a, b
+        assert ref() is not None  # only the cycle collector can free it
+        settle()
+        assert ref() is None
+    finally:
+        gc.enable()

@@ -101,7 +101,8 @@ def run_rows(rows: tuple[str, ...], quick: bool) -> dict:
             from . import scaling
 
             with one_core():
-                res[row] = scaling.measure((10, 50) if quick else (10, 25, 50, 100, 150, 200), 20 if quick else 300)
+                res[row] = scaling.measure((10, 50) if quick else (10, 25, 50, 100, 150, 200), 20 if quick else 1000,
+                                            warmup=5 if quick else 100)
         elif row == "memory":
             from . import memory
 

@@ -29,11 +29,11 @@ _CPU_RATE: dict = {}
 WARMUP_STEPS = 100
 
 
-def _rate(env, action, steps: int, seed: int = 0, warmup: int = 0) -> float:
-    """Env steps per wall second (the rate per CPU second is left in ``_CPU_RATE[id(env)]``),
-    timed after ``warmup`` untimed steps (numba loads each kernel from its disk cache on its
-    first call in a process: ~160 ms over V2XBench's first 50 steps, which 3,000 timed steps
-    would read as ~50 us a step)."""
+def timed_steps(env, action, steps: int, seed: int = 0, warmup: int = 0) -> tuple[float, float]:
+    """Wall and CPU seconds of ``steps`` env steps (resetting when an episode ends), timed after
+    ``warmup`` untimed steps and a full garbage collection (numba loads each kernel from its
+    disk cache on its first call in a process: ~160 ms over V2XBench's first 50 steps, which
+    3,000 timed steps would read as ~50 us a step)."""
     env.reset(seed=seed)
     for k in range(warmup):
         _, _, term, trunc, _ = env.step(action)
@@ -48,8 +48,15 @@ def _rate(env, action, steps: int, seed: int = 0, warmup: int = 0) -> float:
         n += 1
         if term or trunc:
             env.reset(seed=seed + n)
-    _CPU_RATE[id(env)] = n / max(time.process_time() - c0, 1e-9)
-    return n / (time.perf_counter() - t0)
+    return time.perf_counter() - t0, time.process_time() - c0
+
+
+def _rate(env, action, steps: int, seed: int = 0, warmup: int = 0) -> float:
+    """Env steps per wall second (:func:`timed_steps`; the rate per CPU second is left in
+    ``_CPU_RATE[id(env)]``)."""
+    wall, cpu = timed_steps(env, action, steps, seed, warmup)
+    _CPU_RATE[id(env)] = steps / max(cpu, 1e-9)
+    return steps / wall
 
 
 def measure(steps: int, config: dict | None = None) -> dict:

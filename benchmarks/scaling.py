@@ -11,9 +11,7 @@ actors measured slower than 25).
 
 from __future__ import annotations
 
-import time
-
-from .settle import settle
+from .env_speed import timed_steps
 
 
 def population(total: int) -> dict:
@@ -36,19 +34,7 @@ def measure(actors=(10, 25, 50, 100, 150, 200), steps: int = 1000, seed: int = 0
         env = gym.make("V2XIntersection-v0", **population(total))
         env.reset(seed=seed)
         active = int(env.unwrapped.world.table.active.sum())
-        for k in range(warmup):
-            _, _, term, trunc, _ = env.step(action)
-            if term or trunc:
-                env.reset(seed=seed + 10_000 + k)
-        env.reset(seed=seed)
-        settle()
-        n, t0, c0 = 0, time.perf_counter(), time.process_time()
-        while n < steps:
-            _, _, term, trunc, _ = env.step(action)
-            n += 1
-            if term or trunc:
-                env.reset(seed=seed + n)
-        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-        rows.append({"actors_requested": total, "actors": active, "ticks_per_s": n / wall,
-                     "ticks_per_s_cpu": n / cpu, "ms_per_tick": 1e3 * wall / n})
+        wall, cpu = timed_steps(env, action, steps, seed, warmup)
+        rows.append({"actors_requested": total, "actors": active, "ticks_per_s": steps / wall,
+                     "ticks_per_s_cpu": steps / cpu, "ms_per_tick": 1e3 * wall / steps})
     return {"rows": rows}

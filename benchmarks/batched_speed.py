@@ -13,6 +13,7 @@ At least 4 batches and ``MIN_SECONDS`` of wall time are timed.
 
 from __future__ import annotations
 
+import functools
 import time
 
 from .settle import settle
@@ -24,10 +25,18 @@ STEPS_PER_BATCH = 32
 MIN_SECONDS = 4.0
 
 
-def _make(n: int, config: dict):
+def _settled_env(n: int, config: dict):
+    """A ``V2XTorchEnv`` of ``n`` worlds, after a full garbage collection (in a collector's
+    worker the imports' objects are collected here, not in a timed batch)."""
     from v2xbench.envs.v2x_intersection import V2XTorchEnv
 
-    return lambda: V2XTorchEnv(num_worlds=n, **config)
+    env = V2XTorchEnv(num_worlds=n, **config)
+    settle()
+    return env
+
+
+def _make(n: int, config: dict):
+    return functools.partial(_settled_env, n, config)
 
 
 def measure_one(n: int, steps: int, config: dict | None = None, min_seconds: float = 0.0) -> dict:

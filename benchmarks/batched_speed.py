@@ -26,10 +26,12 @@ MIN_SECONDS = 4.0
 
 
 def _settled_env(n: int, config: dict):
-    """A ``V2XTorchEnv`` of ``n`` worlds, after a full garbage collection (in a collector's
-    worker the imports' objects are collected here, not in a timed batch)."""
+    """A ``V2XTorchEnv`` of ``n`` worlds (one torch thread), after a full garbage collection (in
+    a collector's worker the imports' objects are collected here, not in a timed batch)."""
+    import torch
     from v2xbench.envs.v2x_intersection import V2XTorchEnv
 
+    torch.set_num_threads(1)
     env = V2XTorchEnv(num_worlds=n, **config)
     settle()
     return env

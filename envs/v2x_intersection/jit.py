@@ -425,31 +425,41 @@ def leaders_kernel(idx, others, pos, yaw, length, width, speed, lookahead):  # p
         ``(gap (M,), dv (M,), leader row (M,), -1 where none)``.
     """
     m = idx.shape[0]
+    n = others.shape[0]
     gap_out = np.empty(m)
     dv_out = np.empty(m)
     who_out = np.full(m, -1, np.int64)
+    # the others' columns gathered once, so that the corridor test below runs over contiguous
+    # arrays without a branch (the CPU vectorizes it; the branchy test mispredicted about every
+    # other pair); then only the few pairs in the corridor take the branchy part
+    ox, oy, ow, ol = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    for q in range(n):
+        o = others[q]
+        ox[q], oy[q], ow[q], ol[q] = pos[o, 0], pos[o, 1], width[o], length[o]
+    inside = np.empty(n, np.bool_)
     for a in range(m):
         i = idx[a]
         c, s = np.cos(yaw[i]), np.sin(yaw[i])
-        best = np.inf
-        bj = others[0]
-        bcos = np.cos(yaw[bj] - yaw[i])
-        for q in range(others.shape[0]):
-            o = others[q]
-            d0 = pos[o, 0] - pos[i, 0]
-            d1 = pos[o, 1] - pos[i, 1]
+        px, py, wi, li = pos[i, 0], pos[i, 1], width[i], length[i]
+        for q in range(n):
+            d0 = ox[q] - px
+            d1 = oy[q] - py
             dx = c * d0 + s * d1
-            if not dx > 0.0:  # cheap test first: most actors are behind
-                continue
             dy = -s * d0 + c * d1
-            half = 0.5 * (width[i] + width[o]) + 0.4
-            reach = 0.5 * (length[i] + length[o])
-            ok = (dx < lookahead + reach) and (abs(dy) < half) and o != i
-            if not ok:
+            half = 0.5 * (wi + ow[q]) + 0.4
+            reach = 0.5 * (li + ol[q])
+            inside[q] = (dx > 0.0) & (dx < lookahead + reach) & (abs(dy) < half)
+        best = np.inf
+        bj = -1
+        bcos = 0.0
+        for q in range(n):
+            o = others[q]
+            if not inside[q] or o == i:
                 continue
+            dx = c * (ox[q] - px) + s * (oy[q] - py)
+            reach = 0.5 * (li + ol[q])
             cos_rel = np.cos(yaw[o] - yaw[i])
-            ok = not ((cos_rel < -0.5) and (speed[o] > 1.0))
-            if ok and dx - reach < best:
+            if not ((cos_rel < -0.5) and (speed[o] > 1.0)) and dx - reach < best:
                 best = dx - reach
                 bj = o
                 bcos = cos_rel

@@ -228,8 +228,13 @@ def points_blocked_kernel(sensor, pts, cand, own, extra, center, cos_yaw, sin_ya
     hw = np.empty(k, np.float32)
     za = np.empty(k, np.float32)
     zb = np.empty(k, np.float32)
+    rx = np.empty(k)  # box centre relative to the sensor, and half diagonal (the broad phase's)
+    ry = np.empty(k)
+    half_diag = np.empty(k)
     for q in range(k):
         j = keep[q]
+        rx[q], ry[q] = center[j, 0] - sx, center[j, 1] - sy
+        half_diag[q] = 0.5 * np.sqrt(length[j] * length[j] + width[j] * width[j])
         c, s = cos_yaw[j], sin_yaw[j]
         r0, r1 = center[j, 0] - sx, center[j, 1] - sy
         c32[q], s32[q] = np.float32(c), np.float32(s)
@@ -256,17 +261,13 @@ def points_blocked_kernel(sensor, pts, cand, own, extra, center, cos_yaw, sin_ya
             t_rad = 0.5 * np.sqrt(length[target] * length[target] + width[target] * width[target])
             k_near = 0
             for q in range(k):
-                j = keep[q]
-                if j == target:
-                    continue
-                r0, r1 = center[j, 0] - sx, center[j, 1] - sy
+                r0, r1 = rx[q], ry[q]
                 u = (r0 * tx + r1 * ty) / tt if tt > 0.0 else 0.0
                 u = min(max(u, 0.0), 1.0)
                 e0, e1 = r0 - u * tx, r1 - u * ty
-                lim = 0.5 * np.sqrt(length[j] * length[j] + width[j] * width[j]) + t_rad + BROAD_PHASE_MARGIN
-                if e0 * e0 + e1 * e1 <= lim * lim:
-                    near[k_near] = q
-                    k_near += 1
+                lim = half_diag[q] + t_rad + BROAD_PHASE_MARGIN
+                near[k_near] = q  # kept only when it passes (no branch)
+                k_near += (e0 * e0 + e1 * e1 <= lim * lim) & (keep[q] != target)
         p = cand[i]
         d0 = np.float32(pts[p, 0] - sx)
         d1 = np.float32(pts[p, 1] - sy)
@@ -512,7 +513,9 @@ def pose_at_kernel(idx, s, points, heading, offset, n_points, gs, base, length):
         g = base[ln] + sk
         first = offset[ln]
         last = first + n_points[ln] - 1
-        i = np.searchsorted(gs, g, side="right") - 1
+        # the search over the polyline's own points gives what one over all of ``gs`` gives
+        # after the clamp below (``gs`` ascends, and polylines are 1 km apart): fewer steps
+        i = first + np.searchsorted(gs[first:last + 1], g, side="right") - 1
         i = _np_min(_np_max(i, first), last - 1)
         s0, s1 = gs[i], gs[i + 1]
         t = (g - s0) / _np_max(s1 - s0, 1e-9) if s1 > s0 else 0.0

@@ -128,3 +128,44 @@ def test_copies_continue_as_the_original(how):
         o1, o2 = e.step(a[0].astype(np.float32))[0], ref_e.step(a[0].astype(np.float32))[0]
         for k in o1:
             np.testing.assert_array_equal(o1[k], o2[k])
+
+
+def test_packed_args_rebuild_only_when_the_key_changes():
+    import copy
+
+    from v2xbench.envs.v2x_intersection.jit_args import PackedArgs
+
+    a, b = np.arange(3.0), np.arange(4.0)
+    p = PackedArgs()
+    built = []
+
+    def build(x):
+        built.append(x)
+        return (x, 1.5)
+
+    first = p.get((a,), lambda: build(a))
+    assert p.get((a,), lambda: build(a)) is first and len(built) == 1  # same key: the same list
+    other = p.get((b,), lambda: build(b))
+    assert other is not first and len(built) == 2
+    assert np.array_equal(other[0][0], b) and other[0][1] == 1.5
+    assert p.get((b, a), lambda: build(b)) is not other  # a longer key is another key
+    q = copy.deepcopy(p)  # typed lists cannot be copied: a copy rebuilds on use
+    assert q._list is None
+
+
+def test_objects_observation_after_a_copy_reads_the_copy():
+    """The packed observation arguments of a deep-copied world are the copy's own arrays."""
+    import copy
+
+    from v2xbench.envs.v2x_intersection.observations import ego_observation
+
+    b = WorldBatch(1, town="Town01", num_vehicles=10)
+    b.reset([3])
+    for _ in range(5):
+        b.step(np.array([[0.6, 0.0, 0.0]]))
+    w = b.worlds[0]
+    before = ego_observation(w)
+    twin = copy.deepcopy(w)
+    twin.table.pos[1:] += 5.0  # moves the others in the copy only
+    assert np.array_equal(ego_observation(w)["objects"], before["objects"])
+    assert not np.array_equal(ego_observation(twin)["objects"], before["objects"])

@@ -18,34 +18,12 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .jit import HAVE_JIT, _njit
+from .jit import _njit
+from .jit_args import List, list_append, list_set, new_list  # noqa: F401 (re-exported)
 from .jit_perception import perceive_all_kernel
 from .jit_tick import traffic_tick_kernel
 from .pedestrians import ego_is_vehicle
 from .traffic import flat_plans
-
-if HAVE_JIT:  # pragma: no branch
-    from numba.typed import List
-else:  # pragma: no cover
-    List = list
-
-
-@_njit
-def new_list(item):  # pragma: no cover
-    """A typed list holding ``item`` (its type fixes the list's)."""
-    out = List()
-    out.append(item)
-    return out
-
-
-@_njit
-def list_append(lst, item):  # pragma: no cover
-    lst.append(item)
-
-
-@_njit
-def list_set(lst, i, item):  # pragma: no cover
-    lst[i] = item
 
 
 @_njit

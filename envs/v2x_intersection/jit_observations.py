@@ -68,3 +68,19 @@ def ego_obs_kernel(ego_out, route_out, objects_out, v2x_out, info_out, with_obje
     ego_out[7] = dist_line
     ego_out[8] = route_completion
     return dist_line
+
+
+@_njit
+def ego_obs_packed_kernel(ego_out, route_out, objects_out, v2x_out, info_out, with_objects, k0, vis, lane, has_msg,
+                         payload, rx, ry, ryaw, age, control, lane_signal, route_completion,
+                         consts):  # pragma: no cover
+    """:func:`ego_obs_kernel` with the arguments that hold for an episode in ``consts[0]``
+    (``observations.fill_objects_observation``, :class:`~.jit_args.PackedArgs`): ``(route_points,
+    commands, route_step, threshold, pos, yaw, speed, accel, kind, length, width, height, actor_id,
+    stop_at_end, lane_length, setback, points, owner, offset, n_points, gs, base, max_steer,
+    wheelbase, stop_sign_lane, light_stop_sign)``."""
+    c = consts[0]
+    return ego_obs_kernel(ego_out, route_out, objects_out, v2x_out, info_out, with_objects, c[0], c[1], k0, c[2], vis,
+                          c[3], c[4], c[5], c[6], c[7], c[8], c[9], c[10], c[11], c[12], lane, c[13], c[14], c[15],
+                          c[16], c[17], c[18], c[19], c[20], c[21], has_msg, payload, rx, ry, ryaw, age, control,
+                          c[22], c[23], lane_signal, c[24], c[25], route_completion)

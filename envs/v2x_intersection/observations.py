@@ -42,7 +42,8 @@ from .geometry import (
     wrap_angle,
 )
 from .jit import HAVE_JIT
-from .jit_observations import ego_obs_kernel
+from .jit_args import PackedArgs
+from .jit_observations import ego_obs_packed_kernel
 from .rsu import RSU_PITCH
 from .traffic import STOP_LINE_SETBACK, stop_sign_lanes
 from .visibility import VISIBLE_THRESHOLD
@@ -250,7 +251,7 @@ def fill_objects_observation(world, out: dict) -> None:
     """Write the ego observation's ``ego``, ``route``, ``v2x_objects``, ``v2x_info`` (and
     ``objects``, when ``out`` has it) into the arrays of ``out``, in one kernel call (numba path of
     :func:`ego_observation`; ``batch.WorldBatch`` passes rows of its buffers)."""
-    cfg, t, r, ix = world.config, world.table, world.route, world.town.index
+    cfg, t, r = world.config, world.table, world.route
     k0 = world.monitor.progress
     lane = int(r.lane_ids[min(k0, len(r.lane_ids) - 1)])
     inbox = world.inbox
@@ -262,15 +263,23 @@ def fill_objects_observation(world, out: dict) -> None:
     else:
         payload, rx, ry, ryaw, age = _NO_PAYLOAD, 0.0, 0.0, 0.0, 0
     objects = out.get("objects")
-    pr = world.params
-    ego_obs_kernel(
+    packed = world.__dict__.get("_obs_args")
+    if packed is None:
+        packed = world._obs_args = PackedArgs()
+    consts = packed.get((t, r, world.town), lambda: _obs_consts(world))
+    ego_obs_packed_kernel(
         out["ego"], out["route"], out["v2x_objects"] if objects is None else objects, out["v2x_objects"],
-        out["v2x_info"], objects is not None, r.points, r.commands, k0, cfg.route_step, world.ego_vis,
-        VISIBLE_THRESHOLD, t.pos, t.yaw, t.speed, t.accel, t.kind, t.length, t.width, t.height, t.actor_id, lane,
-        ix.stop_at_end, ix.length, STOP_LINE_SETBACK, ix.points, ix.owner, ix.offset, ix.n_points, ix.gs, ix.base,
-        has_msg, payload, rx, ry, ryaw, age, world.last_control, pr.max_steer, pr.wheelbase, world.lane_signal,
-        stop_sign_lanes(world.town), LIGHT_STOP_SIGN, world.monitor.route_completion)
+        out["v2x_info"], objects is not None, k0, world.ego_vis, lane, has_msg, payload, rx, ry, ryaw, age,
+        world.last_control, world.lane_signal, world.monitor.route_completion, consts)
 
+
+def _obs_consts(world) -> tuple:
+    """``ego_obs_packed_kernel``'s arguments that hold for the episode (its table, route, town)."""
+    cfg, t, r, ix, pr = world.config, world.table, world.route, world.town.index, world.params
+    return (r.points, r.commands, cfg.route_step, VISIBLE_THRESHOLD, t.pos, t.yaw, t.speed, t.accel, t.kind, t.length,
+            t.width, t.height, t.actor_id, ix.stop_at_end, ix.length, STOP_LINE_SETBACK, ix.points, ix.owner,
+            ix.offset, ix.n_points, ix.gs, ix.base, pr.max_steer, pr.wheelbase, stop_sign_lanes(world.town),
+            LIGHT_STOP_SIGN)
 
 _NO_PAYLOAD = np.zeros(0, np.float32)
 

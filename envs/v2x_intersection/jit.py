@@ -471,20 +471,26 @@ def leaders_kernel(idx, others, pos, yaw, length, width, speed, lookahead):  # p
     return gap_out, dv_out, who_out
 
 
+@_njit_inline
+def idm_one(v, v0, gap, dv, min_gap, headway, sqrt_ab, a_max, delta, max_brake):  # pragma: no cover
+    """``dynamics.idm_accel`` for one follower (``sqrt_ab = np.sqrt(accel * decel)``)."""
+    w0 = max(v0, 0.1)
+    s_star = min_gap + max(0.0, v * headway + v * dv / (2.0 * sqrt_ab))
+    free = 1.0 - np.power(v / w0, delta)
+    if np.isfinite(gap):
+        r = s_star / max(gap, 0.1)
+        inter = r * r
+    else:
+        inter = 0.0
+    return min(max(a_max * (free - inter), -max_brake), a_max)
+
+
 @_njit
 def idm_kernel(v, v0, gap, dv, min_gap, headway, sqrt_ab, a_max, delta, max_brake):  # pragma: no cover
-    """``dynamics.idm_accel`` element by element (``sqrt_ab = np.sqrt(accel * decel)``)."""
+    """``dynamics.idm_accel`` element by element (:func:`idm_one`)."""
     out = np.empty(v.shape[0])
     for i in range(v.shape[0]):
-        w0 = max(v0[i], 0.1)
-        s_star = min_gap + max(0.0, v[i] * headway + v[i] * dv[i] / (2.0 * sqrt_ab))
-        free = 1.0 - np.power(v[i] / w0, delta)
-        if np.isfinite(gap[i]):
-            r = s_star / max(gap[i], 0.1)
-            inter = r * r
-        else:
-            inter = 0.0
-        out[i] = min(max(a_max * (free - inter), -max_brake), a_max)
+        out[i] = idm_one(v[i], v0[i], gap[i], dv[i], min_gap, headway, sqrt_ab, a_max, delta, max_brake)
     return out
 
 

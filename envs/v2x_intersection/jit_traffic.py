@@ -18,7 +18,7 @@ from .actors import EGO as _EGO
 from .actors import PARKED as _PARKED
 from .actors import RIDER as _RIDER
 from .actors import STATIC as _STATIC
-from .jit import _njit, _np_max, _np_min, idm_kernel, leaders_kernel, pose_at_kernel
+from .jit import _njit, _np_max, _np_min, idm_one, leaders_kernel, pose_at_kernel
 from .jit_rng import integers, next_double, uniform
 from .town.model import PRIORITY as _PRIORITY
 from .town.model import STOP as _STOP
@@ -88,9 +88,6 @@ def followers_kernel(idx, active, hold, behaviour, pos, yaw, length, width, spee
         lim = speed_limit[lane[k]]
         v0[k] = _np_min(v0_arr[i], lim) if bike[k] else v0_arr[i] * lim
     c = idm_car
-    b = idm_bike
-    acc_car = idm_kernel(v, v0, gap, dv, c[0], c[1], c[2], c[3], c[4], c[5])
-    acc_bike = idm_kernel(v, v0, gap, dv, b[0], b[1], b[2], b[3], b[4], b[5])
     to_line = np.empty(m)
     must_stop = np.zeros(m, np.bool_)
     sign_lane = np.zeros(m, np.bool_)
@@ -120,18 +117,18 @@ def followers_kernel(idx, active, hold, behaviour, pos, yaw, length, width, spee
             must_stop[k] = True
     for k in range(m):
         must_stop[k] = must_stop[k] and not ignore_rules[idx[k]]
-    line_gap = np.empty(m)
-    for k in range(m):
-        line_gap[k] = _np_max(to_line[k], 0.0)
-    acc_line = idm_kernel(v, v0, line_gap, v, c[0], c[1], c[2], c[3], c[4], c[5])
     s_new = np.empty(m)
     v_new = np.empty(m)
     stuck = np.zeros(m, np.bool_)
     for k in range(m):
         i = idx[k]
-        acc = acc_bike[k] if bike[k] else acc_car[k]
+        # IDM behind the leader with the follower's own parameters, and towards the stop line (car
+        # parameters) only where it must stop: the values the NumPy path keeps of its full arrays
+        p = idm_bike if bike[k] else idm_car
+        acc = idm_one(v[k], v0[k], gap[k], dv[k], p[0], p[1], p[2], p[3], p[4], p[5])
         if must_stop[k]:
-            acc = _np_min(acc, acc_line[k])
+            acc = _np_min(acc, idm_one(v[k], v0[k], _np_max(to_line[k], 0.0), v[k], c[0], c[1], c[2], c[3], c[4],
+                                       c[5]))
         vn = _np_max(v[k] + acc * dt, 0.0)
         v_new[k] = vn
         accel[i] = (vn - v[k]) / dt

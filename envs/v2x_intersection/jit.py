@@ -70,7 +70,7 @@ def _fmax(a, b):
     return a if a > b else b
 
 
-@_njit
+@_njit_inline
 def _slabs_xy(ox, oy, d0, d1, c, s, bx, by, hl, hw):  # pragma: no cover
     """Footprint slab interval ``(t_in, t_out)`` of one ray ``o + t d`` (``o``, ``d`` horizontal
     parts, relative to the reference point) against one prepared box, in float32
@@ -174,7 +174,7 @@ def ray_box_interval(o, d, io, i, c, s, bx, by, hl, hw, z0, z1):  # pragma: no c
     return _fmax(t_in, gap), _fmin(t_out, -gap)
 
 
-@_njit
+@_njit_inline
 def _box_blocks(ox, oy, oz, d0, d1, d2, c, s, bx, by, hl, hw, z0, z1, lo, hi):  # pragma: no cover
     """One segment against one prepared box, in float32 (``raycast.segments_blocked``'s steps)."""
     one = np.float32(1.0)

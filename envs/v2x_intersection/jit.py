@@ -190,8 +190,18 @@ def _box_blocks(ox, oy, oz, d0, d1, d2, c, s, bx, by, hl, hw, z0, z1, lo, hi):  
 
 
 @_njit
+def half_diagonals_kernel(length, width):  # pragma: no cover
+    """``0.5 * sqrt(length^2 + width^2)`` per box: how far a box reaches from its centre (the
+    sight test's culling; once per perception call, shared by its sensors)."""
+    out = np.empty(length.shape[0])
+    for j in range(length.shape[0]):
+        out[j] = 0.5 * np.sqrt(length[j] * length[j] + width[j] * width[j])
+    return out
+
+
+@_njit
 def points_blocked_kernel(sensor, pts, cand, own, extra, center, cos_yaw, sin_yaw, length, width, z0, height,
-                          reach, lo, hi):  # pragma: no cover
+                          half_diag, reach, lo, hi):  # pragma: no cover
     """``visibility.visible_fraction``'s line-of-sight test from one sensor, all in one call.
 
     Args:
@@ -199,6 +209,7 @@ def points_blocked_kernel(sensor, pts, cand, own, extra, center, cos_yaw, sin_ya
         cand: ``(C,)`` indices of the points to test. own: ``(C,)`` box index of each tested
             point's target (never blocks it). extra: ``(E,)`` boxes that never block (negative: none).
         center, cos_yaw, sin_yaw, length, width, z0, height: the ``N`` boxes (float64).
+        half_diag: ``(N,)`` their half diagonals (:func:`half_diagonals_kernel`).
         reach: float64, farthest tested point distance + 1 m (boxes beyond cannot block).
         lo, hi: float32 end-point tolerances.
 
@@ -211,7 +222,7 @@ def points_blocked_kernel(sensor, pts, cand, own, extra, center, cos_yaw, sin_ya
     k = 0
     for j in range(n):
         dx, dy = center[j, 0] - sx, center[j, 1] - sy
-        rad = 0.5 * np.sqrt(length[j] * length[j] + width[j] * width[j]) + 1e-3
+        rad = half_diag[j] + 1e-3
         if dx * dx + dy * dy < (reach + rad) * (reach + rad) * 1.000001:
             ig = False
             for q in range(extra.shape[0]):
@@ -230,11 +241,11 @@ def points_blocked_kernel(sensor, pts, cand, own, extra, center, cos_yaw, sin_ya
     zb = np.empty(k, np.float32)
     rx = np.empty(k)  # box centre relative to the sensor, and half diagonal (the broad phase's)
     ry = np.empty(k)
-    half_diag = np.empty(k)
+    kept_diag = np.empty(k)
     for q in range(k):
         j = keep[q]
         rx[q], ry[q] = center[j, 0] - sx, center[j, 1] - sy
-        half_diag[q] = 0.5 * np.sqrt(length[j] * length[j] + width[j] * width[j])
+        kept_diag[q] = half_diag[j]
         c, s = cos_yaw[j], sin_yaw[j]
         r0, r1 = center[j, 0] - sx, center[j, 1] - sy
         c32[q], s32[q] = np.float32(c), np.float32(s)
@@ -258,14 +269,14 @@ def points_blocked_kernel(sensor, pts, cand, own, extra, center, cos_yaw, sin_ya
             target = own[i]
             tx, ty = center[target, 0] - sx, center[target, 1] - sy
             tt = tx * tx + ty * ty
-            t_rad = 0.5 * np.sqrt(length[target] * length[target] + width[target] * width[target])
+            t_rad = half_diag[target]
             k_near = 0
             for q in range(k):
                 r0, r1 = rx[q], ry[q]
                 u = (r0 * tx + r1 * ty) / tt if tt > 0.0 else 0.0
                 u = min(max(u, 0.0), 1.0)
                 e0, e1 = r0 - u * tx, r1 - u * ty
-                lim = half_diag[q] + t_rad + BROAD_PHASE_MARGIN
+                lim = kept_diag[q] + t_rad + BROAD_PHASE_MARGIN
                 near[k_near] = q  # kept only when it passes (no branch)
                 k_near += (e0 * e0 + e1 * e1 <= lim * lim) & (keep[q] != target)
         p = cand[i]
@@ -345,14 +356,14 @@ def project_refine(x, y, j, points, owner, offset, n_points, gs, base):  # pragm
 
 
 @_njit
-def visible_fraction_kernel(sensor, center, cos_yaw, sin_yaw, length, width, z0, height, targets, extra,
-                            max_r2, use_fov, sensor_yaw, half_fov, levels, pattern, shrink,
+def visible_fraction_kernel(sensor, center, cos_yaw, sin_yaw, length, width, z0, height, half_diag, targets,
+                            extra, max_r2, use_fov, sensor_yaw, half_fov, levels, pattern, shrink,
                             lo, hi):  # pragma: no cover
     """``visibility.visible_fraction`` in one call (sample points, range, field of view, sight).
 
     Args:
         sensor: ``(3,)``. center ... height: the ``N`` boxes (float64; ``cos_yaw``/``sin_yaw`` from
-            NumPy). targets: ``(M,)`` box indices. extra: ``(E,)`` boxes that never block.
+            NumPy). half_diag: their half diagonals (:func:`half_diagonals_kernel`). targets: ``(M,)`` box indices. extra: ``(E,)`` boxes that never block.
         max_r2: squared range (m^2). use_fov, sensor_yaw, half_fov: horizontal field of view test.
         levels: ``(L,)`` height fractions. pattern: ``(5, 2)`` unit offsets. shrink: ``0.5 * XY_SHRINK``.
         lo, hi: float32 end-point tolerances.
@@ -400,7 +411,7 @@ def visible_fraction_kernel(sensor, center, cos_yaw, sin_yaw, length, width, z0,
     cand = np.flatnonzero(ok)
     if cand.shape[0]:
         blocked = points_blocked_kernel(sensor, pts, cand, own[cand], extra, center, cos_yaw, sin_yaw, length,
-                                        width, z0, height, np.sqrt(reach2) + 1.0, lo, hi)
+                                        width, z0, height, half_diag, np.sqrt(reach2) + 1.0, lo, hi)
         for q in range(cand.shape[0]):
             if blocked[q]:
                 ok[cand[q]] = False

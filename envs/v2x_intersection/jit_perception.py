@@ -10,7 +10,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from .jit import _njit, pose_at_kernel, project_refine, visible_fraction_kernel
+from .jit import (
+    _njit,
+    half_diagonals_kernel,
+    pose_at_kernel,
+    project_refine,
+    visible_fraction_kernel,
+)
 from .jit_grid import project_grid_kernel
 
 
@@ -170,6 +176,7 @@ def perceive_kernel(pos, length, width, yaw, height, active, static_boxes, stati
         blen[n + k], bwid[n + k] = static_boxes[k, 2], static_boxes[k, 3]
         bh[n + k] = static_heights[k]
     z0 = np.zeros(n + ns)
+    half_diag = half_diagonals_kernel(blen, bwid)  # once for all sensors
     ego_vis = np.zeros(n)
     slots = rsu_pose.shape[0]
     rsu_vis = np.zeros((slots, n))
@@ -196,8 +203,8 @@ def perceive_kernel(pos, length, width, yaw, height, active, static_boxes, stati
         if cnt == 0:
             continue
         sensor[0], sensor[1], sensor[2] = sx, sy, sz
-        vis = visible_fraction_kernel(sensor, center, cos_yaw, sin_yaw, blen, bwid, z0, bh, near[:cnt], extra, r2,
-                                      fov, syaw, half_fov if fov else 0.0, levels, pattern, shrink, lo, hi)
+        vis = visible_fraction_kernel(sensor, center, cos_yaw, sin_yaw, blen, bwid, z0, bh, half_diag, near[:cnt],
+                                      extra, r2, fov, syaw, half_fov if fov else 0.0, levels, pattern, shrink, lo, hi)
         for a in range(cnt):
             if q == 0:
                 ego_vis[near[a]] = vis[a]

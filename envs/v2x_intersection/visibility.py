@@ -29,7 +29,7 @@ import numpy as np
 
 from . import libm
 from .geometry import local_to_world_2d, wrap_angle
-from .jit import HAVE_JIT, visible_fraction_kernel
+from .jit import HAVE_JIT, half_diagonals_kernel, visible_fraction_kernel
 from .raycast import END_TOLERANCES, Boxes, segments_blocked
 
 #: Sample heights as fractions of each box's height above its base.
@@ -107,7 +107,8 @@ def visible_fraction(
     if HAVE_JIT and chunk_elems is None:
         fov = hfov is not None and hfov < 2.0 * np.pi
         return visible_fraction_kernel(
-            sensor_pos, boxes.center, *boxes.trig(), boxes.length, boxes.width, boxes.z0, boxes.height, targets,
+            sensor_pos, boxes.center, *boxes.trig(), boxes.length, boxes.width, boxes.z0, boxes.height,
+            half_diagonals_kernel(boxes.length, boxes.width), targets,
             np.asarray(ignore, dtype=np.intp).reshape(-1), float(max_range) ** 2, fov, float(sensor_yaw),
             0.5 * hfov if fov else 0.0, _LEVELS, _XY, 0.5 * XY_SHRINK, _LO, _HI)
     pts = sample_points(boxes, targets).reshape(-1, 3)  # (M*K, 3)

@@ -148,8 +148,8 @@ def rsu_to_ego_kernel(rows, x, y, yaw, ex, ey, eyaw):  # pragma: no cover
 
 @_njit
 def perceive_kernel(pos, length, width, yaw, height, active, static_boxes, static_heights, static_cos, static_sin,
-                    ego_z, ego_r2, ego_range, rsu_pose, rsu_r2, rsu_range, half_fov, levels, pattern, shrink, lo,
-                    hi):  # pragma: no cover
+                    static_half_diag, ego_z, ego_r2, ego_range, rsu_pose, rsu_r2, rsu_range, half_fov, levels,
+                    pattern, shrink, lo, hi):  # pragma: no cover
     """``world.World.perceive`` after the RSU selection: visible fraction of every active actor
     (rows >= 1) from the ego's sensor and from each selected RSU (``rsu_pose (slots, 4)``, NaN
     rows for empty slots), against all actors and static boxes as occluders.
@@ -176,7 +176,9 @@ def perceive_kernel(pos, length, width, yaw, height, active, static_boxes, stati
         blen[n + k], bwid[n + k] = static_boxes[k, 2], static_boxes[k, 3]
         bh[n + k] = static_heights[k]
     z0 = np.zeros(n + ns)
-    half_diag = half_diagonals_kernel(blen, bwid)  # once for all sensors
+    half_diag = np.empty(n + ns)  # once for all sensors; the static boxes' from the episode's arguments
+    half_diag[:n] = half_diagonals_kernel(length, width)
+    half_diag[n:] = static_half_diag
     ego_vis = np.zeros(n)
     slots = rsu_pose.shape[0]
     rsu_vis = np.zeros((slots, n))
@@ -215,8 +217,9 @@ def perceive_kernel(pos, length, width, yaw, height, active, static_boxes, stati
 
 @_njit
 def perceive_all_kernel(rsu_pose, rsu_kind, trigger_kind, preference, max_angle, slots, pos, length, width, yaw,
-                        height, active, static_boxes, static_heights, static_cos, static_sin, ego_z, ego_r2, ego_range,
-                        rsu_r2, rsu_range, half_fov, levels, pattern, shrink, lo, hi):  # pragma: no cover
+                        height, active, static_boxes, static_heights, static_cos, static_sin, static_half_diag, ego_z,
+                        ego_r2, ego_range, rsu_r2, rsu_range, half_fov, levels, pattern, shrink, lo,
+                        hi):  # pragma: no cover
     """``world.World.perceive`` in one call: the RSU selection (:func:`select_active_kernel`;
     all ``-1`` without units), then :func:`perceive_kernel` from the selected units' poses.
 
@@ -235,7 +238,7 @@ def perceive_all_kernel(rsu_pose, rsu_kind, trigger_kind, preference, max_angle,
             for j in range(4):
                 pose[k, j] = rsu_pose[u, j]
     ego_vis, rsu_vis = perceive_kernel(pos, length, width, yaw, height, active, static_boxes, static_heights,
-                                       static_cos, static_sin, ego_z, ego_r2, ego_range, pose, rsu_r2, rsu_range,
+                                       static_cos, static_sin, static_half_diag, ego_z, ego_r2, ego_range, pose, rsu_r2, rsu_range,
                                        half_fov, levels, pattern, shrink, lo, hi)
     return active_rsu, ego_vis, rsu_vis
 

@@ -36,7 +36,7 @@ from .draws import signs
 from .dynamics import VehicleParams, bicycle_step, bicycle_step_scalar
 from .geometry import row_norms, world_to_local_2d
 from .infractions import EventMonitor
-from .jit import HAVE_JIT
+from .jit import HAVE_JIT, half_diagonals_kernel
 from .jit_batch import PerceiveBatch, TrafficBatch
 from .jit_perception import object_rows_kernel, perceive_all_kernel, seen_rows_kernel
 from .jit_rng import state_views
@@ -134,12 +134,13 @@ class World:
         if "tables" not in store:
             statics, heights, kinds = self._static_boxes()
             store["tables"] = (SidewalkNetwork(self.town), statics, heights, kinds,
-                               (np.cos(statics[:, 4]), np.sin(statics[:, 4])),
+                               (np.cos(statics[:, 4]), np.sin(statics[:, 4])), _half_diagonals(statics),
                                np.array([ln.id for ln in self.town.lanes if ln.kind in (DRIVING, RAMP)
                                          and ln.length > 15.0]))
         (self.sidewalks, self.static_boxes, self.static_heights, self.static_kinds, self.static_trig,
-         self._drive_lanes) = store["tables"]
-        # static_boxes: (S, 5) x, y, length, width, yaw; static_trig: their yaw's cos, sin (for the kernels)
+         self._static_half_diag, self._drive_lanes) = store["tables"]
+        # static_boxes: (S, 5) x, y, length, width, yaw; static_trig: their yaw's cos, sin, and
+        # _static_half_diag their half diagonals (for the kernels)
         self._perceive_args: tuple | None = None  # (table, rsus, kernel arguments)
 
     # ------------------------------------------------------------------ setup
@@ -533,7 +534,7 @@ class World:
             cached = self._perceive_args = (t, self.rsus, (
                 self.rsus.pose, self.rsus.kind, KIND_TRIGGER, TRIGGER_PREFERENCE_M, FACING_MAX_ANGLE,
                 int(cfg.rsu_slots), t.pos, t.length, t.width, t.yaw, t.height, t.active, self.static_boxes,
-                self.static_heights, *self.static_trig, EGO_SENSOR_Z, float(cfg.ego_range) ** 2,
+                self.static_heights, *self.static_trig, self._static_half_diag, EGO_SENSOR_Z, float(cfg.ego_range) ** 2,
                 float(cfg.ego_range), float(cfg.rsu_range) ** 2, float(cfg.rsu_range), 0.5 * RSU_HFOV,
                 *VISIBILITY_SAMPLING))
         return cached[2]
@@ -586,6 +587,13 @@ class World:
 
 
 #: the stages of a tick between the traffic's move (steps 3-4c) and the delivery (step 8), in order
+def _half_diagonals(boxes: np.ndarray) -> np.ndarray:
+    """Half diagonals of ``(S, 5)`` boxes, as the perception kernel computes them (numba path only)."""
+    if not HAVE_JIT:
+        return np.zeros(0)
+    return half_diagonals_kernel(np.ascontiguousarray(boxes[:, 2]), np.ascontiguousarray(boxes[:, 3]))
+
+
 TICK_STAGES = (World.run_scenarios, World.check_events, World.perceive)
 
 

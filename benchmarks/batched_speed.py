@@ -6,7 +6,11 @@
 action box (no policy network). TorchRL's default for ``policy=None``, ``RandomPolicy`` over the
 env's action spec, cost ~0.4 ms per batch step (pyinstrument, 32 worlds, 2026-11-26), ~13 us
 per agent-step at ``N = 64``: the policy's cost, not the simulator's. An agent-step is one world advancing one tick with its
-observation written. Collector start-up (process spawn, imports, first reset) is not timed: the
+observation written. ``MultiSyncCollector`` waits for both workers' batches before either goes on, so the slower
+worker's batch sets the pace (two single-process collectors side by side measured 11,750 and
+9,208 agent-steps/s, 2026-11-26); the last row runs ``N = 64`` through ``MultiAsyncCollector``,
+which yields each worker's batch as it comes (the same frames, no barrier). Collector start-up
+(process spawn, imports, first reset) is not timed: the
 clock starts at the first batch. Each worker steps its worlds ``STEPS_PER_BATCH`` times per
 batch (a batch of ``N * 32`` frames, as RL batches of a few thousand frames): each batch costs
 a round trip between the workers and the main process, which at 4 steps per batch took ~12 % of
@@ -58,9 +62,13 @@ def _make(n: int, config: dict):
     return functools.partial(_settled_env, n, config)
 
 
-def measure_one(n: int, steps: int, config: dict | None = None, min_seconds: float = 0.0) -> dict:
+def measure_one(n: int, steps: int, config: dict | None = None, min_seconds: float = 0.0,
+                collector: str = "sync") -> dict:
     """Agent-steps/s for ``n`` worlds with at least ``steps`` agent-steps (and, for ``n >= 2``, 4
-    collector batches and ``min_seconds`` of wall time) timed."""
+    collector batches and ``min_seconds`` of wall time) timed; ``collector``: ``"sync"``
+    (``MultiSyncCollector``) or ``"async"`` (``MultiAsyncCollector``) for ``n >= 2``."""
+    if collector not in ("sync", "async"):
+        raise ValueError(f"collector={collector!r}: expected 'sync' or 'async'")
     import torch
 
     config = dict(config or {})
@@ -73,15 +81,19 @@ def measure_one(n: int, steps: int, config: dict | None = None, min_seconds: flo
         t0 = time.perf_counter()
         td = env.rollout(steps, policy=uniform_policy, break_when_any_done=False)
         dt = time.perf_counter() - t0
-        return {"worlds": 1, "processes": 1, "agent_steps": int(td.numel()), "seconds": dt,
-                "agent_steps_per_s": td.numel() / dt}
-    from torchrl.collectors import MultiSyncCollector
+        return {"worlds": 1, "processes": 1, "collector": "in-process", "agent_steps": int(td.numel()),
+                "seconds": dt, "agent_steps_per_s": td.numel() / dt}
+    from torchrl.collectors import MultiAsyncCollector, MultiSyncCollector
 
     per = n // 2
     batch = 2 * per * STEPS_PER_BATCH
     frames = max(steps, 4 * batch)
-    col = MultiSyncCollector([_make(per, config)] * 2, policy=uniform_policy, frames_per_batch=batch,
-                             total_frames=-1, cat_results="stack", device="cpu")
+    if collector == "async":  # each worker's batch is yielded as it comes: no barrier between them
+        col = MultiAsyncCollector([_make(per, config)] * 2, policy=uniform_policy, frames_per_batch=batch // 2,
+                                  total_frames=-1, device="cpu")
+    else:
+        col = MultiSyncCollector([_make(per, config)] * 2, policy=uniform_policy, frames_per_batch=batch,
+                                 total_frames=-1, cat_results="stack", device="cpu")
     try:
         it = iter(col)
         next(it)  # warm-up batch: workers are up and every world has been reset
@@ -91,14 +103,17 @@ def measure_one(n: int, steps: int, config: dict | None = None, min_seconds: flo
         dt = time.perf_counter() - t0
     finally:
         col.shutdown()
-    return {"worlds": n, "processes": 2, "agent_steps": got, "seconds": dt, "agent_steps_per_s": got / dt}
+    return {"worlds": n, "processes": 2, "collector": collector, "agent_steps": got, "seconds": dt,
+            "agent_steps_per_s": got / dt}
 
 
 def measure(worlds=(1, 4, 16, 64), steps: int = 2000, config: dict | None = None,
-            min_seconds: float = MIN_SECONDS) -> dict:
-    """One row per ``N`` in ``worlds``."""
-    return {"rows": [measure_one(n, steps, config, min_seconds) for n in worlds],
-            "goal_agent_steps_per_s": 20000.0, "min_seconds": min_seconds}
+            min_seconds: float = MIN_SECONDS, async_worlds=(64,)) -> dict:
+    """One row per ``N`` in ``worlds`` (``MultiSyncCollector`` for ``N >= 2``), then one per ``N``
+    in ``async_worlds`` with ``MultiAsyncCollector``."""
+    rows = [measure_one(n, steps, config, min_seconds) for n in worlds]
+    rows += [measure_one(n, steps, config, min_seconds, "async") for n in async_worlds]
+    return {"rows": rows, "goal_agent_steps_per_s": 20000.0, "min_seconds": min_seconds}
 
 
 if __name__ == "__main__":

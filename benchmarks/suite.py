@@ -7,7 +7,8 @@ Measures, in one run on this machine, and prints a table; writes ``OUT/suite.jso
   and the default population (30+ actors), next to highway-env ``intersection-v0`` and
   ``highway-fast-v0`` measured in the same run, as ratios (``env_speed.py``);
 - ``sensors``: full sensor rig ticks/s and the cost of every sensor (``sensor_speed.py``);
-- ``batched``: agent-steps/s for N = 1, 4, 16, 64 worlds, 2 processes (``batched_speed.py``);
+- ``batched``: agent-steps/s for N = 1, 4, 16, 64 worlds, 2 processes (``MultiSyncCollector``), and
+  N = 64 through ``MultiAsyncCollector`` (``batched_speed.py``);
 - ``eval``: wall time of ``v2xbench eval --agent expert --suite test50 --workers 2``
   (``eval_time.py``);
 - ``scaling``: objects-mode ticks/s against the number of actors, 10 to 200 (``scaling.py``);
@@ -40,6 +41,11 @@ GOALS = {"objects_ratio": 50.0, "sensors_ticks_per_s": 100.0, "batched_agent_ste
          "eval_seconds": 600.0}
 OBJECTS_CONFIG = {"suite": "test50", "route_index": 0}
 BEGIN, END = "<!-- bench:begin -->", "<!-- bench:end -->"
+
+
+def _collector_label(row: dict) -> str:
+    """`` async`` for a row measured with ``MultiAsyncCollector`` (earlier results have no field)."""
+    return " async" if row.get("collector") == "async" else ""
 
 
 @contextlib.contextmanager
@@ -89,7 +95,8 @@ def run_rows(rows: tuple[str, ...], quick: bool) -> dict:
             from . import batched_speed
 
             res[row] = batched_speed.measure((1, 2) if quick else (1, 4, 16, 64), 40 if quick else 3000,
-                                             min_seconds=0.0 if quick else batched_speed.MIN_SECONDS)
+                                             min_seconds=0.0 if quick else batched_speed.MIN_SECONDS,
+                                             async_worlds=(2,) if quick else (64,))
         elif row == "eval":
             from . import eval_time
 
@@ -170,8 +177,8 @@ def table(report: dict) -> str:
     if "batched" in r:
         rows = r["batched"]["rows"]
         best = max(x["agent_steps_per_s"] for x in rows)
-        res = ", ".join(f"N={x['worlds']}: {x['agent_steps_per_s']:,.0f}" for x in rows)
-        add("batched agent-steps/s (2 processes for N >= 2)", res,
+        res = ", ".join(f"N={x['worlds']}{_collector_label(x)}: {x['agent_steps_per_s']:,.0f}" for x in rows)
+        add("batched agent-steps/s (2 processes for N >= 2: MultiSyncCollector, async: MultiAsyncCollector)", res,
             f">= {GOALS['batched_agent_steps_per_s']:,.0f}", best >= GOALS["batched_agent_steps_per_s"])
     if "eval" in r:
         e = r["eval"]
@@ -210,7 +217,7 @@ def plot(report: dict, path: Path) -> None:
     a = ax[0, 1]
     if "batched" in r:
         rows = r["batched"]["rows"]
-        a.bar([str(x["worlds"]) for x in rows], [x["agent_steps_per_s"] for x in rows])
+        a.bar([f"{x['worlds']}{_collector_label(x)}" for x in rows], [x["agent_steps_per_s"] for x in rows])
         a.axhline(GOALS["batched_agent_steps_per_s"], color="r", ls="--", label="target")
         a.set_yscale("log")
         a.set_xlabel("worlds N")

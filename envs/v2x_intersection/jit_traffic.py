@@ -190,10 +190,21 @@ def pose_kernel(idx, lane, s, bike, v_new, lane_arr, s_arr, lat_arr, pos, yaw, l
             lat = sign * _np_max(a, 0.0)
         dlat = lat - old
         lat_arr[i] = lat
-        nx, ny = -np.sin(h[k]), np.cos(h[k])
-        pos[i, 0] = p[k, 0] + lat * nx
-        pos[i, 1] = p[k, 1] + lat * ny
-        yaw[i] = h[k] + (0.0 if bike[k] else np.arctan2(dlat / dt, _np_max(v_new[k], 1.0)))
+        # on the lane's centre line (most cars): ``p + 0 * n`` is ``p`` unless ``p`` is a zero
+        if lat == 0.0 and p[k, 0] != 0.0 and p[k, 1] != 0.0:
+            pos[i, 0] = p[k, 0]
+            pos[i, 1] = p[k, 1]
+        else:
+            nx, ny = -np.sin(h[k]), np.cos(h[k])
+            pos[i, 0] = p[k, 0] + lat * nx
+            pos[i, 1] = p[k, 1] + lat * ny
+        if bike[k]:
+            yaw[i] = h[k] + 0.0
+        else:
+            q = dlat / dt
+            w = _np_max(v_new[k], 1.0)
+            # arctan2(+-0, w > 0) is that zero: no lateral move, no call
+            yaw[i] = h[k] + (q if q == 0.0 and w > 0.0 else np.arctan2(q, w))
 
 
 @_njit

@@ -84,3 +84,10 @@ def test_settle_collects_cyclic_garbage():
         assert ref() is None
     finally:
         gc.enable()
+
+
+def test_batched_collector_name_is_checked():
+    from v2xbench.benchmarks import batched_speed
+
+    with pytest.raises(ValueError, match="collector"):
+        batched_speed.measure_one(2, 10, collector="threads")

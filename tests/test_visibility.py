@@ -124,6 +124,23 @@ def test_field_of_view():
     np.testing.assert_array_equal(visible_fraction(sensor, boxes, [0, 1, 2, 3]), 1.0)
 
 
+def test_field_of_view_edge_matches_the_reference_path():
+    """Sample points within a hair of the field of view's edge: the kernel's shortcut (a bearing's
+    cosine) leaves them to the exact test, so it agrees with the NumPy path (``chunk_elems``)."""
+    boxes = Boxes.concat(Boxes.concat(ped(10.0, 0.0), ped(6.0, 7.0)), ped(-3.0, 8.0))
+    sensor = np.array([0.0, 0.0, 5.0])
+    pts = sample_points(boxes, np.arange(3)).reshape(-1, 3)
+    bearings = np.arctan2(pts[:, 1], pts[:, 0])
+    half = np.deg2rad(60.0)
+    rng = np.random.default_rng(0)
+    yaws = [b - half + d for b in bearings[::7] for d in (-1e-6, -1e-7, -1e-9, -1e-12, 0.0, 1e-12, 1e-9, 1e-7, 1e-6)]
+    yaws += list(rng.uniform(-np.pi, np.pi, 50))
+    for yaw in yaws:
+        fast = visible_fraction(sensor, boxes, [0, 1, 2], sensor_yaw=yaw, hfov=2 * half)
+        ref = visible_fraction(sensor, boxes, [0, 1, 2], sensor_yaw=yaw, hfov=2 * half, chunk_elems=1 << 16)
+        np.testing.assert_array_equal(fast, ref, err_msg=f"sensor_yaw={yaw!r}")
+
+
 def test_threshold_and_many_targets():
     assert VISIBLE_THRESHOLD == 0.1
     # 40 pedestrians facing the ego on a 20 m circle, every 3 deg from -58.5 to 58.5 deg; their

@@ -48,6 +48,8 @@ def _njit_inline(fn):
 
 #: m, slack of the conservative broad phases in front of exact float32 box tests
 BROAD_PHASE_MARGIN = 0.05
+#: rad: a field-of-view answer from the bearing's cosine is taken only this far from the edge
+FOV_SURE_RAD = 1e-7
 
 
 @_njit
@@ -380,6 +382,13 @@ def visible_fraction_kernel(sensor, center, cos_yaw, sin_yaw, length, width, z0,
     sx, sy, sz = sensor[0], sensor[1], sensor[2]
     two_pi = 2.0 * np.pi
     reach2 = -1.0
+    # The field-of-view test is |wrap(arctan2(r1, r0) - sensor_yaw)| <= half_fov. Its answer is
+    # certain without the arctan2 where the bearing's cosine (a dot product) puts it more than
+    # FOV_SURE_RAD inside or outside (the two ways of computing the angle differ by ~1e-15 rad);
+    # the points in that band, and at the sensor, take the exact test.
+    fc, fs = np.cos(sensor_yaw), np.sin(sensor_yaw)
+    cos_in = np.cos(half_fov - FOV_SURE_RAD) if half_fov - FOV_SURE_RAD >= 0.0 else 2.0
+    cos_out = np.cos(half_fov + FOV_SURE_RAD) if half_fov + FOV_SURE_RAD <= np.pi else -2.0
     for a in range(m):
         b = targets[a]
         h0 = shrink * length[b]
@@ -402,8 +411,15 @@ def visible_fraction_kernel(sensor, center, cos_yaw, sin_yaw, length, width, z0,
                 acc += r2 * r2
                 good = acc <= max_r2
                 if good and use_fov:
-                    w = (np.arctan2(r1, r0) - sensor_yaw + np.pi) % two_pi - np.pi
-                    good = abs(w) <= half_fov
+                    hyp = np.sqrt(r0 * r0 + r1 * r1)
+                    along = r0 * fc + r1 * fs
+                    if hyp > 0.0 and along > cos_in * hyp:
+                        good = True
+                    elif hyp > 0.0 and along < cos_out * hyp:
+                        good = False
+                    else:
+                        w = (np.arctan2(r1, r0) - sensor_yaw + np.pi) % two_pi - np.pi
+                        good = abs(w) <= half_fov
                 if good:
                     ok[i] = True
                     if acc > reach2:

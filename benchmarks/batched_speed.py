@@ -90,10 +90,10 @@ def measure_one(n: int, steps: int, config: dict | None = None, min_seconds: flo
     frames = max(steps, 4 * batch)
     if collector == "async":  # each worker's batch is yielded as it comes: no barrier between them
         col = MultiAsyncCollector([_make(per, config)] * 2, policy=uniform_policy, frames_per_batch=batch // 2,
-                                  total_frames=-1, device="cpu")
+                                  total_frames=-1, device="cpu", trust_policy=True)
     else:
         col = MultiSyncCollector([_make(per, config)] * 2, policy=uniform_policy, frames_per_batch=batch,
-                                 total_frames=-1, cat_results="stack", device="cpu")
+                                 total_frames=-1, cat_results="stack", device="cpu", trust_policy=True)
     try:
         it = iter(col)
         next(it)  # warm-up batch: workers are up and every world has been reset

@@ -158,6 +158,12 @@ def _profile(args: argparse.Namespace) -> int:
     return run(args)
 
 
+def _perf(args: argparse.Namespace) -> int:
+    from v2xbench.benchmarks.perf_kernels import run
+
+    return run(args)
+
+
 def _fingerprint(args: argparse.Namespace) -> int:
     from v2xbench.benchmarks.fingerprint import run
 
@@ -322,6 +328,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     _profile_arguments(pf)
     pf.set_defaults(func=_profile)
+    pr = sub.add_parser("perf", help="Linux perf over a workload, numba's kernels named",
+                        description="Sample a batched or objects-mode run with perf record and name the samples "
+                        "inside numba's kernels (benchmarks/perf_kernels.py): prints a table, writes "
+                        "OUT/perf_<mode>.json and .md. Needs perf and nm; compiles every kernel first (~1-2 min).")
+    from v2xbench.benchmarks.perf_kernels import add_arguments as _perf_arguments
+
+    _perf_arguments(pr)
+    pr.set_defaults(func=_perf)
     fp = sub.add_parser("fingerprint", help="hash of what fixed runs compute (same hashes = same bytes)",
                         description="Drive fixed configurations and hash every tick's observation, reward, "
                         "info, events and world state (benchmarks/fingerprint.py); --out saves the hashes, "

@@ -18,7 +18,7 @@ from .actors import EGO as _EGO
 from .actors import PARKED as _PARKED
 from .actors import RIDER as _RIDER
 from .actors import STATIC as _STATIC
-from .jit import _njit, _np_max, _np_min, idm_one, leaders_kernel, pose_at_kernel
+from .jit import _njit, _njit_inline, _np_max, _np_min, idm_one, leaders_kernel, pose_at_kernel
 from .jit_rng import integers, next_double, uniform
 from .town.model import PRIORITY as _PRIORITY
 from .town.model import STOP as _STOP
@@ -27,7 +27,7 @@ from .town.model import STOP as _STOP
 _GREEN, _RED, _YELLOW, _NO_SIGNAL = 0, 2, 1, -1
 
 
-@_njit
+@_njit_inline
 def junction_clear_kernel(active, hold, behaviour, pos, speed, lane, s, lane_length, jcenter, jradius, jcontrol,
                           stop_lane, major, jid, me):  # pragma: no cover
     """``traffic.junction_clear``: no vehicle inside junction ``jid`` (and none arriving on a
@@ -143,7 +143,7 @@ def followers_kernel(idx, active, hold, behaviour, pos, yaw, length, width, spee
     return gap, dv, s_new, v_new, idx[stuck], over
 
 
-@_njit
+@_njit_inline
 def lane_change_kernel(idx, lane, s, gap, dv, bike, draws, lat_arr, active, lane_arr, s_arr, left, right, kind,
                        lane_length, lane_width):  # pragma: no cover
     """``traffic._lane_changes``: a car behind a slower leader (and whose ``draws`` < 0.05) moves
@@ -170,7 +170,7 @@ def lane_change_kernel(idx, lane, s, gap, dv, bike, draws, lat_arr, active, lane
             break
 
 
-@_njit
+@_njit_inline
 def pose_kernel(idx, lane, s, bike, v_new, lane_arr, s_arr, lat_arr, pos, yaw, lane_width, lane_change_rate, dt,
                 points, heading, offset, n_points, gs, base, length):  # pragma: no cover
     """The end of ``traffic.step_followers``: new lane and arc length, lateral offset (riders

@@ -5,13 +5,13 @@
 ``V2XTorchEnv(num_worlds=N/2)`` with random actions: :func:`uniform_policy`, uniform over the
 action box (no policy network). TorchRL's default for ``policy=None``, ``RandomPolicy`` over the
 env's action spec, cost ~0.4 ms per batch step (pyinstrument, 32 worlds, 2026-11-26), ~13 us
-per agent-step at ``N = 64``: the policy's cost, not the simulator's. An agent-step is one world advancing one tick with its
-observation written. ``MultiSyncCollector`` waits for both workers' batches before either goes on, so the slower
-worker's batch sets the pace (two single-process collectors side by side measured 11,750 and
-9,208 agent-steps/s, 2026-11-26); the last row runs ``N = 64`` through ``MultiAsyncCollector``,
-which yields each worker's batch as it comes (the same frames, no barrier). Collector start-up
-(process spawn, imports, first reset) is not timed: the
-clock starts at the first batch. Each worker steps its worlds ``STEPS_PER_BATCH`` times per
+per agent-step at ``N = 64``: the policy's cost, not the simulator's. An agent-step is one world
+advancing one tick with its observation written. ``MultiSyncCollector`` waits for both workers'
+batches before either goes on, so the slower worker's batch sets the pace (two single-process
+collectors side by side measured 11,750 and 9,208 agent-steps/s, 2026-11-26); the last row runs
+``N = 64`` through ``MultiAsyncCollector``, which yields each worker's batch as it comes (the
+same frames, no barrier). Collector start-up (process spawn, imports, first reset) is not timed:
+the clock starts at the first batch. Each worker steps its worlds ``STEPS_PER_BATCH`` times per
 batch (a batch of ``N * 32`` frames, as RL batches of a few thousand frames): each batch costs
 a round trip between the workers and the main process, which at 4 steps per batch took ~12 % of
 the throughput at ``N = 64`` (8,228 / 8,337 against 9,281 / 9,674 agent-steps/s, 2026-11-25).

@@ -249,7 +249,7 @@ def points_blocked_kernel(sensor, pts, cand, own, extra, center, cos_yaw, sin_ya
         rx[q], ry[q] = center[j, 0] - sx, center[j, 1] - sy
         kept_diag[q] = half_diag[j]
         c, s = cos_yaw[j], sin_yaw[j]
-        r0, r1 = center[j, 0] - sx, center[j, 1] - sy
+        r0, r1 = rx[q], ry[q]
         c32[q], s32[q] = np.float32(c), np.float32(s)
         bx[q] = np.float32(c * r0 + s * r1)
         by[q] = np.float32(-s * r0 + c * r1)
@@ -365,7 +365,8 @@ def visible_fraction_kernel(sensor, center, cos_yaw, sin_yaw, length, width, z0,
 
     Args:
         sensor: ``(3,)``. center ... height: the ``N`` boxes (float64; ``cos_yaw``/``sin_yaw`` from
-            NumPy). half_diag: their half diagonals (:func:`half_diagonals_kernel`). targets: ``(M,)`` box indices. extra: ``(E,)`` boxes that never block.
+            NumPy). half_diag: their half diagonals (:func:`half_diagonals_kernel`).
+            targets: ``(M,)`` box indices. extra: ``(E,)`` boxes that never block.
         max_r2: squared range (m^2). use_fov, sensor_yaw, half_fov: horizontal field of view test.
         levels: ``(L,)`` height fractions. pattern: ``(5, 2)`` unit offsets. shrink: ``0.5 * XY_SHRINK``.
         lo, hi: float32 end-point tolerances.

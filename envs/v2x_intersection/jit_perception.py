@@ -238,8 +238,8 @@ def perceive_all_kernel(rsu_pose, rsu_kind, trigger_kind, preference, max_angle,
             for j in range(4):
                 pose[k, j] = rsu_pose[u, j]
     ego_vis, rsu_vis = perceive_kernel(pos, length, width, yaw, height, active, static_boxes, static_heights,
-                                       static_cos, static_sin, static_half_diag, ego_z, ego_r2, ego_range, pose, rsu_r2, rsu_range,
-                                       half_fov, levels, pattern, shrink, lo, hi)
+                                       static_cos, static_sin, static_half_diag, ego_z, ego_r2, ego_range, pose,
+                                       rsu_r2, rsu_range, half_fov, levels, pattern, shrink, lo, hi)
     return active_rsu, ego_vis, rsu_vis
 
 

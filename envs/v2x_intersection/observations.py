@@ -42,7 +42,6 @@ from .geometry import (
     wrap_angle,
 )
 from .jit import HAVE_JIT
-from .jit_args import PackedArgs
 from .jit_observations import ego_obs_packed_kernel
 from .rsu import RSU_PITCH
 from .traffic import STOP_LINE_SETBACK, stop_sign_lanes
@@ -263,10 +262,7 @@ def fill_objects_observation(world, out: dict) -> None:
     else:
         payload, rx, ry, ryaw, age = _NO_PAYLOAD, 0.0, 0.0, 0.0, 0
     objects = out.get("objects")
-    packed = world.__dict__.get("_obs_args")
-    if packed is None:
-        packed = world._obs_args = PackedArgs()
-    consts = packed.get((t, r, world.town), lambda: _obs_consts(world))
+    consts = world._obs_args.get((t, r, world.town), lambda: _obs_consts(world))
     ego_obs_packed_kernel(
         out["ego"], out["route"], out["v2x_objects"] if objects is None else objects, out["v2x_objects"],
         out["v2x_info"], objects is not None, k0, world.ego_vis, lane, has_msg, payload, rx, ry, ryaw, age,

@@ -37,6 +37,7 @@ from .dynamics import VehicleParams, bicycle_step, bicycle_step_scalar
 from .geometry import row_norms, world_to_local_2d
 from .infractions import EventMonitor
 from .jit import HAVE_JIT, half_diagonals_kernel
+from .jit_args import PackedArgs
 from .jit_batch import PerceiveBatch, TrafficBatch
 from .jit_perception import object_rows_kernel, perceive_all_kernel, seen_rows_kernel
 from .jit_rng import state_views
@@ -109,6 +110,7 @@ class World:
         self.town = None
         self._traffic_one: TrafficBatch | None = None  # move_traffic's one-world batch (jit_batch), numba only
         self._perceive_one: PerceiveBatch | None = None  # perceive's (jit_batch)
+        self._obs_args = PackedArgs()  # the objects observation's kernel arguments (numba)
         self._load_town(config.town)
         self.ended = True
         self.tick = 0
@@ -534,8 +536,8 @@ class World:
             cached = self._perceive_args = (t, self.rsus, (
                 self.rsus.pose, self.rsus.kind, KIND_TRIGGER, TRIGGER_PREFERENCE_M, FACING_MAX_ANGLE,
                 int(cfg.rsu_slots), t.pos, t.length, t.width, t.yaw, t.height, t.active, self.static_boxes,
-                self.static_heights, *self.static_trig, self._static_half_diag, EGO_SENSOR_Z, float(cfg.ego_range) ** 2,
-                float(cfg.ego_range), float(cfg.rsu_range) ** 2, float(cfg.rsu_range), 0.5 * RSU_HFOV,
+                self.static_heights, *self.static_trig, self._static_half_diag, EGO_SENSOR_Z,
+                float(cfg.ego_range) ** 2, float(cfg.ego_range), float(cfg.rsu_range) ** 2, float(cfg.rsu_range), 0.5 * RSU_HFOV,
                 *VISIBILITY_SAMPLING))
         return cached[2]
 
@@ -586,7 +588,6 @@ class World:
         return self.monitor.progress >= len(self.route.points) - 3
 
 
-#: the stages of a tick between the traffic's move (steps 3-4c) and the delivery (step 8), in order
 def _half_diagonals(boxes: np.ndarray) -> np.ndarray:
     """Half diagonals of ``(S, 5)`` boxes, as the perception kernel computes them (numba path only)."""
     if not HAVE_JIT:
@@ -594,6 +595,7 @@ def _half_diagonals(boxes: np.ndarray) -> np.ndarray:
     return half_diagonals_kernel(np.ascontiguousarray(boxes[:, 2]), np.ascontiguousarray(boxes[:, 3]))
 
 
+#: the stages of a tick between the traffic's move (steps 3-4c) and the delivery (step 8), in order
 TICK_STAGES = (World.run_scenarios, World.check_events, World.perceive)
 
 

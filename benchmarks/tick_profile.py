@@ -16,7 +16,9 @@ from Python are wrapped with a timer. Then the run drives one of two workloads:
 
 It reports microseconds per tick (per world-step in ``batched``) of every stage and every kernel,
 with calls per tick, and splits the tick into time inside kernels (numba's dispatch included)
-and Python around them. Kernels that call kernels inside numba are counted once, in the caller.
+and Python around them. With numba it also counts the arrays each kernel allocates per tick
+(numba runtime's allocation statistics, switched on for the run): every ``np.empty`` or
+returned array inside a kernel is a ``malloc`` / ``free`` pair plus atomic reference counts. Kernels that call kernels inside numba are counted once, in the caller.
 Each timer adds ~0.2 us per wrapped call, so the stages read a little high; the split is what to
 look at. Without numba ``move_traffic`` runs as four stages (``move_ego``, ``update_signals``,
 ``move_followers``, ``move_walkers``), each listed; with numba it is one kernel. ``other`` is the
@@ -55,11 +57,15 @@ WORLD_STAGES = ("send_builtin", "move_traffic", "move_ego", "update_signals", "m
 class _Timers:
     """Accumulated seconds and call counts per key; ``outer`` sums only the calls made outside any
     other timed call of the same timers (a reset's own perception counts once in it), and
-    ``parent`` / ``top_calls`` tell the stages that only ever run inside another one."""
+    ``parent`` / ``top_calls`` tell the stages that only ever run inside another one. With a
+    ``counter`` (a running count, e.g. :func:`_nrt_allocations`), ``counts`` sums its growth
+    over each key's calls."""
 
-    def __init__(self) -> None:
+    def __init__(self, counter: Callable[[], int] | None = None) -> None:
         self.seconds: dict[str, float] = defaultdict(float)
         self.calls: dict[str, int] = defaultdict(int)
+        self.counts: dict[str, int] = defaultdict(int)
+        self.counter = counter
         self.parent: dict[str, str] = {}  # key -> the timed call it ran inside (the first seen)
         self.top_calls: dict[str, int] = defaultdict(int)  # calls made outside any other timed call
         self.outer = 0.0
@@ -68,22 +74,26 @@ class _Timers:
     def clear(self) -> None:
         self.seconds.clear()
         self.calls.clear()
+        self.counts.clear()
         self.parent.clear()
         self.top_calls.clear()
         self.outer = 0.0
 
     def wrap(self, fn: Callable, key: str) -> Callable:
         seconds, calls, clock, stack = self.seconds, self.calls, time.perf_counter, self._stack
+        counter, counts = self.counter or (lambda: 0), self.counts
 
         def timed(*args, **kwargs):
             if stack:
                 self.parent.setdefault(key, stack[-1])
             stack.append(key)
+            c0 = counter()
             t0 = clock()
             try:
                 return fn(*args, **kwargs)
             finally:
                 dt = clock() - t0
+                counts[key] += counter() - c0
                 stack.pop()
                 seconds[key] += dt
                 calls[key] += 1
@@ -132,6 +142,31 @@ class _ScenarioTimers:
                 self._depth -= 1
 
         return timed
+
+
+@contextlib.contextmanager
+def _nrt_statistics(wanted: bool = True) -> Iterator[Callable[[], int] | None]:
+    """numba runtime's allocation statistics switched on for the block (they are off by default
+    and cost an atomic add per allocation); yields a function giving the allocations so far, or
+    ``None`` where not ``wanted`` or numba (or this numba's switch) is missing."""
+    if not wanted:
+        yield None
+        return
+    try:
+        from numba.core.runtime import _nrt_python
+    except ImportError:
+        yield None
+        return
+    if not hasattr(_nrt_python, "memsys_get_stats_alloc"):  # pragma: no cover - another numba
+        yield None
+        return
+    was_on = _nrt_python.memsys_stats_enabled()
+    _nrt_python.memsys_enable_stats()
+    try:
+        yield _nrt_python.memsys_get_stats_alloc  # a C call (rtsys.get_allocation_stats: ~2 us)
+    finally:
+        if not was_on:
+            _nrt_python.memsys_disable_stats()
 
 
 @contextlib.contextmanager
@@ -298,7 +333,9 @@ def profile(mode: str = "objects", ticks: int = 3000, worlds: int = 32, routes: 
     Returns:
         a JSON-able report: ``us_per_tick`` (per world-step in ``batched``), ``stages`` and
         ``kernels`` (``{name: {"us": per tick, "calls": per tick, "inside": the stage that every
-        call ran inside, or None}}``, largest first),
+        call ran inside, or None}}``, largest first; kernels also ``"allocs"``: arrays numba
+        allocated per tick inside them, ``None`` without the statistics), ``allocs_per_tick``
+        (all of numba's allocations per tick, or ``None``),
         ``kernel_us`` / ``python_us`` (inside / outside kernels), ``other_us`` (outside the stages);
         in ``test50`` also ``scenarios`` (``{type: {"us_live": us per tick a scenario of the type
         was live, "ticks": those ticks, "us": us per tick of the run}}``, largest ``us`` first).
@@ -314,25 +351,33 @@ def profile(mode: str = "objects", ticks: int = 3000, worlds: int = 32, routes: 
         raise ValueError(f"profile: routes={routes} must be in [1, {TEST50_ROUTES}]")
     from v2xbench.envs.v2x_intersection.jit import HAVE_JIT
 
-    stage_t, kernel_t, scen_t = _Timers(), _Timers(), _ScenarioTimers()
+    with _nrt_statistics(HAVE_JIT) as allocations:
+        stage_t, kernel_t, scen_t = _Timers(), _Timers(allocations), _ScenarioTimers()
+        start = [0]
 
-    def clear() -> None:  # the workloads clear the timers after their warm-up
-        stage_t.clear()
-        kernel_t.clear()
-        scen_t.clear()
+        def clear() -> None:  # the workloads clear the timers after their warm-up
+            stage_t.clear()
+            kernel_t.clear()
+            scen_t.clear()
+            start[0] = allocations() if allocations else 0
 
-    with _patched(_stage_patches(stage_t, mode) + _kernel_patches(kernel_t)):
-        if mode == "objects":
-            total, steps, config = _run_objects(ticks, clear)
-        elif mode == "test50":
-            total, steps, config = _run_test50(ticks, routes, clear, scen_t)
-        else:
-            total, steps, config = _run_batched(ticks, worlds, clear)
+        with _patched(_stage_patches(stage_t, mode) + _kernel_patches(kernel_t)):
+            if mode == "objects":
+                total, steps, config = _run_objects(ticks, clear)
+            elif mode == "test50":
+                total, steps, config = _run_test50(ticks, routes, clear, scen_t)
+            else:
+                total, steps, config = _run_batched(ticks, worlds, clear)
+        allocs = (allocations() - start[0]) / steps if allocations else None
 
     def per_tick(t: _Timers) -> dict:
         rows = sorted(t.seconds, key=lambda k: -t.seconds[k])
-        return {k: {"us": 1e6 * t.seconds[k] / steps, "calls": t.calls[k] / steps,
-                    "inside": None if t.top_calls[k] else t.parent.get(k)} for k in rows}
+        out = {k: {"us": 1e6 * t.seconds[k] / steps, "calls": t.calls[k] / steps,
+                   "inside": None if t.top_calls[k] else t.parent.get(k)} for k in rows}
+        if t is kernel_t:
+            for k, row in out.items():
+                row["allocs"] = t.counts[k] / steps if allocations else None
+        return out
 
     stages, kernels = per_tick(stage_t), per_tick(kernel_t)
     us = 1e6 * total / steps
@@ -342,7 +387,8 @@ def profile(mode: str = "objects", ticks: int = 3000, worlds: int = 32, routes: 
         "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), "steps": steps,
         "us_per_tick": us, "kernel_us": kernel_us, "python_us": us - kernel_us,
         "other_us": us - 1e6 * stage_t.outer / steps,
-        "kernel_calls": sum(v["calls"] for v in kernels.values()), "stages": stages, "kernels": kernels,
+        "kernel_calls": sum(v["calls"] for v in kernels.values()), "allocs_per_tick": allocs,
+        "stages": stages, "kernels": kernels,
     }
     if mode == "test50":
         names = sorted(scen_t.seconds, key=lambda k: -scen_t.seconds[k])
@@ -361,7 +407,9 @@ def table(report: dict) -> str:
         f"numba {'on' if report['numba'] else 'off'}",
         "",
         f"{us:.0f} us per {unit} ({1e6 / us:,.0f} per second): {report['kernel_us']:.0f} us inside "
-        f"{report['kernel_calls']:.1f} kernel calls, {report['python_us']:.0f} us of Python around them.",
+        f"{report['kernel_calls']:.1f} kernel calls, {report['python_us']:.0f} us of Python around them."
+        + ("" if report.get("allocs_per_tick") is None else
+           f" numba allocated {report['allocs_per_tick']:.0f} arrays per {unit}."),
         "",
         "| stage | us per " + unit + " | calls | share |",
         "| --- | ---: | ---: | ---: |",
@@ -371,9 +419,11 @@ def table(report: dict) -> str:
         lines.append(f"| {name} | {v['us']:.1f} | {v['calls']:.2f} | {100 * v['us'] / us:.0f} % |")
     lines.append(f"| other | {report['other_us']:.1f} | | {100 * report['other_us'] / us:.0f} % |")
     if report["kernels"]:
-        lines += ["", "| kernel | us per " + unit + " | calls | share |", "| --- | ---: | ---: | ---: |"]
+        lines += ["", "| kernel | us per " + unit + " | calls | share | arrays allocated per " + unit + " |",
+                  "| --- | ---: | ---: | ---: | ---: |"]
         for k, v in report["kernels"].items():
-            lines.append(f"| {k} | {v['us']:.1f} | {v['calls']:.2f} | {100 * v['us'] / us:.0f} % |")
+            allocs = "" if v.get("allocs") is None else f"{v['allocs']:.1f}"
+            lines.append(f"| {k} | {v['us']:.1f} | {v['calls']:.2f} | {100 * v['us'] / us:.0f} % | {allocs} |")
     if report.get("scenarios"):
         lines += ["", "| scenario type (hooks) | us per live tick | live ticks | us per tick | share |",
                   "| --- | ---: | ---: | ---: | ---: |"]

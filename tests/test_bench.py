@@ -91,3 +91,44 @@ def test_batched_collector_name_is_checked():
 
     with pytest.raises(ValueError, match="collector"):
         batched_speed.measure_one(2, 10, collector="threads")
+
+
+class _Episodes:
+    """A stand-in env whose episodes end every ``length`` steps; records what it was asked."""
+
+    def __init__(self, length: int) -> None:
+        self.length, self.t, self.calls = length, 0, []
+
+    def reset(self, seed=None):
+        self.t = 0
+        self.calls.append(("reset", seed))
+
+    def step(self, action):
+        self.t += 1
+        self.calls.append(("step", None))
+        return None, 0.0, self.t >= self.length, False, {}
+
+
+@pytest.mark.parametrize("length, warmup, untimed", [(7, 3, 8), (7, 20, 20), (50, 0, 0)])
+def test_warm_up_goes_through_an_episode_end_and_the_step_after_it(length, warmup, untimed):
+    """The warm-up runs ``warmup`` steps and, with ``warmup > 0``, on past the first episode end,
+    its reset and one more step (paths first taken there load numba code on first use)."""
+    from v2xbench.benchmarks.env_speed import timed_steps
+
+    env = _Episodes(length)
+    timed_steps(env, None, steps=4, seed=10, warmup=warmup)
+    last_reset = max(i for i, c in enumerate(env.calls) if c == ("reset", 10))  # the reset before the clock
+    warm = env.calls[1:last_reset]
+    assert sum(c[0] == "step" for c in warm) == untimed
+    if warmup:
+        assert ("reset", 10 + length) in warm  # the first episode's end was reset in the warm-up
+    assert sum(c[0] == "step" for c in env.calls[last_reset:]) == 4
+
+
+def test_warm_up_waits_for_an_episode_end_only_so_long(monkeypatch):
+    from v2xbench.benchmarks import env_speed
+
+    monkeypatch.setattr(env_speed, "WARMUP_EPISODE_CAP", 5)
+    env = _Episodes(10**9)
+    env_speed.timed_steps(env, None, steps=1, warmup=2)
+    assert sum(c[0] == "step" for c in env.calls) == 2 + 5 + 1

@@ -20,6 +20,14 @@ def _originals() -> dict:
             "followers": traffic.followers_tick_kernel}
 
 
+def _nrt_stats_on() -> bool | None:
+    if not HAVE_JIT:
+        return None
+    from numba.core.runtime import _nrt_python
+
+    return _nrt_python.memsys_stats_enabled()
+
+
 def _check(report: dict, mode: str, worlds: int = 1) -> None:
     assert report["mode"] == mode and report["steps"] > 0 and report["us_per_tick"] > 0
     stages = report["stages"]
@@ -47,18 +55,26 @@ def _check(report: dict, mode: str, worlds: int = 1) -> None:
         assert 0 < report["kernel_us"] < report["us_per_tick"]
         perception = "perceive_batch_kernel" if one_call else "perceive_one_kernel"
         assert kernels[perception]["us"] <= stages["perceive"]["us"]
+        # numba's allocations: counted per kernel (the perception kernel makes arrays every call),
+        # and no kernel's count exceeds the run's
+        assert kernels[perception]["allocs"] >= 1.0 / worlds
+        assert all(0 <= v["allocs"] <= report["allocs_per_tick"] + 1e-9 for v in kernels.values())
     else:
-        assert report["kernels"] == {} and report["kernel_us"] == 0
+        assert report["kernels"] == {} and report["kernel_us"] == 0 and report["allocs_per_tick"] is None
 
 
 def test_objects_profile_restores_what_it_patched():
     before = _originals()
+    stats_on = _nrt_stats_on()
     report = tp.profile("objects", ticks=30)
     _check(report, "objects")
     assert _originals() == before
+    assert _nrt_stats_on() == stats_on  # numba's allocation statistics are switched back
     md = tp.table(report)
     assert "| update_signals (inside move_traffic) |" in md and "| move_traffic |" in md
     assert "| other |" in md and "us per tick" in md
+    if HAVE_JIT:
+        assert "arrays allocated per tick" in md and "numba allocated" in md
 
 
 def test_batched_profile(tmp_path):

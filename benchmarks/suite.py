@@ -5,7 +5,8 @@ Measures, in one run on this machine, and prints a table; writes ``OUT/suite.jso
 
 - ``objects``: objects-mode ticks/s (``gym.make``, one core) on a test50 route with its scenario
   and the default population (30+ actors), next to highway-env ``intersection-v0`` and
-  ``highway-fast-v0`` measured in the same run, as ratios (``env_speed.py``);
+  ``highway-fast-v0`` measured in the same run, taking turns (5 rounds, 10 s of each env in
+  all), as ratios (``env_speed.py``);
 - ``sensors``: full sensor rig ticks/s and the cost of every sensor (``sensor_speed.py``);
 - ``batched``: agent-steps/s for N = 1, 4, 16, 64 worlds, 2 processes (``MultiSyncCollector``), and
   N = 64 through ``MultiAsyncCollector`` (``batched_speed.py``);
@@ -85,7 +86,8 @@ def run_rows(rows: tuple[str, ...], quick: bool) -> dict:
             from . import env_speed
 
             with one_core():
-                res[row] = env_speed.measure(60 if quick else 3000, OBJECTS_CONFIG)
+                res[row] = env_speed.measure(0.3 if quick else env_speed.SECONDS, OBJECTS_CONFIG,
+                                             rounds=1 if quick else env_speed.ROUNDS)
         elif row == "sensors":
             from . import sensor_speed
 

@@ -132,3 +132,26 @@ def test_warm_up_waits_for_an_episode_end_only_so_long(monkeypatch):
     env = _Episodes(10**9)
     env_speed.timed_steps(env, None, steps=1, warmup=2)
     assert sum(c[0] == "step" for c in env.calls) == 2 + 5 + 1
+
+
+def test_episodes_go_on_across_timed_stretches():
+    """The envs of the objects row take turns in stretches: an episode is not cut between them."""
+    from v2xbench.benchmarks.env_speed import Stepper
+
+    env = _Episodes(5)
+    st = Stepper(env, None, seed=3)
+    st.run(steps=3)
+    st.run(steps=4)
+    assert st.steps == 7 and st.wall > 0 and st.cpu >= 0
+    resets = [c for c in env.calls if c[0] == "reset"]
+    assert resets == [("reset", 3), ("reset", 3), ("reset", 8)]  # warm-up's two, then the end at step 5
+    st.run(seconds=1e-9)  # a stretch by time takes one step at least
+    assert st.steps == 8
+
+
+@pytest.mark.parametrize("seconds, rounds", [(0.0, 5), (1.0, 0), (float("nan"), 1)])
+def test_objects_row_rejects_bad_sizes(seconds, rounds):
+    from v2xbench.benchmarks.env_speed import measure
+
+    with pytest.raises(ValueError, match="seconds"):
+        measure(seconds, rounds=rounds)

@@ -251,16 +251,13 @@ def _run_objects(ticks: int, clear: Callable[[], None]) -> tuple[float, int, dic
 
     import v2xbench  # noqa: F401  (registers the ids)
 
+    from .env_speed import warm_up
     from .suite import OBJECTS_CONFIG
 
     env = gym.make("V2XIntersection-v0", **OBJECTS_CONFIG)
     action = np.array([0.3, 0.0, 0.0], np.float32)
-    env.reset(seed=0)
-    for _ in range(50):  # warm-up: kernels compiled or loaded, caches filled
-        _, _, term, trunc, _ = env.step(action)
-        if term or trunc:
-            env.reset(seed=1)
-    env.reset(seed=0)
+    # warm-up: kernels compiled or loaded, caches filled, through an episode end (env_speed.warm_up)
+    warm_up(env, action, seed=0, warmup=50)
     settle()
     clear()
     n, t0 = 0, time.perf_counter()

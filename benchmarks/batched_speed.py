@@ -15,7 +15,9 @@ the clock starts at the first batch. Each worker steps its worlds ``STEPS_PER_BA
 batch (a batch of ``N * 32`` frames, as RL batches of a few thousand frames): each batch costs
 a round trip between the workers and the main process, which at 4 steps per batch took ~12 % of
 the throughput at ``N = 64`` (8,228 / 8,337 against 9,281 / 9,674 agent-steps/s, 2026-11-25).
-At least 4 batches and ``MIN_SECONDS`` of wall time are timed.
+At least 4 batches and ``MIN_SECONDS`` of wall time are timed, after ``WARMUP_SECONDS`` of untimed
+batches (``N = 1``: ``WARMUP_STEPS_ONE`` steps) in which every world reaches its first episode
+end: numba loads some code on the first step after a second reset (``env_speed.warm_up``).
 """
 
 from __future__ import annotations
@@ -30,6 +32,11 @@ STEPS_PER_BATCH = 32
 #: s, least wall time of a collector row: 4 batches (~1 s at N = 64) gave 7,353 to 11,103
 #: agent-steps/s for the same code in four runs
 MIN_SECONDS = 4.0
+#: s of untimed collector batches before the clock starts (episodes of the default config end
+#: after ~130-230 ticks: ~0.1-0.5 s of a worker's 2-32 worlds)
+WARMUP_SECONDS = 2.0
+#: untimed steps of the in-process ``N = 1`` row
+WARMUP_STEPS_ONE = 400
 
 
 #: the action box, ``(throttle, steer, brake)``: ``low + span * U[0, 1)``
@@ -63,10 +70,12 @@ def _make(n: int, config: dict):
 
 
 def measure_one(n: int, steps: int, config: dict | None = None, min_seconds: float = 0.0,
-                collector: str = "sync") -> dict:
+                collector: str = "sync", warmup_seconds: float = 0.0) -> dict:
     """Agent-steps/s for ``n`` worlds with at least ``steps`` agent-steps (and, for ``n >= 2``, 4
-    collector batches and ``min_seconds`` of wall time) timed; ``collector``: ``"sync"``
-    (``MultiSyncCollector``) or ``"async"`` (``MultiAsyncCollector``) for ``n >= 2``."""
+    collector batches and ``min_seconds`` of wall time) timed after ``warmup_seconds`` of untimed
+    batches (``n = 1``: ``WARMUP_STEPS_ONE`` untimed steps when ``warmup_seconds > 0``, else 5);
+    ``collector``: ``"sync"`` (``MultiSyncCollector``) or ``"async"`` (``MultiAsyncCollector``)
+    for ``n >= 2``."""
     if collector not in ("sync", "async"):
         raise ValueError(f"collector={collector!r}: expected 'sync' or 'async'")
     import torch
@@ -76,7 +85,8 @@ def measure_one(n: int, steps: int, config: dict | None = None, min_seconds: flo
     if n == 1:
         env = _make(1, config)()
         env.set_seed(0)
-        env.rollout(5, policy=uniform_policy)
+        env.rollout(WARMUP_STEPS_ONE if warmup_seconds > 0 else 5, policy=uniform_policy,
+                    break_when_any_done=False)
         settle()
         t0 = time.perf_counter()
         td = env.rollout(steps, policy=uniform_policy, break_when_any_done=False)
@@ -97,6 +107,9 @@ def measure_one(n: int, steps: int, config: dict | None = None, min_seconds: flo
     try:
         it = iter(col)
         next(it)  # warm-up batch: workers are up and every world has been reset
+        t_warm = time.perf_counter()
+        while time.perf_counter() - t_warm < warmup_seconds:
+            next(it)
         got, t0 = 0, time.perf_counter()
         while got < frames or time.perf_counter() - t0 < min_seconds:
             got += next(it).numel()
@@ -108,12 +121,13 @@ def measure_one(n: int, steps: int, config: dict | None = None, min_seconds: flo
 
 
 def measure(worlds=(1, 4, 16, 64), steps: int = 2000, config: dict | None = None,
-            min_seconds: float = MIN_SECONDS, async_worlds=(64,)) -> dict:
+            min_seconds: float = MIN_SECONDS, async_worlds=(64,), warmup_seconds: float = WARMUP_SECONDS) -> dict:
     """One row per ``N`` in ``worlds`` (``MultiSyncCollector`` for ``N >= 2``), then one per ``N``
     in ``async_worlds`` with ``MultiAsyncCollector``."""
-    rows = [measure_one(n, steps, config, min_seconds) for n in worlds]
-    rows += [measure_one(n, steps, config, min_seconds, "async") for n in async_worlds]
-    return {"rows": rows, "goal_agent_steps_per_s": 20000.0, "min_seconds": min_seconds}
+    rows = [measure_one(n, steps, config, min_seconds, warmup_seconds=warmup_seconds) for n in worlds]
+    rows += [measure_one(n, steps, config, min_seconds, "async", warmup_seconds) for n in async_worlds]
+    return {"rows": rows, "goal_agent_steps_per_s": 20000.0, "min_seconds": min_seconds,
+            "warmup_seconds": warmup_seconds}
 
 
 if __name__ == "__main__":

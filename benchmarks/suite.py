@@ -98,7 +98,8 @@ def run_rows(rows: tuple[str, ...], quick: bool) -> dict:
 
             res[row] = batched_speed.measure((1, 2) if quick else (1, 4, 16, 64), 40 if quick else 3000,
                                              min_seconds=0.0 if quick else batched_speed.MIN_SECONDS,
-                                             async_worlds=(2,) if quick else (64,))
+                                             async_worlds=(2,) if quick else (64,),
+                                             warmup_seconds=0.0 if quick else batched_speed.WARMUP_SECONDS)
         elif row == "eval":
             from . import eval_time
 

@@ -93,6 +93,14 @@ def test_batched_collector_name_is_checked():
         batched_speed.measure_one(2, 10, collector="threads")
 
 
+def test_batched_one_world_row_after_a_warm_up(monkeypatch):
+    from v2xbench.benchmarks import batched_speed
+
+    monkeypatch.setattr(batched_speed, "WARMUP_STEPS_ONE", 3)
+    row = batched_speed.measure_one(1, 4, {"num_vehicles": 4, "num_pedestrians": 2}, warmup_seconds=1.0)
+    assert row["worlds"] == 1 and row["agent_steps"] == 4 and row["agent_steps_per_s"] > 0
+
+
 class _Episodes:
     """A stand-in env whose episodes end every ``length`` steps; records what it was asked."""
 

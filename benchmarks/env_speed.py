@@ -31,7 +31,8 @@ from pathlib import Path
 
 from .settle import settle
 
-#: untimed V2XBench steps before the clock starts (highway-env gets 2, ~0.1 s of its time)
+#: least untimed V2XBench steps before the clock starts (highway-env: 2), both then on through an
+#: episode end (:func:`warm_up`)
 WARMUP_STEPS = 100
 #: most extra warm-up steps spent waiting for the first episode to end (see :func:`warm_up`)
 WARMUP_EPISODE_CAP = 5000

@@ -18,8 +18,8 @@ It reports microseconds per tick (per world-step in ``batched``) of every stage 
 with calls per tick, and splits the tick into time inside kernels (numba's dispatch included)
 and Python around them. With numba it also counts the arrays each kernel allocates per tick
 (numba runtime's allocation statistics, switched on for the run): every ``np.empty`` or
-returned array inside a kernel is a ``malloc`` / ``free`` pair plus atomic reference counts. Kernels that call kernels inside numba are counted once, in the caller.
-Each timer adds ~0.2 us per wrapped call, so the stages read a little high; the split is what to
+returned array inside a kernel is a ``malloc`` / ``free`` pair plus atomic reference counts.
+Kernels that call kernels inside numba are counted once, in the caller. Each timer adds ~0.2 us per wrapped call, so the stages read a little high; the split is what to
 look at. Without numba ``move_traffic`` runs as four stages (``move_ego``, ``update_signals``,
 ``move_followers``, ``move_walkers``), each listed; with numba it is one kernel. ``other`` is the
 tick minus its stages: the env's own glue, Gymnasium's wrappers (objects), TorchRL and
@@ -58,8 +58,8 @@ class _Timers:
     """Accumulated seconds and call counts per key; ``outer`` sums only the calls made outside any
     other timed call of the same timers (a reset's own perception counts once in it), and
     ``parent`` / ``top_calls`` tell the stages that only ever run inside another one. With a
-    ``counter`` (a running count, e.g. :func:`_nrt_allocations`), ``counts`` sums its growth
-    over each key's calls."""
+    ``counter`` (a running count, e.g. the one :func:`_nrt_statistics` yields), ``counts`` sums its
+    growth over each key's calls."""
 
     def __init__(self, counter: Callable[[], int] | None = None) -> None:
         self.seconds: dict[str, float] = defaultdict(float)
@@ -81,19 +81,20 @@ class _Timers:
 
     def wrap(self, fn: Callable, key: str) -> Callable:
         seconds, calls, clock, stack = self.seconds, self.calls, time.perf_counter, self._stack
-        counter, counts = self.counter or (lambda: 0), self.counts
+        counter, counts = self.counter, self.counts
 
         def timed(*args, **kwargs):
             if stack:
                 self.parent.setdefault(key, stack[-1])
             stack.append(key)
-            c0 = counter()
+            c0 = counter() if counter else 0
             t0 = clock()
             try:
                 return fn(*args, **kwargs)
             finally:
                 dt = clock() - t0
-                counts[key] += counter() - c0
+                if counter:
+                    counts[key] += counter() - c0
                 stack.pop()
                 seconds[key] += dt
                 calls[key] += 1
@@ -350,13 +351,14 @@ def profile(mode: str = "objects", ticks: int = 3000, worlds: int = 32, routes: 
 
     with _nrt_statistics(HAVE_JIT) as allocations:
         stage_t, kernel_t, scen_t = _Timers(), _Timers(allocations), _ScenarioTimers()
-        start = [0]
+        start = 0  # allocations when the timers were cleared
 
         def clear() -> None:  # the workloads clear the timers after their warm-up
+            nonlocal start
             stage_t.clear()
             kernel_t.clear()
             scen_t.clear()
-            start[0] = allocations() if allocations else 0
+            start = allocations() if allocations else 0
 
         with _patched(_stage_patches(stage_t, mode) + _kernel_patches(kernel_t)):
             if mode == "objects":
@@ -365,7 +367,7 @@ def profile(mode: str = "objects", ticks: int = 3000, worlds: int = 32, routes: 
                 total, steps, config = _run_test50(ticks, routes, clear, scen_t)
             else:
                 total, steps, config = _run_batched(ticks, worlds, clear)
-        allocs = (allocations() - start[0]) / steps if allocations else None
+        allocs = (allocations() - start) / steps if allocations else None
 
     def per_tick(t: _Timers) -> dict:
         rows = sorted(t.seconds, key=lambda k: -t.seconds[k])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from v2xbench.envs.v2x_intersection import infractions, jit_events
 from v2xbench.envs.v2x_intersection.actors import EGO, PARKED, WALKER, ActorTable
 from v2xbench.envs.v2x_intersection.classes import CAR, PEDESTRIAN
 from v2xbench.envs.v2x_intersection.config import make_config
@@ -29,6 +30,17 @@ from v2xbench.envs.v2x_intersection.traffic import STOP_LINE_SETBACK
 from v2xbench.envs.v2x_intersection.world import World
 
 BRAKE = np.array([0.0, 0.0, 1.0])
+
+
+@pytest.fixture(params=["numba", "numpy"])
+def monitor_path(request, monkeypatch):
+    """Run a monitor test on the kernel path (``jit_events.monitor_kernel``) and on the NumPy
+    path of ``EventMonitor`` (the kernel path only where numba is installed)."""
+    if request.param == "numba" and not infractions.HAVE_JIT:
+        pytest.skip("numba not installed")
+    if request.param == "numpy":
+        monkeypatch.setattr(infractions, "HAVE_JIT", False)
+    return request.param
 
 
 def table(n: int) -> ActorTable:
@@ -139,7 +151,7 @@ def test_collision_world_matches_separating_axis_test(monkeypatch, jit):
 # ------------------------------------------------------------------------------ collisions in a world
 
 
-def test_ego_into_parked_vehicle_counts_once_per_contact_window():
+def test_ego_into_parked_vehicle_counts_once_per_contact_window(monitor_path):
     w = World(
         make_config(town="Town03", num_vehicles=0, num_parked=1, num_pedestrians=0, num_bicycles=0)
     )
@@ -170,7 +182,7 @@ def test_ego_into_parked_vehicle_counts_once_per_contact_window():
     assert w.monitor.counts[COLLISION_PEDESTRIAN] == 0
 
 
-def test_ego_into_pedestrian():
+def test_ego_into_pedestrian(monitor_path):
     w = World(
         make_config(town="Town03", num_vehicles=0, num_parked=0, num_pedestrians=1, num_bicycles=0)
     )
@@ -186,7 +198,7 @@ def test_ego_into_pedestrian():
     assert w.monitor.counts[COLLISION_VEHICLE] == 0
 
 
-def test_ego_into_building_is_static_collision():
+def test_ego_into_building_is_static_collision(monitor_path):
     w = World(
         make_config(town="Town01", num_vehicles=0, num_parked=0, num_pedestrians=0, num_bicycles=0)
     )
@@ -227,7 +239,7 @@ def _drive(monitor, town, t, lane, s_values, v, signal):
 
 
 @pytest.mark.parametrize("state, expected", [(RED, 1), (GREEN, 0)])
-def test_red_light_when_crossing_the_stop_line(state, expected):
+def test_red_light_when_crossing_the_stop_line(state, expected, monitor_path):
     town = get_town("Town01")
     lane, route = _approach(town, SIGNAL)
     signal = np.full(len(town.lanes), NO_SIGNAL)
@@ -245,7 +257,7 @@ def test_red_light_when_crossing_the_stop_line(state, expected):
     assert mon.counts[RED_LIGHT] == expected
 
 
-def test_scenario_clock_stops_while_a_red_light_holds_the_ego():
+def test_scenario_clock_stops_while_a_red_light_holds_the_ego(monitor_path):
     from types import SimpleNamespace
 
     from v2xbench.envs.v2x_intersection.scenarios.base import Scenario, Site
@@ -283,7 +295,7 @@ def test_scenario_clock_stops_while_a_red_light_holds_the_ego():
 
 
 @pytest.mark.parametrize("stop_first, expected", [(False, 1), (True, 0)])
-def test_stop_sign(stop_first, expected):
+def test_stop_sign(stop_first, expected, monitor_path):
     town = get_town("Town01")
     lane, route = _approach(town, STOP)
     signal = np.full(len(town.lanes), NO_SIGNAL)
@@ -297,7 +309,7 @@ def test_stop_sign(stop_first, expected):
     assert sum(e[0] == STOP_SIGN for e in ev) == expected
 
 
-def test_route_deviation():
+def test_route_deviation(monitor_path):
     town = get_town("Town04")  # straight lane: distances are easy
     route = route_from_lanes(town, [0, 20, 6])
     mon = EventMonitor(town, route, 0.1)
@@ -316,7 +328,7 @@ def test_route_deviation():
     assert mon.counts.shape == (NUM_EVENTS,)
 
 
-def test_route_completion_increases_to_100():
+def test_route_completion_increases_to_100(monitor_path):
     town = get_town("Town01")
     route = random_route(town, np.random.default_rng(5), 300.0)
     mon = EventMonitor(town, route, 0.1)
@@ -341,7 +353,7 @@ def test_route_completion_increases_to_100():
     assert mon.counts[ROUTE_DEVIATION] == 0
 
 
-def test_route_completion_does_not_jump_ahead_when_far():
+def test_route_completion_does_not_jump_ahead_when_far(monitor_path):
     town = get_town("Town01")
     route = random_route(town, np.random.default_rng(5), 300.0)
     mon = EventMonitor(town, route, 0.1)
@@ -349,3 +361,87 @@ def test_route_completion_does_not_jump_ahead_when_far():
     t.pos[0] = route.points[-1]  # teleported to the goal: not within the 40-point window
     mon.update(1, t, np.zeros(0, np.int64), np.full(len(town.lanes), NO_SIGNAL), 0.0)
     assert mon.route_completion == 0.0
+
+
+def test_kernel_constants_match_the_monitor():
+    """jit_events repeats the event codes, limits and kinds it needs (infractions imports it)."""
+    from v2xbench.envs.v2x_intersection import signals
+    from v2xbench.envs.v2x_intersection.town import model
+
+    for name in ("RED_LIGHT", "STOP_SIGN", "OUTSIDE_LANES", "OFF_ROAD", "WRONG_WAY", "ROUTE_DEVIATION", "BLOCKED",
+                 "ROUTE_DEVIATION_M", "BLOCKED_S", "STOP_SPEED", "STOP_CHECK_M", "HELD_SPEED"):
+        assert getattr(jit_events, "_" + name) == getattr(infractions, name), name
+    assert jit_events._RED == signals.RED and jit_events._CONNECTOR == model.CONNECTOR
+
+
+def _monitor_trace(monkeypatch, jit: bool, town, route, dt: float, seed: int):
+    """A monitor driven over random poses near (and off) the route, with random speeds, headings
+    (wrong way included), lane states and contacts, with a long stand in the middle; returns its
+    events, state bytes, counts and progress."""
+    rng = np.random.default_rng(seed)
+    with monkeypatch.context() as m:
+        m.setattr(infractions, "HAVE_JIT", jit)
+        mon = EventMonitor(town, route, dt)
+        t = table(3)
+        t.kind[1], t.kind[2] = PEDESTRIAN, CAR
+        n = len(route.points)
+        k = 0
+        for tick in range(1, 400):
+            k = min(k + int(rng.integers(0, 3)), n - 1) if not 150 <= tick < 340 else k
+            h = route.headings[k] + (np.pi if rng.random() < 0.1 else rng.normal(0.0, 0.2))
+            left = np.array([-np.sin(route.headings[k]), np.cos(route.headings[k])])
+            t.pos[0] = route.points[k] + rng.choice([0.0, 0.0, 0.0, 1.5, 2.5, 4.0, 40.0]) * left
+            t.yaw[0] = h
+            standing = 150 <= tick < 340  # long enough for the blocked clock (180 s)
+            t.speed[0] = 0.0 if standing or rng.random() < 0.3 else rng.uniform(0.0, 12.0)
+            signal = rng.integers(-1, 3, len(town.lanes))
+            contacts = rng.choice([-2, 1, 2], int(rng.integers(0, 3)), replace=False)
+            mon.update(tick, t, np.sort(contacts).astype(np.int64), signal, float(rng.uniform(0.0, 1.2)))
+    return mon.events, mon._state.tobytes(), mon.counts.tobytes(), mon.progress
+
+
+@pytest.mark.skipif(not infractions.HAVE_JIT, reason="numba not installed")
+@pytest.mark.parametrize("town_name, seed", [("Town01", 0), ("Town03", 1), ("Town02", 2)])
+def test_monitor_kernel_matches_numpy(monkeypatch, town_name, seed):
+    """Both paths of the monitor emit the same events (values included) and end in the same
+    state, over a trace that visits every lane event (dt = 1 s, so that the 180 s blocked clock
+    runs out within it)."""
+    town = get_town(town_name)
+    route = random_route(town, np.random.default_rng(seed), 400.0)
+    a = _monitor_trace(monkeypatch, True, town, route, 1.0, seed)
+    b = _monitor_trace(monkeypatch, False, town, route, 1.0, seed)
+    assert a == b
+    assert all(type(e[3]) is float for e in a[0])
+
+
+@pytest.mark.skipif(not infractions.HAVE_JIT, reason="numba not installed")
+def test_monitor_kernel_trace_covers_the_lane_events(monkeypatch):
+    """The trace of the test above reaches the events the kernel repeats (else it compares little)."""
+    from v2xbench.envs.v2x_intersection.infractions import (
+        BLOCKED,
+        OFF_ROAD,
+        OUTSIDE_LANES,
+        WRONG_WAY,
+    )
+
+    seen = set()
+    for town_name, seed in [("Town01", 0), ("Town03", 1), ("Town02", 2)]:
+        town = get_town(town_name)
+        route = random_route(town, np.random.default_rng(seed), 400.0)
+        seen |= {e[0] for e in _monitor_trace(monkeypatch, True, town, route, 1.0, seed)[0]}
+    assert {OUTSIDE_LANES, OFF_ROAD, WRONG_WAY, ROUTE_DEVIATION, BLOCKED, COLLISION_STATIC,
+            COLLISION_PEDESTRIAN, COLLISION_VEHICLE} <= seen
+
+
+def test_monitor_state_attributes(monitor_path):
+    """The float attributes kept in the state array read and write as floats."""
+    town = get_town("Town01")
+    route = random_route(town, np.random.default_rng(5), 300.0)
+    mon = EventMonitor(town, route, 0.1)
+    t = table(1)
+    t.pos[0], t.yaw[0], t.speed[0] = route.points[0], route.headings[0], 0.0
+    mon.update(1, t, np.zeros(0, np.int64), np.full(len(town.lanes), NO_SIGNAL), 0.25)
+    assert mon.driven_m == 0.25 and type(mon.driven_m) is float
+    assert mon.still_s == pytest.approx(0.1) and mon.held_by_red is False
+    mon.outside_m = 3.0  # a scenario may hold it (scenarios/parking.py)
+    assert mon.outside_m == 3.0

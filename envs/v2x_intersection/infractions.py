@@ -7,18 +7,36 @@ are computed from these events in ``metrics.py`` (later) - this module only dete
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .actors import ActorTable
 from .classes import BICYCLE, CAR, LARGE_VEHICLE, PEDESTRIAN
 from .geometry import row_norms
 from .jit import HAVE_JIT
+from .jit_args import PackedArgs
+from .jit_events import (
+    MAX_LANE_EVENTS,
+    STATE_DRIVEN_M,
+    STATE_HELD_BY_RED,
+    STATE_LANE,
+    STATE_MIN_SPEED_NEAR_LINE,
+    STATE_OFF_ROAD,
+    STATE_OUTSIDE,
+    STATE_OUTSIDE_M,
+    STATE_S_ON_LANE,
+    STATE_SIZE,
+    STATE_STILL_S,
+    STATE_WRONG_WAY,
+    monitor_kernel,
+)
 from .jit_grid import point_grid
-from .jit_perception import route_monitor_kernel
+from .physics import CollisionWorld
 from .routes import Route
 from .signals import RED
 from .town.model import CONNECTOR, PARKING, Town
-from .traffic import STOP_LINE_SETBACK
+from .traffic import STOP_LINE_SETBACK, stop_sign_lanes
 
 (COLLISION_PEDESTRIAN, COLLISION_VEHICLE, COLLISION_STATIC, RED_LIGHT, STOP_SIGN, OUTSIDE_LANES,
  OFF_ROAD, WRONG_WAY, ROUTE_DEVIATION, BLOCKED, SCENARIO_TIMEOUT, YIELD_EMERGENCY) = range(12)
@@ -34,6 +52,21 @@ STOP_SPEED = 0.5  # m/s: below this near the line counts as having stopped at a 
 STOP_CHECK_M = 6.0  # m before the stop line where the stop must happen
 HELD_SPEED = 1.0  # m/s: slower than this in a lane ending at a red light, the ego is held by it
 
+_NO_CONTACTS = np.zeros(0, np.int64)
+_NO_FLOATS = np.zeros(0)
+
+
+def _state_slot(index: int, doc: str) -> property:
+    """A float attribute of :class:`EventMonitor` kept in slot ``index`` of its state array."""
+
+    def get(self) -> float:
+        return float(self._state[index])
+
+    def set(self, value: float) -> None:
+        self._state[index] = value
+
+    return property(get, set, doc=doc)
+
 
 class EventMonitor:
     """Detects the ego's infractions and route progress, tick by tick.
@@ -42,7 +75,8 @@ class EventMonitor:
         counts: ``(NUM_EVENTS,)`` occurrences so far.
         events: list of ``(code, tick, other_id, value)``.
         progress: index of the last route point passed. outside_m / driven_m: distance driven
-            outside the lanes / in total (m).
+            outside the lanes / in total (m). still_s: s stood still. held_by_red: the ego
+            waits at a red light.
     """
 
     def __init__(self, town: Town, route: Route, dt: float) -> None:
@@ -51,20 +85,27 @@ class EventMonitor:
         self.counts = np.zeros(NUM_EVENTS, np.int64)
         self.events: list[tuple[int, int, int, float]] = []
         self.progress = 0
-        self.outside_m = 0.0
-        self.driven_m = 0.0
-        self.still_s = 0.0
-        self.held_by_red = False  # the ego stands (< 1 m/s) in a lane that ends at a red light
+        # the running state of both paths (jit_events.STATE_* slots)
+        self._state = np.zeros(STATE_SIZE)
+        self._state[STATE_LANE] = int(route.lane_ids[0])
+        self._state[STATE_MIN_SPEED_NEAR_LINE] = np.inf
         self._last_hit: dict[int, int] = {}
-        self._lane = int(route.lane_ids[0])
-        self._s_on_lane = 0.0
-        self._min_speed_near_line = np.inf
-        self._wrong_way_active = False
-        self._outside_active = False
-        self._off_road_active = False
         self._driving_pts = _driving_point_ids(town)
         self._driving_grid = _driving_grid(town)
         self._lanes = _lane_lists(town)  # Python numbers: the same values, cheaper scalar tests
+        self._args = PackedArgs()
+        self._contacts = _NO_CONTACTS
+        self._codes = np.zeros(MAX_LANE_EVENTS, np.int64)
+        self._values = np.zeros(MAX_LANE_EVENTS)
+
+    outside_m = _state_slot(STATE_OUTSIDE_M, "m driven outside the lanes")
+    driven_m = _state_slot(STATE_DRIVEN_M, "m driven in all")
+    still_s = _state_slot(STATE_STILL_S, "s the ego has stood still (< 0.1 m/s; the blocked clock)")
+
+    @property
+    def held_by_red(self) -> bool:
+        """The ego stands (< 1 m/s) in a lane that ends at a red light."""
+        return bool(self._state[STATE_HELD_BY_RED])
 
     def emit(self, code: int, tick: int, other: int = -1, value: float = 0.0) -> None:
         """Record an event (scenarios emit ``SCENARIO_TIMEOUT`` and ``YIELD_EMERGENCY`` here)."""
@@ -76,13 +117,102 @@ class EventMonitor:
         """Percent of the route length passed (0-100)."""
         return 100.0 * float(self.route.s[self.progress]) / self._length
 
+    def update_world(self, tick: int, t: ActorTable, collisions: CollisionWorld, lane_signal: np.ndarray,
+                     old_xy: list[float]) -> list[tuple[int, int, int, float]]:
+        """:meth:`update` for the tick a world just moved: the ego's contacts from ``collisions``
+        and the distance it moved from ``old_xy`` (its ``(x, y)`` before the move). With numba
+        all of it is one kernel call (``jit_events.monitor_kernel``)."""
+        if not HAVE_JIT:
+            contacts = collisions.ego_contacts(t)
+            x, y = t.pos[0].tolist()  # (np.linalg.norm takes BLAS's dot, which may fuse the multiply-adds)
+            dx, dy = x - old_xy[0], y - old_xy[1]
+            return self.update(tick, t, contacts, lane_signal, math.sqrt(dx * dx + dy * dy))
+        n0 = len(self.events)
+        nc, self.progress, ne = monitor_kernel(self._kernel_args(t, collisions), lane_signal, self.progress, 0.0,
+                                               old_xy[0], old_xy[1], True)
+        if nc:
+            self._collisions(tick, t, self._contacts[:nc])
+        if ne:
+            self._lane_events(tick, ne)
+        return self.events[n0:]
+
     def update(self, tick: int, t: ActorTable, contacts: np.ndarray, lane_signal: np.ndarray,
                moved: float) -> list[tuple[int, int, int, float]]:
-        """Process one tick; returns the events emitted in it."""
+        """Process one tick: ``contacts`` are the ego's (``physics.CollisionWorld.ego_contacts``),
+        ``moved`` the metres it moved; returns the events emitted in it."""
         n0 = len(self.events)
+        if HAVE_JIT:
+            ex, ey = t.pos[0].tolist()
+            _, self.progress, ne = monitor_kernel(self._kernel_args(t, None), lane_signal, self.progress, moved, ex,
+                                                  ey, False)
+            self._collisions(tick, t, contacts)
+            if ne:
+                self._lane_events(tick, ne)
+            return self.events[n0:]
+        st = self._state
         yaw, v = float(t.yaw[0]), float(t.speed[0])
-        self.driven_m += moved
-        # collisions (by class of the other party); statics are encoded as negative ids
+        st[STATE_DRIVEN_M] += moved
+        self._collisions(tick, t, contacts)
+        # route progress: furthest route point within 3 m ahead in a window
+        r = self.route
+        ix = self.town.index
+        ego = t.pos[0]
+        hi = min(self.progress + 40, len(r.points))
+        d = row_norms(r.points[self.progress:hi] - ego)
+        close = np.flatnonzero(d < 3.0)
+        if len(close):
+            self.progress += int(close[-1])
+        dev = float(np.min(row_norms(r.points[max(self.progress - 20, 0): self.progress + 40] - ego)))
+        # lane-relative checks: nearest lane among drivable lanes
+        lane, s, dist = ix.project_near(ego, self._driving_pts)
+        lane, s, dist = int(lane[0]), float(s[0]), float(dist[0])
+        heading = float(ix.pose_at(np.array([lane]), np.array([s]))[1][0])
+        if dev > ROUTE_DEVIATION_M and not self.counts[ROUTE_DEVIATION]:
+            self.emit(ROUTE_DEVIATION, tick, -1, dev)
+        lanes = self._lanes
+        half = lanes["width"][lane] / 2.0
+        outside = dist > half + 0.3
+        if outside:
+            st[STATE_OUTSIDE_M] += moved
+        if outside and not st[STATE_OUTSIDE]:
+            self.emit(OUTSIDE_LANES, tick, -1, dist)
+        off_road = dist > half + 2.0
+        if off_road and not st[STATE_OFF_ROAD]:
+            self.emit(OFF_ROAD, tick, -1, dist)
+        st[STATE_OUTSIDE], st[STATE_OFF_ROAD] = outside, off_road
+        wrong = v > 1.0 and not outside and abs(((yaw - heading + np.pi) % (2 * np.pi)) - np.pi) > 2.1
+        wrong = wrong and lanes["kind"][lane] != CONNECTOR
+        if wrong and not st[STATE_WRONG_WAY]:
+            self.emit(WRONG_WAY, tick, -1, float(lane))
+        st[STATE_WRONG_WAY] = wrong
+        # stop lines: red lights and stop signs, when crossing the line of the current lane
+        stop_at_end = lanes["stop_at_end"][lane]
+        if lane == int(st[STATE_LANE]):
+            line = lanes["length"][lane] - STOP_LINE_SETBACK
+            if stop_at_end and line - STOP_CHECK_M < s:
+                st[STATE_MIN_SPEED_NEAR_LINE] = min(float(st[STATE_MIN_SPEED_NEAR_LINE]), v)
+            if stop_at_end and float(st[STATE_S_ON_LANE]) < line <= s:
+                if lane_signal[lane] == RED:
+                    self.emit(RED_LIGHT, tick, -1, float(lane))
+                elif (lane_signal[lane] == -1 and self._is_stop_lane(lane)
+                      and st[STATE_MIN_SPEED_NEAR_LINE] > STOP_SPEED):
+                    self.emit(STOP_SIGN, tick, -1, float(lane))
+        else:
+            st[STATE_MIN_SPEED_NEAR_LINE] = np.inf
+        st[STATE_LANE], st[STATE_S_ON_LANE] = lane, s
+        # blocked
+        still = float(st[STATE_STILL_S]) + self.dt if v < 0.1 else 0.0
+        red_ahead = stop_at_end and lane_signal[lane] == RED
+        st[STATE_HELD_BY_RED] = bool(red_ahead and v < HELD_SPEED)
+        if still >= BLOCKED_S and not red_ahead:
+            self.emit(BLOCKED, tick, -1, still)
+            still = 0.0
+        st[STATE_STILL_S] = still
+        return self.events[n0:]
+
+    def _collisions(self, tick: int, t: ActorTable, contacts: np.ndarray) -> None:
+        """Collision events by class of the other party; statics are encoded as negative ids, and
+        repeated contacts with one party within ``REPEAT_COLLISION_S`` count once."""
         for c in contacts:
             key = int(c)
             last = self._last_hit.get(key)
@@ -96,66 +226,29 @@ class EventMonitor:
             code = (COLLISION_PEDESTRIAN if kind in (PEDESTRIAN, BICYCLE) else
                     COLLISION_VEHICLE if kind in (CAR, LARGE_VEHICLE) else COLLISION_STATIC)
             self.emit(code, tick, int(t.actor_id[c]))
-        # route progress: furthest route point within 3 m ahead in a window
-        r = self.route
+
+    def _lane_events(self, tick: int, ne: int) -> None:
+        """Emit the ``ne`` lane events the kernel wrote."""
+        for code, value in zip(self._codes[:ne].tolist(), self._values[:ne].tolist()):
+            self.emit(code, tick, -1, value)
+
+    def _kernel_args(self, t: ActorTable, collisions: CollisionWorld | None):
+        """``jit_events.monitor_kernel``'s typed list of the episode's arguments, kept while the
+        table and the collision world are the same objects (``None``: no static boxes)."""
+        return self._args.get((t, collisions), lambda: self._build_args(t, collisions))
+
+    def _build_args(self, t: ActorTable, collisions: CollisionWorld | None) -> tuple:
         ix = self.town.index
-        if HAVE_JIT:
-            ex, ey = t.pos[0].tolist()
-            self.progress, dev, lane, s, dist, heading = route_monitor_kernel(
-                r.points, self.progress, ex, ey, ix.points, self._driving_pts, ix.owner,
-                ix.offset, ix.n_points, ix.gs, ix.base, ix.heading, ix.length, *self._driving_grid)
+        if collisions is None:
+            statics, cos, sin, radius = np.zeros((0, 5)), _NO_FLOATS, _NO_FLOATS, _NO_FLOATS
         else:
-            ego = t.pos[0]
-            hi = min(self.progress + 40, len(r.points))
-            d = row_norms(r.points[self.progress:hi] - ego)
-            close = np.flatnonzero(d < 3.0)
-            if len(close):
-                self.progress += int(close[-1])
-            dev = float(np.min(row_norms(r.points[max(self.progress - 20, 0): self.progress + 40] - ego)))
-            # lane-relative checks: nearest lane among drivable lanes
-            lane, s, dist = ix.project_near(ego, self._driving_pts)
-            lane, s, dist = int(lane[0]), float(s[0]), float(dist[0])
-            heading = float(ix.pose_at(np.array([lane]), np.array([s]))[1][0])
-        if dev > ROUTE_DEVIATION_M and not self.counts[ROUTE_DEVIATION]:
-            self.emit(ROUTE_DEVIATION, tick, -1, dev)
-        lanes = self._lanes
-        half = lanes["width"][lane] / 2.0
-        outside = dist > half + 0.3
-        if outside:
-            self.outside_m += moved
-        if outside and not self._outside_active:
-            self.emit(OUTSIDE_LANES, tick, -1, dist)
-        off_road = dist > half + 2.0
-        if off_road and not self._off_road_active:
-            self.emit(OFF_ROAD, tick, -1, dist)
-        self._outside_active, self._off_road_active = outside, off_road
-        wrong = v > 1.0 and not outside and abs(((yaw - heading + np.pi) % (2 * np.pi)) - np.pi) > 2.1
-        wrong = wrong and lanes["kind"][lane] != CONNECTOR
-        if wrong and not self._wrong_way_active:
-            self.emit(WRONG_WAY, tick, -1, float(lane))
-        self._wrong_way_active = wrong
-        # stop lines: red lights and stop signs, when crossing the line of the current lane
-        stop_at_end = lanes["stop_at_end"][lane]
-        if lane == self._lane:
-            line = lanes["length"][lane] - STOP_LINE_SETBACK
-            if stop_at_end and line - STOP_CHECK_M < s:
-                self._min_speed_near_line = min(self._min_speed_near_line, v)
-            if stop_at_end and self._s_on_lane < line <= s:
-                if lane_signal[lane] == RED:
-                    self.emit(RED_LIGHT, tick, -1, float(lane))
-                elif lane_signal[lane] == -1 and self._is_stop_lane(lane) and self._min_speed_near_line > STOP_SPEED:
-                    self.emit(STOP_SIGN, tick, -1, float(lane))
-        else:
-            self._min_speed_near_line = np.inf
-        self._lane, self._s_on_lane = lane, s
-        # blocked
-        self.still_s = self.still_s + self.dt if v < 0.1 else 0.0
-        red_ahead = stop_at_end and lane_signal[lane] == RED
-        self.held_by_red = bool(red_ahead and v < HELD_SPEED)
-        if self.still_s >= BLOCKED_S and not red_ahead:
-            self.emit(BLOCKED, tick, -1, self.still_s)
-            self.still_s = 0.0
-        return self.events[n0:]
+            statics, cos, sin, radius = collisions.kernel_args()
+        self._contacts = np.zeros(len(t) + len(statics), np.int64)
+        return (t.pos, t.yaw, t.length, t.width, t.active, t.speed, statics, cos, sin, radius, self.route.points,
+                ix.points, self._driving_pts, ix.owner, ix.offset, ix.n_points, ix.gs, ix.base, ix.heading,
+                ix.length, *self._driving_grid, ix.width, ix.kind, ix.stop_at_end, stop_sign_lanes(self.town),
+                STOP_LINE_SETBACK, float(self.dt), self.counts, self._state, self._contacts, self._codes,
+                self._values)
 
     def _is_stop_lane(self, lane: int) -> bool:
         j = self.town.index.junction_ahead[lane]

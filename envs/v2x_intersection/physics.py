@@ -102,11 +102,16 @@ class CollisionWorld:
         self._sizes = (table.length.copy(), table.width.copy())
         self._space: PymunkWorld | None = None
 
+    def kernel_args(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``ego_contacts_kernel``'s static arguments: the boxes, their yaw's cosine and sine, their
+        half diagonals."""
+        return self.statics, self._cos, self._sin, self._static_radius
+
     def ego_contacts(self, table: ActorTable) -> np.ndarray:
         """Indices of actors (>= 1) and statics (encoded ``-1 - k``) in contact with the ego, sorted."""
         if HAVE_JIT:
-            return ego_contacts_kernel(table.pos, table.yaw, table.length, table.width, table.active, self.statics,
-                                       self._cos, self._sin, self._static_radius)
+            return ego_contacts_kernel(table.pos, table.yaw, table.length, table.width, table.active,
+                                       *self.kernel_args())
         if self._space is None:
             self._space = PymunkWorld(*self._sizes, self.statics)
         return self._space.ego_contacts(table)
@@ -139,6 +144,11 @@ class PymunkWorld:
             self.space.add(shape)
             self.shape_owner[shape] = -1 - k  # statics: negative ids
         self._radius = 0.5 * np.hypot(length, width)
+
+    def kernel_args(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``ego_contacts_kernel``'s static arguments: the boxes, their yaw's cosine and sine, their
+        half diagonals."""
+        return self.statics, self._cos, self._sin, self._static_radius
 
     def ego_contacts(self, table: ActorTable) -> np.ndarray:
         """As :meth:`CollisionWorld.ego_contacts`: a NumPy broad phase picks the bodies to move,

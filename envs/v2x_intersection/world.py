@@ -16,8 +16,6 @@ The adapters (PettingZoo, Gymnasium, TorchRL) only turn this state into observat
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from .actors import DRIVER, EGO, PARKED, RIDER, SIZE_BOUNDS, WALKER, ActorTable, draw_size
@@ -475,13 +473,8 @@ class World:
     def check_events(self) -> None:
         """Step 6: collisions, infraction and route-progress events (``last_events``); then the
         tick counter moves on."""
-        t, old = self.table, self._old_pos
-        contacts = self.collisions.ego_contacts(t)
-        # on both paths (np.linalg.norm takes BLAS's dot, which may fuse the multiply-adds)
-        x, y = t.pos[0].tolist()
-        dx, dy = x - old[0], y - old[1]
-        moved = math.sqrt(dx * dx + dy * dy)
-        self.last_events = self.monitor.update(self.tick + 1, t, contacts, self.lane_signal, moved)
+        self.last_events = self.monitor.update_world(self.tick + 1, self.table, self.collisions, self.lane_signal,
+                                                     self._old_pos)
         for sc in self.scenarios:  # the progress just moved: a route's last scenario may be passed
             sc.check_passed(self)
         self.tick += 1

@@ -54,56 +54,55 @@ class EpisodeTracker:
         """Reward, terminated, truncated, info for the tick just simulated (info ``None`` when
         ``with_info`` is false: callers that never read it skip building it)."""
         w = self.world
-        s = float(w.route.s[w.monitor.progress])
+        mon = w.monitor
+        s = float(w.route.s[mon.progress])
         if events:
             collision = float(sum(e[0] in COLLISIONS for e in events))
             infraction = float(sum(e[0] in INFRACTIONS for e in events))
         else:
             collision = infraction = 0.0
-        terms = {
-            "progress": (s - self.prev_s) / 10.0,
-            "collision": collision,
-            "infraction": infraction,
-            "comfort": abs(float(w.table.accel[0])) / 4.0,
-        }
+        progress = (s - self.prev_s) / 10.0
+        comfort = abs(float(w.table.accel[0])) / 4.0
         self.prev_s = s
-        reward = 0  # sum() of the weighted terms, in order (the same float)
-        for k, v in terms.items():
-            reward += REWARD_WEIGHTS[k] * v
-        reward = float(reward)
-        counts = w.monitor.counts
+        wt = REWARD_WEIGHTS  # the weighted terms summed in their order from 0 (the same float as sum())
+        reward = float(0 + wt["progress"] * progress + wt["collision"] * collision + wt["infraction"] * infraction
+                       + wt["comfort"] * comfort)
+        counts = mon.counts
         terminated = bool(
             w.is_route_complete() or counts[inf.ROUTE_DEVIATION] > 0 or counts[inf.BLOCKED] > 0
-            or (w.config.terminate_on_collision and terms["collision"] > 0)
+            or (w.config.terminate_on_collision and collision > 0)
         )
         truncated = bool(not terminated and w.tick >= self.max_steps)
         self.done = terminated or truncated
-        return reward, terminated, truncated, self.info(terms) if with_info else None
+        if not with_info:
+            return reward, terminated, truncated, None
+        return reward, terminated, truncated, self.info((progress, collision, infraction, comfort))
 
-    def info(self, terms: dict | None = None) -> dict:
+    def info(self, terms: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)) -> dict:
         """Flat numeric info: tick, route completion, event counts (``events``, indexed by
-        ``infractions.EVENT_NAMES``), channel statistics and reward terms (``reward_<term>``)."""
+        ``infractions.EVENT_NAMES``), channel statistics and reward terms (``reward_<term>``;
+        ``terms`` in the order of ``REWARD_WEIGHTS``)."""
         w = self.world
         ch = w.channel
-        out = {
+        mon = w.monitor
+        return {
             "tick": w.tick,
-            "route_completion": w.monitor.route_completion,
+            "route_completion": mon.route_completion,
             "route_length": self.route_length,
             "speed": float(w.table.speed[0]),
-            "events": w.monitor.counts.copy(),
-            "outside_lanes_m": w.monitor.outside_m,
-            "driven_m": w.monitor.driven_m,
+            "events": mon.counts.copy(),
+            "outside_lanes_m": mon.outside_m,
+            "driven_m": mon.driven_m,
             "active_rsu": int(w.active_rsu[0]),
             "v2x_bytes_total": int(ch.bytes_sent_total),
             "v2x_bps": v2x_bps(w),
             "v2x_peak_bps": float(ch.peak_bps),
             "v2x_messages_lost": int(ch.messages_lost),
             "v2x_messages_dropped": int(ch.messages_dropped_bandwidth),
+            "reward_progress": terms[0],
+            "reward_collision": terms[1],
+            "reward_infraction": terms[2],
+            "reward_comfort": terms[3],
         }
-        for k, v in (terms or _NO_TERMS).items():
-            out[_REWARD_KEYS[k]] = float(v)
-        return out
 
 
-_REWARD_KEYS = {k: f"reward_{k}" for k in REWARD_WEIGHTS}
-_NO_TERMS = dict.fromkeys(REWARD_WEIGHTS, 0.0)

@@ -368,3 +368,39 @@ def _extra_ok(name: str, world, memo) -> bool:
     if name == "InvadingTurn":
         return memo["intrusion"] >= float(world.scenarios[0].params["invasion"]) - 0.15
     return True
+
+
+def test_flow_vehicle_steers_around_an_ego_standing_in_its_lane():
+    """A flow vehicle held up by the ego for longer than ``DODGE_AFTER_S`` eases sideways around
+    it (``Flow._dodge``), passes, and forgets the dodge once the ego is behind it."""
+    from v2xbench.envs.v2x_intersection.config import make_config
+    from v2xbench.envs.v2x_intersection.scenarios import build_episode
+    from v2xbench.envs.v2x_intersection.scenarios.flows import DODGE_AFTER_S
+    from v2xbench.envs.v2x_intersection.town import get_town
+    from v2xbench.envs.v2x_intersection.world import World
+
+    world = World(make_config(town="Town05", num_vehicles=0, num_parked=0, num_pedestrians=0, num_bicycles=0))
+    route, scenarios = build_episode("InterurbanActorFlow", get_town("Town05"), np.random.default_rng(4))
+    world.reset(seed=4, route=route, scenarios=scenarios)
+    flow = scenarios[0].flows[0]
+    t = world.table
+    path_s = flow.path_s(t)
+    k = int(np.nanargmin(path_s))  # the vehicle nearest the source: the most path ahead of it
+    r = int(flow.rows[k])
+    assert path_s[k] + 15.0 < flow.end_s - 10.0, "no room ahead of a flow vehicle on its path"
+    p, h = flow.point(world.town, float(path_s[k]) + 15.0)  # the ego stands 15 m ahead of it
+    brake = np.array([0.0, 0.0, 1.0])
+    dodged, max_lat = None, 0.0
+    for tick in range(300):
+        t.pos[0], t.yaw[0], t.speed[0] = p, h, 0.0  # the ego stands in the lane
+        world.step(brake)
+        if r in flow.dodge and dodged is None:
+            dodged = tick
+        max_lat = max(max_lat, abs(float(t.lat[r])))
+        if dodged is not None and r not in flow.dodge:
+            break
+    assert dodged is not None, "the held-up vehicle never started to steer around the ego"
+    assert dodged * world.config.dt >= DODGE_AFTER_S  # it waited first
+    assert max_lat > 1.0  # it moved sideways
+    rel = world_to_local_2d(t.pos[0], t.pos[r], float(t.yaw[r]))
+    assert r not in flow.dodge and rel[0] < 0.0, "it did not get past the ego"

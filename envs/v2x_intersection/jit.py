@@ -475,7 +475,7 @@ def leaders_kernel(idx, others, pos, yaw, length, width, speed, lookahead):  # p
             d1 = oy[q] - py
             dx = c * d0 + s * d1
             dy = -s * d0 + c * d1
-            half = 0.5 * (wi + ow[q]) + 0.4
+            half = 0.5 * (wi + ow[q]) + 0.4  # traffic.CORRIDOR_MARGIN_M
             reach = 0.5 * (li + ol[q])
             inside[q] = (dx > 0.0) & (dx < lookahead + reach) & (abs(dy) < half)
         best = np.inf

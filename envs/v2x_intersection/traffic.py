@@ -23,6 +23,9 @@ from .signals import RED, YELLOW
 from .town.model import PRIORITY, STOP, Town
 
 LOOKAHEAD = 50.0  # m, leader search distance
+#: m added to both actors' half widths in the car-following corridor (``leaders``; the kernel
+#: ``jit.leaders_kernel`` repeats the value)
+CORRIDOR_MARGIN_M = 0.4
 STOP_LINE_SETBACK = 4.5  # m, stop line before the lane end (crosswalk + margin)
 LANE_CHANGE_RATE = 1.2  # m/s lateral speed during a lane change
 STUCK_RESPAWN_S = 40.0  # s stopped (not at a red light) before an NPC is respawned elsewhere
@@ -62,7 +65,7 @@ def leaders(t: ActorTable, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
     dx = c * d[..., 0] + s * d[..., 1]
     dy = -s * d[..., 0] + c * d[..., 1]
     cos_rel = np.cos(t.yaw[others][None, :] - t.yaw[idx][:, None])
-    half = 0.5 * (t.width[idx][:, None] + t.width[others][None, :]) + 0.4
+    half = 0.5 * (t.width[idx][:, None] + t.width[others][None, :]) + CORRIDOR_MARGIN_M
     reach = 0.5 * (t.length[idx][:, None] + t.length[others][None, :])
     ok = (dx > 0.0) & (dx < LOOKAHEAD + reach) & (np.abs(dy) < half)
     ok &= ~((cos_rel < -0.5) & (t.speed[others][None, :] > 1.0))

@@ -13,13 +13,17 @@ from ..actors import DRIVER, draw_size
 from ..classes import BICYCLE, CAR, LARGE_VEHICLE
 from ..geometry import box_corners_2d, world_to_local_2d, wrap_angle
 from ..town.model import CONNECTOR, LEFT, PRIORITY, RAMP, RIGHT, STRAIGHT, Town
-from ..traffic import LANE_CHANGE_RATE
+from ..traffic import CORRIDOR_MARGIN_M, LANE_CHANGE_RATE
 from .base import Scenario, Site
 from .placement import clear_lanes, clear_near, lane_point, spawn_driver
 from .registry import register_scenario
 
 FAR = np.array([-1.0e4, -1.0e4])  # where unused rows wait (far from every town)
 DODGE_AFTER_S = 4.0  # s a flow vehicle waits for the ego blocking it before steering around it
+#: m a dodging flow vehicle keeps between its side and the ego's box: more than the car-following
+#: corridor's margin (``traffic.CORRIDOR_MARGIN_M``), else the ego stays its leader and it never
+#: drives on (with 0.3 m it stood beside the ego for good: tests/test_scenarios_flows.py)
+DODGE_CLEARANCE_M = CORRIDOR_MARGIN_M + 0.2
 
 
 # ---------------------------------------------------------------------------- geometry helpers
@@ -193,7 +197,7 @@ class Flow:
         if t.wait[r] > DODGE_AFTER_S and 0.0 < rel[0] < reach + 8.0:
             ego = box_corners_2d(t.pos[:1], t.length[:1], t.width[:1], t.yaw[:1])[0]
             y = world_to_local_2d(ego, t.pos[r], float(t.yaw[r]))[:, 1]
-            half = 0.5 * t.width[r] + 0.3
+            half = 0.5 * t.width[r] + DODGE_CLEARANCE_M
             if y.min() < half and y.max() > -half:  # the ego's box overlaps its corridor
                 c = min((y.min() - half, y.max() + half), key=abs)
                 self.dodge[r] = float(np.clip(c, -3.0, 3.0))

@@ -48,6 +48,9 @@ def _njit_inline(fn):
 
 #: m, slack of the conservative broad phases in front of exact float32 box tests
 BROAD_PHASE_MARGIN = 0.05
+#: m added to both actors' half widths in the car-following corridor (``leaders_kernel`` and
+#: ``traffic.leaders``)
+CORRIDOR_MARGIN_M = 0.4
 #: rad: a field-of-view answer from the bearing's cosine is taken only this far from the edge
 FOV_SURE_RAD = 1e-7
 
@@ -475,7 +478,7 @@ def leaders_kernel(idx, others, pos, yaw, length, width, speed, lookahead):  # p
             d1 = oy[q] - py
             dx = c * d0 + s * d1
             dy = -s * d0 + c * d1
-            half = 0.5 * (wi + ow[q]) + 0.4  # traffic.CORRIDOR_MARGIN_M
+            half = 0.5 * (wi + ow[q]) + CORRIDOR_MARGIN_M
             reach = 0.5 * (li + ol[q])
             inside[q] = (dx > 0.0) & (dx < lookahead + reach) & (abs(dy) < half)
         best = np.inf

@@ -145,11 +145,6 @@ class PymunkWorld:
             self.shape_owner[shape] = -1 - k  # statics: negative ids
         self._radius = 0.5 * np.hypot(length, width)
 
-    def kernel_args(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """``ego_contacts_kernel``'s static arguments: the boxes, their yaw's cosine and sine, their
-        half diagonals."""
-        return self.statics, self._cos, self._sin, self._static_radius
-
     def ego_contacts(self, table: ActorTable) -> np.ndarray:
         """As :meth:`CollisionWorld.ego_contacts`: a NumPy broad phase picks the bodies to move,
         then one ``shape_query`` of the ego's shape."""

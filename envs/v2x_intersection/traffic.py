@@ -11,7 +11,7 @@ from .actors import DRIVER, EGO, PARKED, RIDER, STATIC, ActorTable
 from .draws import pick
 from .dynamics import IDMParams, idm_accel
 from .geometry import row_norms
-from .jit import HAVE_JIT, leaders_kernel
+from .jit import CORRIDOR_MARGIN_M, HAVE_JIT, leaders_kernel
 from .jit_rng import state_views
 from .jit_traffic import (
     followers_tick_kernel,
@@ -23,9 +23,6 @@ from .signals import RED, YELLOW
 from .town.model import PRIORITY, STOP, Town
 
 LOOKAHEAD = 50.0  # m, leader search distance
-#: m added to both actors' half widths in the car-following corridor (``leaders``; the kernel
-#: ``jit.leaders_kernel`` repeats the value)
-CORRIDOR_MARGIN_M = 0.4
 STOP_LINE_SETBACK = 4.5  # m, stop line before the lane end (crosswalk + margin)
 LANE_CHANGE_RATE = 1.2  # m/s lateral speed during a lane change
 STUCK_RESPAWN_S = 40.0  # s stopped (not at a red light) before an NPC is respawned elsewhere

@@ -19,6 +19,7 @@ Commands:
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import sys
 import time
@@ -146,34 +147,13 @@ def _eval(args: argparse.Namespace) -> int:
     return 0
 
 
-def _bench(args: argparse.Namespace) -> int:
-    from v2xbench.benchmarks.suite import run
-
-    return run(args)
-
-
-def _profile(args: argparse.Namespace) -> int:
-    from v2xbench.benchmarks.tick_profile import run
-
-    return run(args)
-
-
-def _perf(args: argparse.Namespace) -> int:
-    from v2xbench.benchmarks.perf_kernels import run
-
-    return run(args)
-
-
-def _fingerprint(args: argparse.Namespace) -> int:
-    from v2xbench.benchmarks.fingerprint import run
-
-    return run(args)
-
-
-def _ab(args: argparse.Namespace) -> int:
-    from v2xbench.benchmarks.ab import run
-
-    return run(args)
+def _add_benchmark(sub, name: str, module: str, help: str, description: str) -> None:
+    """Register sub-command ``name``, whose options and ``run(args)`` come from
+    ``v2xbench.benchmarks.<module>``."""
+    mod = importlib.import_module(f"v2xbench.benchmarks.{module}")
+    p = sub.add_parser(name, help=help, description=description)
+    mod.add_arguments(p)
+    p.set_defaults(func=mod.run)
 
 
 def _leaderboard(args: argparse.Namespace) -> int:
@@ -314,44 +294,25 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--agent-name", default=None, help="display name in the summary and leaderboard")
     ev.add_argument("--quiet", action="store_true", help="no progress bar")
     ev.set_defaults(func=_eval)
-    bn = sub.add_parser("bench", help="benchmark suite: speed against highway-env, sensors, batching, eval, memory",
-                        description="Run the benchmark suite (benchmarks/suite.py): prints a table, writes "
-                        "OUT/suite.json, OUT/suite.md and OUT/suite.png.")
-    from v2xbench.benchmarks.suite import add_arguments as _bench_arguments
-
-    _bench_arguments(bn)
-    bn.set_defaults(func=_bench)
-    pf = sub.add_parser("profile", help="where a tick's time goes: per stage and per numba kernel",
-                        description="Time every stage of the tick and every numba kernel "
-                        "(benchmarks/tick_profile.py): prints a table, writes OUT/profile_<mode>.json and .md.")
-    from v2xbench.benchmarks.tick_profile import add_arguments as _profile_arguments
-
-    _profile_arguments(pf)
-    pf.set_defaults(func=_profile)
-    pr = sub.add_parser("perf", help="Linux perf over a workload, numba's kernels named",
-                        description="Sample a batched or objects-mode run with perf record and name the samples "
-                        "inside numba's kernels (benchmarks/perf_kernels.py): prints a table, writes "
-                        "OUT/perf_<mode>.json and .md. Needs perf and nm; compiles every kernel first (~1-2 min).")
-    from v2xbench.benchmarks.perf_kernels import add_arguments as _perf_arguments
-
-    _perf_arguments(pr)
-    pr.set_defaults(func=_perf)
-    fp = sub.add_parser("fingerprint", help="hash of what fixed runs compute (same hashes = same bytes)",
-                        description="Drive fixed configurations and hash every tick's observation, reward, "
-                        "info, events and world state (benchmarks/fingerprint.py); --out saves the hashes, "
-                        "--check compares with saved ones (exit 1 on a difference).")
-    from v2xbench.benchmarks.fingerprint import add_arguments as _fingerprint_arguments
-
-    _fingerprint_arguments(fp)
-    fp.set_defaults(func=_fingerprint)
-    abp = sub.add_parser("ab", help="same-minute A/B of a tick's cost: this checkout against a git revision",
-                         description="Interleaved runs of a git revision (in a temporary worktree) and this "
-                         "checkout, CPU time per tick (benchmarks/ab.py); prints both series and the median "
-                         "ratio.")
-    from v2xbench.benchmarks.ab import add_arguments as _ab_arguments
-
-    _ab_arguments(abp)
-    abp.set_defaults(func=_ab)
+    _add_benchmark(sub, "bench", "suite",
+                   "benchmark suite: speed against highway-env, sensors, batching, eval, memory",
+                   "Run the benchmark suite (benchmarks/suite.py): prints a table, writes "
+                   "OUT/suite.json, OUT/suite.md and OUT/suite.png.")
+    _add_benchmark(sub, "profile", "tick_profile", "where a tick's time goes: per stage and per numba kernel",
+                   "Time every stage of the tick and every numba kernel "
+                   "(benchmarks/tick_profile.py): prints a table, writes OUT/profile_<mode>.json and .md.")
+    _add_benchmark(sub, "perf", "perf_kernels", "Linux perf over a workload, numba's kernels named",
+                   "Sample a batched or objects-mode run with perf record and name the samples "
+                   "inside numba's kernels (benchmarks/perf_kernels.py): prints a table, writes "
+                   "OUT/perf_<mode>.json and .md. Needs perf and nm; compiles every kernel first (~1-2 min).")
+    _add_benchmark(sub, "fingerprint", "fingerprint", "hash of what fixed runs compute (same hashes = same bytes)",
+                   "Drive fixed configurations and hash every tick's observation, reward, "
+                   "info, events and world state (benchmarks/fingerprint.py); --out saves the hashes, "
+                   "--check compares with saved ones (exit 1 on a difference).")
+    _add_benchmark(sub, "ab", "ab", "same-minute A/B of a tick's cost: this checkout against a git revision",
+                   "Interleaved runs of a git revision (in a temporary worktree) and this "
+                   "checkout, CPU time per tick (benchmarks/ab.py); prints both series and the median "
+                   "ratio.")
     lb = sub.add_parser("leaderboard", help="leaderboard table and plots from evaluation result dirs")
     lb.add_argument("results", nargs="+", help="result directories (each with a summary.json)")
     lb.add_argument("--out", default="leaderboard")

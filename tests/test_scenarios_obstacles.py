@@ -384,3 +384,19 @@ def test_scenario_ending_at_the_route_end_is_passed_when_the_route_completes():
         if world.is_route_complete():
             break
     assert world.is_route_complete() and sc.triggered and sc.passed and not sc.timed_out
+
+
+def test_lane_flow_ego_distance_test_matches_numpy_norm_at_and_away_from_the_radius():
+    """``obstacles._ego_within`` (a lane flow's re-entry test, in Python floats) answers as
+    ``np.linalg.norm(t.pos[0] - p) < radius`` does, also within the last bits of the radius."""
+    from types import SimpleNamespace
+
+    from v2xbench.envs.v2x_intersection.scenarios.obstacles import _ego_within
+
+    rng = np.random.default_rng(3)
+    p = np.array([12.5, -40.25])
+    for k in range(4000):
+        ang = rng.uniform(0, 2 * np.pi)
+        r = 90.0 + (rng.integers(-4, 5) * np.spacing(90.0) if k % 2 else rng.uniform(-30.0, 30.0))
+        t = SimpleNamespace(pos=np.array([[p[0] + r * np.cos(ang), p[1] + r * np.sin(ang)]]))
+        assert _ego_within(t, p, 90.0) == bool(np.linalg.norm(t.pos[0] - p) < 90.0)

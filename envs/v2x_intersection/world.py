@@ -475,8 +475,10 @@ class World:
         tick counter moves on."""
         self.last_events = self.monitor.update_world(self.tick + 1, self.table, self.collisions, self.lane_signal,
                                                      self._old_pos)
-        for sc in self.scenarios:  # the progress just moved: a route's last scenario may be passed
-            sc.check_passed(self)
+        if self.scenarios:  # the progress just moved: a route's last scenario may be passed
+            s = self.scenarios[0].ego_s(self)  # the same for every scenario
+            for sc in self.scenarios:
+                sc.check_passed(self, s)
         self.tick += 1
 
     def deliver(self) -> list:

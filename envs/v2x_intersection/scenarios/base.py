@@ -99,24 +99,26 @@ class Scenario:
         """Ego route progress (m)."""
         return float(world.route.s[world.monitor.progress])
 
-    def check_passed(self, world) -> None:
+    def check_passed(self, world, s: float | None = None) -> None:
         """Mark the scenario passed once the ego's route progress reaches ``end_s``. The world calls
         this again after its progress update, so that a scenario whose ``end_s`` is the route's end
-        counts as passed on the tick the route is completed."""
-        if self.triggered and not self.passed and self.ego_s(world) >= self.end_s:
+        counts as passed on the tick the route is completed. ``s``: :meth:`ego_s`, where the
+        caller has it already."""
+        if self.triggered and not self.passed and (self.ego_s(world) if s is None else s) >= self.end_s:
             self.passed = True
 
     def tick(self, world) -> None:
         """Trigger, behaviour, pass / timeout bookkeeping (called by ``World.step``)."""
         s = self.ego_s(world)
-        if not self.triggered and s >= self.trigger_s:
+        if not self.triggered:
+            if s < self.trigger_s:
+                return
             self.triggered, self.trigger_tick = True, world.tick
             self.on_trigger(world)
-        if self.triggered:
-            self.update(world)
-            self.check_passed(world)
-            if not world.monitor.held_by_red:
-                self.elapsed_s += world.config.dt
-            if not self.passed and not self.timed_out and self.elapsed_s > self.timeout_s:
-                self.timed_out = True
-                world.monitor.emit(SCENARIO_TIMEOUT, world.tick, -1, float(self.elapsed_s))
+        self.update(world)
+        self.check_passed(world, s)  # (the hooks do not move the route progress)
+        if not world.monitor.held_by_red:
+            self.elapsed_s += world.config.dt
+        if not self.passed and not self.timed_out and self.elapsed_s > self.timeout_s:
+            self.timed_out = True
+            world.monitor.emit(SCENARIO_TIMEOUT, world.tick, -1, float(self.elapsed_s))

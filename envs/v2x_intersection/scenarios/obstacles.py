@@ -11,6 +11,7 @@ Every class here registers itself with ``@register_scenario``.
 
 from __future__ import annotations
 
+import math
 from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
@@ -187,10 +188,23 @@ class LaneFlow:
         if self._entry is None:
             self._entry = lane_point(world.town, self.lane, self.s_lo)[0]
         p = self._entry
-        if occupied(t, p, 7.0) or np.linalg.norm(t.pos[0] - p) < ENTRY_HIDDEN_M:
+        if _ego_within(t, p, ENTRY_HIDDEN_M) or occupied(t, p, 7.0):
             return  # no vehicle appears out of nowhere within sight of the ego
         self._put(world, free, self.s_lo)
         self.next_gap = self._draw_gap(world.rng)
+
+
+def _ego_within(t, p: np.ndarray, radius: float) -> bool:
+    """``np.linalg.norm(t.pos[0] - p) < radius`` without building arrays: the distance in Python
+    floats decides where it is more than ``1e-9`` m from ``radius``; closer, ``np.linalg.norm``
+    itself does (its BLAS dot may round differently in the last bit)."""
+    ex, ey = t.pos[0].tolist()
+    px, py = p.tolist()
+    dx, dy = ex - px, ey - py
+    d = math.sqrt(dx * dx + dy * dy)
+    if abs(d - radius) > 1e-9:
+        return d < radius
+    return bool(np.linalg.norm(t.pos[0] - p) < radius)
 
 
 class Item(NamedTuple):

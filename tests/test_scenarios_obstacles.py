@@ -400,3 +400,32 @@ def test_lane_flow_ego_distance_test_matches_numpy_norm_at_and_away_from_the_rad
         r = 90.0 + (rng.integers(-4, 5) * np.spacing(90.0) if k % 2 else rng.uniform(-30.0, 30.0))
         t = SimpleNamespace(pos=np.array([[p[0] + r * np.cos(ang), p[1] + r * np.sin(ang)]]))
         assert _ego_within(t, p, 90.0) == bool(np.linalg.norm(t.pos[0] - p) < 90.0)
+
+
+def test_parking_exit_route_rewrite_is_remembered_and_the_same_as_a_fresh_one():
+    """``parking._exit_route`` (remembered per town): a second episode of a route file gets the
+    same rewritten route as the first, read-only, and a fresh cache computes the same arrays; a
+    rewritten route is left as it is."""
+    from v2xbench.envs.v2x_intersection.route_files import (
+        build_episode_from_spec,
+        load_suite_cached,
+    )
+    from v2xbench.envs.v2x_intersection.scenarios.parking import _exit_route
+
+    spec = next(r for r in load_suite_cached("test50") if r.scenarios[0].type == "ParkingExit")
+    (r1, sc1), (r2, _) = build_episode_from_spec(spec), build_episode_from_spec(spec)
+    town = get_town(spec.town)
+    fields = ("points", "headings", "lane_ids", "commands", "s")
+    for f in fields:
+        a, b = getattr(r1, f), getattr(r2, f)
+        assert a is b and not a.flags.writeable
+    assert r1.lanes == r2.lanes
+    town.cache("parking_exit_routes").clear()
+    (r3, sc3) = build_episode_from_spec(spec)
+    for f in fields:
+        np.testing.assert_array_equal(getattr(r1, f), getattr(r3, f))
+        assert getattr(r1, f).dtype == getattr(r3, f).dtype
+    assert sc1[0].conflict_s == sc3[0].conflict_s
+    lane, s_p = sc1[0].site.lanes[sc1[0].site.key], sc1[0].site.s_on_key
+    n, again = _exit_route(town, r1, lane, s_p, float(sc1[0].params["exit_length"]))
+    assert again is None and r1.s[n] == sc1[0].conflict_s

@@ -227,27 +227,11 @@ class ParkingExit(Scenario):
         p = {**self.defaults, **(params or {})}
         town = get_town(route.town)
         lane, s_p = site.lanes[site.key], site.s_on_key
-        lat0, length = kerb_parking(town, lane), float(p["exit_length"])
-        u = np.arange(0.0, length, ROUTE_STEP)
-        curve = lane_points(town, lane, s_p + u, [lat0 * (0.5 + 0.5 * np.cos(np.pi * x / length)) for x in u])
-        if np.linalg.norm(route.points[0] - curve[0]) < 0.1:  # this route was rewritten already
-            super().__init__(route, site, float(route.s[len(curve)]), params)
-            return
-        first = int(np.flatnonzero(route.lane_ids == lane)[0])
-        k = first + int(np.searchsorted(route.s[first:] - route.s[first], s_p + length))
-        points = np.concatenate([curve, route.points[k:]], 0)
-        d = np.diff(points, axis=0)
-        heading = np.arctan2(d[:, 1], d[:, 0])
-        route.points, route.headings = points, np.concatenate([heading, heading[-1:]])
-        route.lane_ids = np.concatenate([np.full(len(curve), lane), route.lane_ids[k:]]).astype(
-            np.int64
-        )
-        route.commands = np.concatenate(
-            [np.full(len(curve), CHANGE_LANE_LEFT), route.commands[k:]]
-        ).astype(np.int64)
-        route.s = polyline_lengths(points)
-        route.lanes = list(route.lanes[route.lanes.index(lane) :])
-        super().__init__(route, site, float(route.s[len(curve)]), params)
+        n_curve, fields = _exit_route(town, route, lane, s_p, float(p["exit_length"]))
+        if fields is not None:  # (None: this route was rewritten already)
+            route.points, route.headings, route.lane_ids, route.commands, route.s = fields
+            route.lanes = list(route.lanes[route.lanes.index(lane) :])
+        super().__init__(route, site, float(route.s[n_curve]), params)
 
     def spawn(self, world) -> None:
         town, rng = world.town, world.rng
@@ -279,6 +263,52 @@ class ParkingExit(Scenario):
         if self.ego_s(world) < self.conflict_s:  # leaving the slot is not driving outside the lanes
             world.monitor.outside_m = self._outside
         super().tick(world)
+
+
+#: rewritten routes remembered per town (:func:`_exit_route`; a replayed route file reuses its own)
+EXIT_ROUTE_CACHE_SIZE = 64
+
+
+def _exit_route(town: Town, route, lane: int, s_p: float, length: float) -> tuple[int, tuple | None]:
+    """:class:`ParkingExit`'s route rewrite: the route starts in the slot at ``s_p`` on ``lane``'s
+    parking lane and blends into ``lane`` over ``length`` m (``ROUTE_STEP`` apart, a cosine blend).
+
+    Returns:
+        ``(n, fields)``: ``n`` points of the blend, ``fields`` the new ``(points, headings,
+        lane_ids, commands, s)`` (read-only), or ``None`` where ``route`` starts with the blend
+        already. Deterministic, so remembered per town and input route.
+    """
+    key = (route.points.tobytes(), route.lane_ids.tobytes(), route.commands.tobytes(), route.s.tobytes(), lane, s_p,
+           length)
+    cache = town.cache("parking_exit_routes")
+    hit = cache.get(key)
+    if hit is not None:
+        return hit
+    lat0 = kerb_parking(town, lane)
+    u = np.arange(0.0, length, ROUTE_STEP)
+    curve = lane_points(town, lane, s_p + u, [lat0 * (0.5 + 0.5 * np.cos(np.pi * x / length)) for x in u])
+    if np.linalg.norm(route.points[0] - curve[0]) < 0.1:
+        out = (len(curve), None)
+    else:
+        first = int(np.flatnonzero(route.lane_ids == lane)[0])
+        k = first + int(np.searchsorted(route.s[first:] - route.s[first], s_p + length))
+        points = np.concatenate([curve, route.points[k:]], 0)
+        d = np.diff(points, axis=0)
+        heading = np.arctan2(d[:, 1], d[:, 0])
+        fields = (
+            points,
+            np.concatenate([heading, heading[-1:]]),
+            np.concatenate([np.full(len(curve), lane), route.lane_ids[k:]]).astype(np.int64),
+            np.concatenate([np.full(len(curve), CHANGE_LANE_LEFT), route.commands[k:]]).astype(np.int64),
+            polyline_lengths(points),
+        )
+        for a in fields:
+            a.setflags(write=False)
+        out = (len(curve), fields)
+    while cache and len(cache) >= EXIT_ROUTE_CACHE_SIZE:
+        cache.pop(next(iter(cache)))
+    cache[key] = out
+    return out
 
 
 # -------------------------------------------------------------------------------- slow bicycles

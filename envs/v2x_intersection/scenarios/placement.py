@@ -91,7 +91,10 @@ def clear_near(world, center: np.ndarray, radius: float) -> None:
 def clear_lanes(world, lanes: list[int]) -> None:
     """Remove background followers driving on ``lanes``."""
     t = world.table
-    t.active[np.isin(t.lane, lanes) & (t.scenario < 0) & (np.arange(len(t)) > 0) & (t.behaviour == DRIVER)] = False
+    on = np.zeros(len(t), bool)
+    for lane in lanes:  # np.isin for a few lanes (its set-up costs ~15 us)
+        on |= t.lane == lane
+    t.active[on & (t.scenario < 0) & (np.arange(len(t)) > 0) & (t.behaviour == DRIVER)] = False
 
 
 def _base(t: ActorTable, row: int, kind: int, behaviour: int, size: tuple[float, float, float]) -> None:

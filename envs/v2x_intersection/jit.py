@@ -194,13 +194,19 @@ def _box_blocks(ox, oy, oz, d0, d1, d2, c, s, bx, by, hl, hw, z0, z1, lo, hi):  
     return _fmax(t_in, lo) < _fmin(t_out, hi)
 
 
+@_njit_inline
+def half_diagonal(length, width):  # pragma: no cover
+    """``0.5 * sqrt(length^2 + width^2)``: how far a box reaches from its centre (the sight
+    test's culling)."""
+    return 0.5 * np.sqrt(length * length + width * width)
+
+
 @_njit
 def half_diagonals_kernel(length, width):  # pragma: no cover
-    """``0.5 * sqrt(length^2 + width^2)`` per box: how far a box reaches from its centre (the
-    sight test's culling; once per perception call, shared by its sensors)."""
+    """:func:`half_diagonal` per box."""
     out = np.empty(length.shape[0])
     for j in range(length.shape[0]):
-        out[j] = 0.5 * np.sqrt(length[j] * length[j] + width[j] * width[j])
+        out[j] = half_diagonal(length[j], width[j])
     return out
 
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from .jit import (
     _njit,
-    half_diagonals_kernel,
+    half_diagonal,
     pose_at_kernel,
     project_refine,
     visible_fraction_kernel,
@@ -146,39 +146,41 @@ def rsu_to_ego_kernel(rows, x, y, yaw, ex, ey, eyaw):  # pragma: no cover
     return out
 
 
+def perceive_workspace(n, static_boxes, static_heights, static_cos, static_sin, static_half_diag) -> tuple:
+    """:func:`perceive_kernel`'s box arrays for ``n`` actor rows then the static boxes: ``(center
+    (n + S, 2), cos_yaw, sin_yaw, length, width, height, z0, half_diag)``, the static boxes' rows
+    filled (they hold for the episode), the actors' rows written by each call."""
+    ns = static_boxes.shape[0]
+    ws = (np.empty((n + ns, 2)), *(np.empty(n + ns) for _ in range(5)), np.zeros(n + ns), np.empty(n + ns))
+    center, cos_yaw, sin_yaw, blen, bwid, bh, _, half_diag = ws
+    center[n:] = static_boxes[:, :2]
+    cos_yaw[n:], sin_yaw[n:] = static_cos, static_sin
+    blen[n:], bwid[n:], bh[n:] = static_boxes[:, 2], static_boxes[:, 3], static_heights
+    half_diag[n:] = static_half_diag
+    return ws
+
+
 @_njit
-def perceive_kernel(pos, length, width, yaw, height, active, static_boxes, static_heights, static_cos, static_sin,
-                    static_half_diag, ego_z, ego_r2, ego_range, rsu_pose, rsu_r2, rsu_range, half_fov, levels,
-                    pattern, shrink, lo, hi):  # pragma: no cover
+def perceive_kernel(pos, length, width, yaw, height, active, center, cos_yaw, sin_yaw, blen, bwid, bh, z0, half_diag,
+                    ego_z, ego_r2, ego_range, rsu_pose, rsu_r2, rsu_range, half_fov, levels, pattern, shrink, lo,
+                    hi):  # pragma: no cover
     """``world.World.perceive`` after the RSU selection: visible fraction of every active actor
     (rows >= 1) from the ego's sensor and from each selected RSU (``rsu_pose (slots, 4)``, NaN
     rows for empty slots), against all actors and static boxes as occluders.
+
+    ``center`` ... ``half_diag``: :func:`perceive_workspace` (the static boxes' rows filled); the
+    actors' rows are written here.
 
     Returns:
         ``(ego_vis (N,), rsu_vis (slots, N))``.
     """
     n = pos.shape[0]
-    ns = static_boxes.shape[0]
-    center = np.empty((n + ns, 2))
-    cos_yaw = np.empty(n + ns)
-    sin_yaw = np.empty(n + ns)
-    blen = np.empty(n + ns)
-    bwid = np.empty(n + ns)
-    bh = np.empty(n + ns)
     for i in range(n):
         center[i, 0], center[i, 1] = pos[i, 0], pos[i, 1]
         cos_yaw[i], sin_yaw[i] = np.cos(yaw[i]), np.sin(yaw[i])
         blen[i], bwid[i] = length[i], width[i]
         bh[i] = height[i] if active[i] else 0.0
-    for k in range(ns):
-        center[n + k, 0], center[n + k, 1] = static_boxes[k, 0], static_boxes[k, 1]
-        cos_yaw[n + k], sin_yaw[n + k] = static_cos[k], static_sin[k]
-        blen[n + k], bwid[n + k] = static_boxes[k, 2], static_boxes[k, 3]
-        bh[n + k] = static_heights[k]
-    z0 = np.zeros(n + ns)
-    half_diag = np.empty(n + ns)  # once for all sensors; the static boxes' from the episode's arguments
-    half_diag[:n] = half_diagonals_kernel(length, width)
-    half_diag[n:] = static_half_diag
+        half_diag[i] = half_diagonal(length[i], width[i])
     ego_vis = np.zeros(n)
     slots = rsu_pose.shape[0]
     rsu_vis = np.zeros((slots, n))
@@ -217,11 +219,11 @@ def perceive_kernel(pos, length, width, yaw, height, active, static_boxes, stati
 
 @_njit
 def perceive_all_kernel(rsu_pose, rsu_kind, trigger_kind, preference, max_angle, slots, pos, length, width, yaw,
-                        height, active, static_boxes, static_heights, static_cos, static_sin, static_half_diag, ego_z,
-                        ego_r2, ego_range, rsu_r2, rsu_range, half_fov, levels, pattern, shrink, lo,
-                        hi):  # pragma: no cover
+                        height, active, center, cos_yaw, sin_yaw, blen, bwid, bh, z0, half_diag, ego_z, ego_r2,
+                        ego_range, rsu_r2, rsu_range, half_fov, levels, pattern, shrink, lo, hi):  # pragma: no cover
     """``world.World.perceive`` in one call: the RSU selection (:func:`select_active_kernel`;
-    all ``-1`` without units), then :func:`perceive_kernel` from the selected units' poses.
+    all ``-1`` without units), then :func:`perceive_kernel` from the selected units' poses
+    (``center`` ... ``half_diag``: :func:`perceive_workspace`).
 
     Returns:
         ``(active_rsu (slots,), ego_vis (N,), rsu_vis (slots, N))``.
@@ -237,9 +239,9 @@ def perceive_all_kernel(rsu_pose, rsu_kind, trigger_kind, preference, max_angle,
         if u >= 0:
             for j in range(4):
                 pose[k, j] = rsu_pose[u, j]
-    ego_vis, rsu_vis = perceive_kernel(pos, length, width, yaw, height, active, static_boxes, static_heights,
-                                       static_cos, static_sin, static_half_diag, ego_z, ego_r2, ego_range, pose,
-                                       rsu_r2, rsu_range, half_fov, levels, pattern, shrink, lo, hi)
+    ego_vis, rsu_vis = perceive_kernel(pos, length, width, yaw, height, active, center, cos_yaw, sin_yaw, blen, bwid,
+                                       bh, z0, half_diag, ego_z, ego_r2, ego_range, pose, rsu_r2, rsu_range, half_fov,
+                                       levels, pattern, shrink, lo, hi)
     return active_rsu, ego_vis, rsu_vis
 
 

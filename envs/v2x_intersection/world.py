@@ -37,7 +37,12 @@ from .infractions import EventMonitor
 from .jit import HAVE_JIT, half_diagonals_kernel
 from .jit_args import PackedArgs
 from .jit_batch import PerceiveBatch, TrafficBatch
-from .jit_perception import object_rows_kernel, perceive_all_kernel, seen_rows_kernel
+from .jit_perception import (
+    object_rows_kernel,
+    perceive_all_kernel,
+    perceive_workspace,
+    seen_rows_kernel,
+)
 from .jit_rng import state_views
 from .jit_spawn import spawn_followers_kernel, spawn_walkers_kernel
 from .jit_tick import traffic_tick_kernel
@@ -524,14 +529,16 @@ class World:
 
     def _perceive_consts(self) -> tuple:
         """``perceive_all_kernel``'s arguments (all hold for the episode: the kernel reads the
-        table's columns in place), kept until the table or the RSUs change."""
+        table's columns in place and writes the actors' rows of its box workspace,
+        ``jit_perception.perceive_workspace``), kept until the table or the RSUs change."""
         t, cfg = self.table, self.config
         cached = self._perceive_args
         if cached is None or cached[0] is not t or cached[1] is not self.rsus:
             cached = self._perceive_args = (t, self.rsus, (
                 self.rsus.pose, self.rsus.kind, KIND_TRIGGER, TRIGGER_PREFERENCE_M, FACING_MAX_ANGLE,
-                int(cfg.rsu_slots), t.pos, t.length, t.width, t.yaw, t.height, t.active, self.static_boxes,
-                self.static_heights, *self.static_trig, self._static_half_diag, EGO_SENSOR_Z,
+                int(cfg.rsu_slots), t.pos, t.length, t.width, t.yaw, t.height, t.active,
+                *perceive_workspace(len(t), self.static_boxes, self.static_heights, *self.static_trig,
+                                    self._static_half_diag), EGO_SENSOR_Z,
                 float(cfg.ego_range) ** 2, float(cfg.ego_range), float(cfg.rsu_range) ** 2, float(cfg.rsu_range), 0.5 * RSU_HFOV,
                 *VISIBILITY_SAMPLING))
         return cached[2]

@@ -7,9 +7,9 @@ world's arguments in numba typed lists, refreshed only when they change (a reset
 array, a new plan), and :func:`traffic_batch_kernel` / :func:`perceive_batch_kernel` call the same
 kernels world after world, so a batch pays one dispatch per tick and stage
 (:class:`TrafficBatch`, :class:`PerceiveBatch`). A single world uses a batch of one:
-:func:`traffic_one_kernel` takes 7 arguments, :func:`perceive_one_kernel` 1. Each world sees
-exactly the call it would make alone (``tests/test_jit_batch.py`` and ``tests/test_batch.py``
-compare, byte for byte).
+:func:`traffic_one_kernel` takes 9 arguments (one typed list, the lane states and plans as
+arrays), :func:`perceive_one_kernel` 1. Each world sees exactly the call it would make alone
+(``tests/test_jit_batch.py`` and ``tests/test_batch.py`` compare, byte for byte).
 """
 
 from __future__ import annotations
@@ -59,12 +59,14 @@ def traffic_batch_kernel(order, controls, ego_ok, consts, signals, plans):  # pr
 
 
 @_njit
-def traffic_one_kernel(throttle, steer, brake, ego_ok, consts, signals, plans):  # pragma: no cover
-    """``traffic_tick_kernel`` for the one world of :class:`TrafficBatch` lists of length 1."""
+def traffic_one_kernel(throttle, steer, brake, ego_ok, consts, signals, plan_lanes, plan_start,
+                       plan_len):  # pragma: no cover
+    """``traffic_tick_kernel`` for one world: its episode's arguments in entry 0 of the typed list
+    ``consts``, the lane states and ``traffic.flat_plans`` as plain arrays (an array argument costs
+    numba's dispatch ~40 ns, a typed list ~0.9 us: measured 2026-11-26)."""
     c = consts[0]
-    p = plans[0]
-    return traffic_tick_kernel(throttle, steer, brake, c[0], signals[0], p[0], p[1], p[2], c[1], ego_ok, c[2],
-                               *c[3:])
+    return traffic_tick_kernel(throttle, steer, brake, c[0], signals, plan_lanes, plan_start, plan_len, c[1], ego_ok,
+                               c[2], *c[3:])
 
 
 class ArgLists:
@@ -115,6 +117,10 @@ def _traffic_entries(w) -> tuple:
     return w._traffic_consts(), w.lane_signal, flat_plans(w.plans)
 
 
+def _traffic_consts_entry(w) -> tuple:
+    return (w._traffic_consts(),)
+
+
 class TrafficBatch:
     """``World.move_traffic`` for the worlds of a batch in one kernel call (numba only), through
     :class:`ArgLists` (groups: the episode's arguments, the lane states, the plans)."""
@@ -122,6 +128,7 @@ class TrafficBatch:
     def __init__(self, worlds: list) -> None:
         self.worlds = worlds
         self.args = ArgLists(worlds, _traffic_entries)
+        self.one_args = ArgLists(worlds[:1], _traffic_consts_entry)  # (step_one)
 
     def step(self, ids: list[int], controls: np.ndarray) -> bool:
         """Move worlds ``ids`` under ``controls[i]`` (checked ``(N, 3)``); ``False``: not done,
@@ -148,11 +155,12 @@ class TrafficBatch:
 
     def step_one(self, throttle: float, steer: float, brake: float) -> bool:
         """:meth:`step` for a batch of one world whose control is taken and lane states updated
-        (``World.move_traffic``): one call of 7 arguments instead of 79."""
-        if not self.args.sync((0,)):
+        (``World.move_traffic``): one call of 9 arguments instead of 79."""
+        if not self.one_args.sync((0,)):
             return False
         w = self.worlds[0]
-        w._respawn = traffic_one_kernel(throttle, steer, brake, ego_is_vehicle(w.table), *self.args.lists)
+        w._respawn = traffic_one_kernel(throttle, steer, brake, ego_is_vehicle(w.table), self.one_args.lists[0],
+                                        w.lane_signal, *flat_plans(w.plans))
         return True
 
 

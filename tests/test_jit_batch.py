@@ -86,6 +86,7 @@ def test_one_world_batches_match_the_kernels_called_directly(monkeypatch):
     direct = run()
     with monkeypatch.context() as m:
         m.setattr(jit_batch.ArgLists, "sync", lambda self, ids: False)
+        m.setattr(jit_batch.ListOf, "get", lambda self, item: None)
         _same(direct, run())
 
 
@@ -151,6 +152,23 @@ def test_packed_args_rebuild_only_when_the_key_changes():
     assert p.get((b, a), lambda: build(b)) is not other  # a longer key is another key
     q = copy.deepcopy(p)  # typed lists cannot be copied: a copy rebuilds on use
     assert q._list is None
+
+
+def test_list_of_rebuilds_only_for_another_item_and_gives_up_on_items_it_cannot_hold():
+    import copy
+
+    from v2xbench.envs.v2x_intersection.jit_args import ListOf
+
+    a, b = (np.arange(3.0), 1.5), (np.arange(4.0), 2.5)
+    one = ListOf()
+    first = one.get(a)
+    assert one.get(a) is first and np.array_equal(first[0][0], a[0]) and first[0][1] == 1.5
+    other = one.get(b)
+    assert other is not first and np.array_equal(other[0][0], b[0])
+    assert copy.deepcopy(one)._list is None  # a copy rebuilds on use
+    bad = ListOf()
+    assert bad.get(({"not": "numba"},)) is None and bad.broken
+    assert bad.get(a) is None  # broken for good: the caller keeps its fallback
 
 
 def test_objects_observation_after_a_copy_reads_the_copy():

@@ -63,3 +63,32 @@ class PackedArgs:
             self._list = new_list(build())
             self._key = key
         return self._list
+
+
+class ListOf:
+    """A typed list holding one item (numba only), rebuilt when :meth:`get` is given another
+    object: a one-world kernel's episode arguments, checked by identity each call (cheaper than
+    :class:`~.jit_batch.ArgLists`' refresh). ``None`` where a typed list cannot hold the item."""
+
+    __slots__ = ("_item", "_list", "broken")
+
+    def __init__(self) -> None:
+        self._item = None
+        self._list = None
+        self.broken = False
+
+    def __reduce__(self):
+        return ListOf, ()  # a copy rebuilds its list on use (typed lists cannot be pickled)
+
+    def get(self, item):
+        """The typed list of ``item`` (``None``: it cannot be held; the caller falls back)."""
+        if item is not self._item:
+            if self.broken:
+                return None
+            try:
+                self._list = new_list(item)
+            except Exception:  # noqa: BLE001 - a type a typed list cannot hold: fall back for good
+                self.broken, self._list = True, None
+                return None
+            self._item = item
+        return self._list

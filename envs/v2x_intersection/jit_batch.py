@@ -19,7 +19,7 @@ from collections.abc import Callable
 import numpy as np
 
 from .jit import _njit
-from .jit_args import List, list_append, list_set, new_list  # noqa: F401 (re-exported)
+from .jit_args import List, ListOf, list_append, list_set, new_list  # noqa: F401 (re-exported)
 from .jit_perception import perceive_all_kernel
 from .jit_tick import traffic_tick_kernel
 from .pedestrians import ego_is_vehicle
@@ -117,10 +117,6 @@ def _traffic_entries(w) -> tuple:
     return w._traffic_consts(), w.lane_signal, flat_plans(w.plans)
 
 
-def _traffic_consts_entry(w) -> tuple:
-    return (w._traffic_consts(),)
-
-
 class TrafficBatch:
     """``World.move_traffic`` for the worlds of a batch in one kernel call (numba only), through
     :class:`ArgLists` (groups: the episode's arguments, the lane states, the plans)."""
@@ -128,7 +124,7 @@ class TrafficBatch:
     def __init__(self, worlds: list) -> None:
         self.worlds = worlds
         self.args = ArgLists(worlds, _traffic_entries)
-        self.one_args = ArgLists(worlds[:1], _traffic_consts_entry)  # (step_one)
+        self.one = ListOf()  # (step_one)
 
     def step(self, ids: list[int], controls: np.ndarray) -> bool:
         """Move worlds ``ids`` under ``controls[i]`` (checked ``(N, 3)``); ``False``: not done,
@@ -156,11 +152,12 @@ class TrafficBatch:
     def step_one(self, throttle: float, steer: float, brake: float) -> bool:
         """:meth:`step` for a batch of one world whose control is taken and lane states updated
         (``World.move_traffic``): one call of 9 arguments instead of 79."""
-        if not self.one_args.sync((0,)):
-            return False
         w = self.worlds[0]
-        w._respawn = traffic_one_kernel(throttle, steer, brake, ego_is_vehicle(w.table), self.one_args.lists[0],
-                                        w.lane_signal, *flat_plans(w.plans))
+        consts = self.one.get(w._traffic_consts())
+        if consts is None:
+            return False
+        w._respawn = traffic_one_kernel(throttle, steer, brake, ego_is_vehicle(w.table), consts, w.lane_signal,
+                                        *flat_plans(w.plans))
         return True
 
 
@@ -215,6 +212,7 @@ class PerceiveBatch:
     def __init__(self, worlds: list) -> None:
         self.worlds = worlds
         self.args = ArgLists(worlds, _perceive_entries)
+        self.one = ListOf()  # (step_one)
 
     def step(self, ids: list[int]) -> bool:
         """Perceive in worlds ``ids``; ``False``: not done, call ``World.perceive`` per world."""
@@ -233,8 +231,9 @@ class PerceiveBatch:
 
     def step_one(self) -> bool:
         """:meth:`step` for a batch of one world: one argument instead of 27."""
-        if not self.args.sync((0,)):
-            return False
         w = self.worlds[0]
-        w.active_rsu, w.ego_vis, w.rsu_vis = perceive_one_kernel(*self.args.lists)
+        consts = self.one.get(w._perceive_consts())
+        if consts is None:
+            return False
+        w.active_rsu, w.ego_vis, w.rsu_vis = perceive_one_kernel(consts)
         return True

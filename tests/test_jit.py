@@ -222,12 +222,13 @@ def _table_bytes(t) -> dict:
     return {f.name: getattr(t, f.name).tobytes() for f in dataclasses.fields(t)}
 
 
-@pytest.mark.parametrize("town", ["Town01", "Town03", "Town12"])
-def test_world_tick_kernels_match_numpy(monkeypatch, town):
+@pytest.mark.parametrize("town, extra", [("Town01", {}), ("Town03", {}), ("Town12", {}), ("Town03", {"max_objects": 2})])
+def test_world_tick_kernels_match_numpy(monkeypatch, town, extra):
     """Two worlds from one seed and one action sequence, one on the NumPy paths of the tick
     (traffic, pedestrians, monitor, observations, the built-in RSU message), one on the kernels:
     identical actor tables, generator states, events, observations and channel statistics every
-    tick (signed zeros included: the bytes are compared)."""
+    tick (signed zeros included: the bytes are compared). ``max_objects=2``: more objects seen and
+    received than the observation holds (its nearest rows)."""
     from v2xbench.envs.v2x_intersection import (
         infractions,
         observations,
@@ -241,13 +242,16 @@ def test_world_tick_kernels_match_numpy(monkeypatch, town):
     from v2xbench.envs.v2x_intersection.config import make_config
     from v2xbench.envs.v2x_intersection.observations import ego_observation
     from v2xbench.envs.v2x_intersection.town import model
+    from v2xbench.envs.v2x_intersection.visibility import VISIBLE_THRESHOLD
     from v2xbench.envs.v2x_intersection.world import World
 
     modules = (traffic, pedestrians, world_module, rsu, model, observations, signals, infractions, physics)
-    worlds = [World(make_config(town=town, num_vehicles=40, num_pedestrians=30, jaywalk_prob=0.05, rsu_slots=2)) for _ in range(2)]
+    worlds = [World(make_config(town=town, num_vehicles=40, num_pedestrians=30, jaywalk_prob=0.05, rsu_slots=2,
+                                **extra)) for _ in range(2)]
     for w in worlds:
         w.reset(seed=3)
     rng = np.random.default_rng(0)
+    seen_max = received_max = 0
     for k in range(300):
         a = rng.uniform([0.0, -0.3, 0.0], [1.0, 0.3, 0.3])
         out = []
@@ -258,6 +262,9 @@ def test_world_tick_kernels_match_numpy(monkeypatch, town):
                 # odd ticks: the gym/batch path (the world packs its own message)
                 events = w.step_builtin(a) if k % 2 else w.step(a, w.default_rsu_message())
                 obs = ego_observation(w)
+            if jit:
+                seen_max = max(seen_max, int((w.ego_vis >= VISIBLE_THRESHOLD).sum()))
+                received_max = max(received_max, 0 if w.inbox is None else len(w.inbox[2]) // 10)
             out.append((_table_bytes(w.table), events, {key: np.asarray(v).tobytes() for key, v in obs.items()
                                                         if not isinstance(v, dict)}, w.channel.stats()))
         assert out[0][0] == out[1][0], f"tick {k}: actor tables differ"
@@ -265,6 +272,8 @@ def test_world_tick_kernels_match_numpy(monkeypatch, town):
         assert out[0][1] == out[1][1] and out[0][2] == out[1][2], f"tick {k}: events/observations differ"
         assert out[0][3] == out[1][3], f"tick {k}: channel statistics differ"
     assert worlds[1].table.wait.max() > 0.0  # someone queued: the stop rules ran
+    if extra:  # the observation's rows were full: more were seen and received than it holds
+        assert seen_max > extra["max_objects"] and received_max > extra["max_objects"]
 
 
 def test_move_traffic_follows_a_replaced_generator(monkeypatch):

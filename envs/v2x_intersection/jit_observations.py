@@ -30,14 +30,13 @@ def ego_obs_kernel(ego_out, route_out, objects_out, v2x_out, info_out, with_obje
         the distance (m) along route lane ``lane`` to its stop line (-1 where it has none).
     """
     ex, ey, eyaw = pos[0, 0], pos[0, 1], yaw[0]
-    route_out[:] = route_window_kernel(route_points, commands, k0, route_out.shape[0], route_step, ex, ey, eyaw)
-    m = v2x_out.shape[0]
+    route_window_kernel(route_out, route_points, commands, k0, route_step, ex, ey, eyaw)
     if with_objects:
-        objects_out[:] = visible_objects_kernel(vis, threshold, pos, yaw, speed, kind, length, width, height, actor_id,
-                                                ex, ey, eyaw, m)
+        visible_objects_kernel(objects_out, vis, threshold, pos, yaw, speed, kind, length, width, height, actor_id, ex,
+                               ey, eyaw)
     if has_msg:
         n_rows = payload.shape[0] // 10
-        v2x_out[:] = v2x_rows_kernel(payload, n_rows, rx, ry, ryaw, ex, ey, eyaw, m)
+        v2x_rows_kernel(v2x_out, payload, n_rows, rx, ry, ryaw, ex, ey, eyaw)
         c, s = np.cos(eyaw), np.sin(eyaw)  # the unit in the ego frame (world_to_local_2d's operations)
         d0, d1 = rx - ex, ry - ey
         info_out[0] = 1.0

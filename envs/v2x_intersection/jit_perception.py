@@ -12,6 +12,7 @@ import numpy as np
 
 from .jit import (
     _njit,
+    _njit_inline,
     half_diagonal,
     pose_at_kernel,
     project_refine,
@@ -20,12 +21,11 @@ from .jit import (
 from .jit_grid import project_grid_kernel
 
 
-@_njit
-def object_rows_kernel(idx, pos, yaw, speed, kind, length, width, height, actor_id, ox, oy, oyaw):  # pragma: no cover
-    """``world.object_rows``: ``(K, 10)`` float32 rows of ``channel.OBJECT_FIELDS`` for actors
-    ``idx`` in the frame at ``(ox, oy)`` / ``oyaw``, sorted by distance."""
+@_njit_inline
+def _frame_order(idx, pos, ox, oy, c, s):  # pragma: no cover
+    """Actors ``idx`` in the frame at ``(ox, oy)`` with heading cosine/sine ``c``/``s``:
+    ``(lx, ly, order)``, ``order`` sorting them by distance."""
     m = idx.shape[0]
-    c, s = np.cos(oyaw), np.sin(oyaw)
     lx = np.empty(m)
     ly = np.empty(m)
     dist = np.empty(m)
@@ -36,24 +36,39 @@ def object_rows_kernel(idx, pos, yaw, speed, kind, length, width, height, actor_
         lx[k] = c * d0 + s * d1
         ly[k] = -s * d0 + c * d1
         dist[k] = np.sqrt(lx[k] * lx[k] + ly[k] * ly[k])
-    order = np.argsort(dist)
-    out = np.empty((m, 10), np.float32)
+    return lx, ly, np.argsort(dist)
+
+
+@_njit_inline
+def _object_row(out, r, col, i, lx, ly, yaw, speed, kind, length, width, height, actor_id, oyaw, c,
+                s):  # pragma: no cover
+    """Write actor ``i``'s ``channel.OBJECT_FIELDS`` (position ``lx, ly`` in the frame of heading
+    ``oyaw``, cosine/sine ``c``/``s``) into ``out[r, col:col + 10]`` (float32)."""
     two_pi = 2 * np.pi
-    for r in range(m):
+    vx = speed[i] * np.cos(yaw[i])
+    vy = speed[i] * np.sin(yaw[i])
+    out[r, col] = np.float64(kind[i])
+    out[r, col + 1] = lx
+    out[r, col + 2] = ly
+    out[r, col + 3] = (yaw[i] - oyaw + np.pi) % two_pi - np.pi
+    out[r, col + 4] = length[i]
+    out[r, col + 5] = width[i]
+    out[r, col + 6] = height[i]
+    out[r, col + 7] = c * vx + s * vy
+    out[r, col + 8] = -s * vx + c * vy
+    out[r, col + 9] = np.float64(actor_id[i])
+
+
+@_njit
+def object_rows_kernel(idx, pos, yaw, speed, kind, length, width, height, actor_id, ox, oy, oyaw):  # pragma: no cover
+    """``world.object_rows``: ``(K, 10)`` float32 rows of ``channel.OBJECT_FIELDS`` for actors
+    ``idx`` in the frame at ``(ox, oy)`` / ``oyaw``, sorted by distance."""
+    c, s = np.cos(oyaw), np.sin(oyaw)
+    lx, ly, order = _frame_order(idx, pos, ox, oy, c, s)
+    out = np.empty((idx.shape[0], 10), np.float32)
+    for r in range(idx.shape[0]):
         k = order[r]
-        i = idx[k]
-        vx = speed[i] * np.cos(yaw[i])
-        vy = speed[i] * np.sin(yaw[i])
-        out[r, 0] = np.float64(kind[i])
-        out[r, 1] = lx[k]
-        out[r, 2] = ly[k]
-        out[r, 3] = (yaw[i] - oyaw + np.pi) % two_pi - np.pi
-        out[r, 4] = length[i]
-        out[r, 5] = width[i]
-        out[r, 6] = height[i]
-        out[r, 7] = c * vx + s * vy
-        out[r, 8] = -s * vx + c * vy
-        out[r, 9] = np.float64(actor_id[i])
+        _object_row(out, r, 0, idx[k], lx[k], ly[k], yaw, speed, kind, length, width, height, actor_id, oyaw, c, s)
     return out
 
 
@@ -121,29 +136,26 @@ def sidewalk_snap_kernel(x, y, points, owner, offset, n_points, gs, base):  # pr
     return d, k
 
 
-@_njit
-def rsu_to_ego_kernel(rows, x, y, yaw, ex, ey, eyaw):  # pragma: no cover
-    """Object rows received from the RSU at ``(x, y, yaw)`` re-expressed in the ego frame
-    (``observations._v2x``): positions, headings and velocities; a new float32 array."""
-    m = rows.shape[0]
-    out = rows.copy()
-    c, s = np.cos(yaw), np.sin(yaw)
-    ce, se = np.cos(eyaw), np.sin(eyaw)
-    cr, sr = np.cos(yaw - eyaw), np.sin(yaw - eyaw)
+@_njit_inline
+def _rsu_row_to_ego(out, r, col, src, b, x, y, yaw, ex, ey, eyaw, c, s, ce, se, cr, sr):  # pragma: no cover
+    """Object fields ``src[b:b + 10]`` (float32, in the frame of the unit at ``(x, y, yaw)``,
+    cosine/sine ``c``/``s``) re-expressed in the ego frame into ``out[r, col:col + 10]``:
+    positions, headings and velocities (``ce``/``se``: the ego's heading, ``cr``/``sr``: the
+    difference); the other fields copied."""
     two_pi = 2.0 * np.pi
-    for k in range(m):
-        p0 = np.float64(rows[k, 1])
-        p1 = np.float64(rows[k, 2])
-        d0 = (c * p0 - s * p1 + x) - ex
-        d1 = (s * p0 + c * p1 + y) - ey
-        out[k, 1] = ce * d0 + se * d1
-        out[k, 2] = -se * d0 + ce * d1
-        out[k, 3] = (np.float64(rows[k, 3]) + yaw - eyaw + np.pi) % two_pi - np.pi
-        vx = np.float64(rows[k, 7])
-        vy = np.float64(rows[k, 8])
-        out[k, 7] = cr * vx - sr * vy
-        out[k, 8] = sr * vx + cr * vy
-    return out
+    for f in range(10):
+        out[r, col + f] = src[b + f]
+    p0 = np.float64(src[b + 1])
+    p1 = np.float64(src[b + 2])
+    d0 = (c * p0 - s * p1 + x) - ex
+    d1 = (s * p0 + c * p1 + y) - ey
+    out[r, col + 1] = ce * d0 + se * d1
+    out[r, col + 2] = -se * d0 + ce * d1
+    out[r, col + 3] = (np.float64(src[b + 3]) + yaw - eyaw + np.pi) % two_pi - np.pi
+    vx = np.float64(src[b + 7])
+    vy = np.float64(src[b + 8])
+    out[r, col + 7] = cr * vx - sr * vy
+    out[r, col + 8] = sr * vx + cr * vy
 
 
 def perceive_workspace(n, static_boxes, static_heights, static_cos, static_sin, static_half_diag) -> tuple:
@@ -281,34 +293,41 @@ def route_monitor_kernel(route_points, progress, ex, ey, points, pid, owner, off
 
 
 @_njit
-def v2x_rows_kernel(payload, n_rows, x, y, yaw, ex, ey, eyaw, m):  # pragma: no cover
-    """``observations._v2x``'s rows: the first ``n_rows`` objects of a received payload, moved
-    from the RSU frame at ``(x, y, yaw)`` to the ego frame (:func:`rsu_to_ego_kernel`) and padded
-    into ``(m, 11)`` observation rows (present flag, 9 fields, visible fraction 1)."""
-    rows = np.empty((n_rows, 10), np.float32)
-    for k in range(n_rows):
-        for f in range(10):
-            rows[k, f] = payload[k * 10 + f]
-    rows = rsu_to_ego_kernel(rows, x, y, yaw, ex, ey, eyaw)
-    out = np.zeros((m, 11), np.float32)
-    for k in range(min(n_rows, m)):
+def v2x_rows_kernel(out, payload, n_rows, x, y, yaw, ex, ey, eyaw):  # pragma: no cover
+    """``observations._v2x``'s rows, written into ``out (m, 11)`` float32: the first ``n_rows``
+    objects of a received payload, moved from the RSU frame at ``(x, y, yaw)`` to the ego frame
+    (:func:`_rsu_row_to_ego`) as observation rows (present flag, 9 fields, visible
+    fraction 1); zeros after them."""
+    m = out.shape[0]
+    c, s = np.cos(yaw), np.sin(yaw)
+    ce, se = np.cos(eyaw), np.sin(eyaw)
+    cr, sr = np.cos(yaw - eyaw), np.sin(yaw - eyaw)
+    rows = min(n_rows, m)
+    for k in range(rows):
+        _rsu_row_to_ego(out, k, 1, payload, k * 10, x, y, yaw, ex, ey, eyaw, c, s, ce, se, cr, sr)
         out[k, 0] = 1.0
-        for f in range(9):
-            out[k, 1 + f] = rows[k, f]
         out[k, 10] = 1.0
-    return out
+    out[rows:] = 0.0
 
 
 @_njit
-def visible_objects_kernel(vis, threshold, pos, yaw, speed, kind, length, width, height, actor_id, ox, oy, oyaw,
-                           m):  # pragma: no cover
-    """``ego_observation``'s ``objects``: the actors with ``vis >= threshold`` as
-    :func:`object_rows_kernel` rows, padded by :func:`pad_rows_kernel`."""
+def visible_objects_kernel(out, vis, threshold, pos, yaw, speed, kind, length, width, height, actor_id, ox, oy,
+                           oyaw):  # pragma: no cover
+    """``ego_observation``'s ``objects``, written into ``out (m, 11)`` float32: the actors with
+    ``vis >= threshold`` as :func:`object_rows_kernel` rows (the nearest ``m``), each with its
+    present flag and visible fraction (``vis`` at its track id, read back from the float32 row as
+    ``observations._rows`` does); zeros after them."""
+    m = out.shape[0]
     idx = np.flatnonzero(vis >= threshold)
-    if idx.shape[0] == 0:
-        return np.zeros((m, 11), np.float32)
-    rows = object_rows_kernel(idx, pos, yaw, speed, kind, length, width, height, actor_id, ox, oy, oyaw)
-    return pad_rows_kernel(rows, vis, m)
+    c, s = np.cos(oyaw), np.sin(oyaw)
+    lx, ly, order = _frame_order(idx, pos, ox, oy, c, s)
+    rows = min(idx.shape[0], m)
+    for r in range(rows):
+        k = order[r]
+        _object_row(out, r, 1, idx[k], lx[k], ly[k], yaw, speed, kind, length, width, height, actor_id, oyaw, c, s)
+        out[r, 0] = 1.0
+        out[r, 10] = vis[np.int64(out[r, 10])]
+    out[rows:] = 0.0
 
 
 @_njit
@@ -323,31 +342,16 @@ def seen_rows_kernel(vis, threshold, pos, yaw, speed, kind, length, width, heigh
 
 
 @_njit
-def route_window_kernel(points, commands, k0, count, step, ex, ey, eyaw):  # pragma: no cover
-    """``observations.ego_observation``'s route: ``count`` route points every ``step`` from
-    ``k0`` (clamped to the last point) in the ego frame, with their commands; ``(count, 3)``
-    float32."""
-    out = np.zeros((count, 3), np.float32)
+def route_window_kernel(out, points, commands, k0, step, ex, ey, eyaw):  # pragma: no cover
+    """``observations.ego_observation``'s route, written into ``out (count, 3)`` float32: ``count``
+    route points every ``step`` from ``k0`` (clamped to the last point) in the ego frame, with their
+    commands."""
     c, s = np.cos(eyaw), np.sin(eyaw)
     last = points.shape[0] - 1
-    for a in range(count):
+    for a in range(out.shape[0]):
         k = min(k0 + a * step, last)
         d0 = points[k, 0] - ex
         d1 = points[k, 1] - ey
         out[a, 0] = c * d0 + s * d1
         out[a, 1] = -s * d0 + c * d1
         out[a, 2] = commands[k]
-    return out
-
-
-@_njit
-def pad_rows_kernel(objs, vis, m):  # pragma: no cover
-    """``observations._rows`` with ``vis`` looked up by track id: ``(m, 11)`` float32 rows
-    (present flag, the first 9 object fields, visible fraction ``vis[track id]``)."""
-    out = np.zeros((m, 11), np.float32)
-    for k in range(min(objs.shape[0], m)):
-        out[k, 0] = 1.0
-        for f in range(9):
-            out[k, 1 + f] = objs[k, f]
-        out[k, 10] = vis[np.int64(objs[k, 9])]
-    return out

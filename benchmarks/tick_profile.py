@@ -19,10 +19,11 @@ with calls per tick, and splits the tick into time inside kernels (numba's dispa
 and Python around them. With numba it also counts the arrays each kernel allocates per tick
 (numba runtime's allocation statistics, switched on for the run): every ``np.empty`` or
 returned array inside a kernel is a ``malloc`` / ``free`` pair plus atomic reference counts.
-Kernels that call kernels inside numba are counted once, in the caller. Each timer adds ~0.2 us per wrapped call, so the stages read a little high; the split is what to
-look at. Without numba ``move_traffic`` runs as four stages (``move_ego``, ``update_signals``,
-``move_followers``, ``move_walkers``), each listed; with numba it is one kernel. ``other`` is the
-tick minus its stages: the env's own glue, Gymnasium's wrappers (objects), TorchRL and
+Kernels that call kernels inside numba are counted once, in the caller. Each timer adds ~0.2 us
+per wrapped call, so the stages read a little high; the split is what to look at. Without
+numba ``move_traffic`` runs as four stages (``move_ego``, ``update_signals``, ``move_followers``,
+``move_walkers``), each listed; with numba it is one kernel. ``other`` is the tick minus its
+stages: the env's own glue, Gymnasium's wrappers (objects), TorchRL and
 TensorDict (batched).
 
 Run ``v2xbench profile`` (or ``--mode batched`` / ``test50``); writes ``OUT/profile_<mode>.json``

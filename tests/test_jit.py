@@ -222,7 +222,8 @@ def _table_bytes(t) -> dict:
     return {f.name: getattr(t, f.name).tobytes() for f in dataclasses.fields(t)}
 
 
-@pytest.mark.parametrize("town, extra", [("Town01", {}), ("Town03", {}), ("Town12", {}), ("Town03", {"max_objects": 2})])
+@pytest.mark.parametrize("town, extra",
+                         [("Town01", {}), ("Town03", {}), ("Town12", {}), ("Town03", {"max_objects": 2})])
 def test_world_tick_kernels_match_numpy(monkeypatch, town, extra):
     """Two worlds from one seed and one action sequence, one on the NumPy paths of the tick
     (traffic, pedestrians, monitor, observations, the built-in RSU message), one on the kernels:

@@ -539,8 +539,8 @@ class World:
                 int(cfg.rsu_slots), t.pos, t.length, t.width, t.yaw, t.height, t.active,
                 *perceive_workspace(len(t), self.static_boxes, self.static_heights, *self.static_trig,
                                     self._static_half_diag), EGO_SENSOR_Z,
-                float(cfg.ego_range) ** 2, float(cfg.ego_range), float(cfg.rsu_range) ** 2, float(cfg.rsu_range), 0.5 * RSU_HFOV,
-                *VISIBILITY_SAMPLING))
+                float(cfg.ego_range) ** 2, float(cfg.ego_range), float(cfg.rsu_range) ** 2, float(cfg.rsu_range),
+                0.5 * RSU_HFOV, *VISIBILITY_SAMPLING))
         return cached[2]
 
     def _rsu_perception(self, boxes: Boxes, targets: np.ndarray) -> None:

@@ -64,6 +64,23 @@ def test_visible_fraction_matches_numpy(monkeypatch, seed):
         assert 0 < a.mean() < 1
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_visible_fraction_dense_scene_matches_numpy(monkeypatch, seed):
+    """Crowded scenes: targets with many near boxes next to targets with few, so that the sight
+    test's per-target broad phase (``jit.points_blocked_kernel``) is rebuilt between them."""
+    rng = np.random.default_rng(100 + seed)
+    n = 192
+    center = rng.uniform(-25, 25, (n, 2))
+    center[np.hypot(*center.T) < 4.0] += 6.0  # the sensor at the origin stands in the open
+    boxes = Boxes.from_arrays(center, rng.uniform(0.5, 5, n), rng.uniform(0.5, 2, n),
+                              rng.uniform(-np.pi, np.pi, n), rng.uniform(0.0, 3.0, n) * (rng.random(n) > 0.1))
+    targets = rng.choice(len(boxes.length), 40, replace=False)
+    sensor = np.array([0.0, 0.0, 1.8])
+    a, b = _both(monkeypatch, lambda: visible_fraction(sensor, boxes, targets))
+    np.testing.assert_array_equal(a, b)
+    assert 0 < a.mean() < 1
+
+
 def test_project_matches_numpy(monkeypatch):
     from v2xbench.envs.v2x_intersection.town import get_town, model
 
@@ -339,6 +356,49 @@ def test_pose_at_matches_numpy(monkeypatch):
         b = ix.pose_at(lanes, s)
     for x, y in zip(a, b):
         assert x.tobytes() == y.tobytes()
+
+
+def test_pose_at_at_vertices_matches_numpy(monkeypatch):
+    """Arc lengths on the lanes (not clamped), at their vertices exactly and one ulp either side."""
+    from v2xbench.envs.v2x_intersection.town import get_town, model
+
+    ix = get_town("Town04").index
+    rng = np.random.default_rng(2)
+    lanes = rng.integers(0, len(ix.length), 300)
+    vertex = ix.offset[lanes] + (rng.random(300) * ix.n_points[lanes]).astype(np.int64)
+    at = ix.gs[vertex] - ix.base[lanes]
+    s = np.concatenate([rng.random(300) * ix.length[lanes], at, np.nextafter(at, -np.inf), np.nextafter(at, np.inf)])
+    lanes = np.tile(lanes, 4)
+    a = ix.pose_at(lanes, s)
+    with monkeypatch.context() as m:
+        m.setattr(model, "HAVE_JIT", False)
+        b = ix.pose_at(lanes, s)
+    for x, y in zip(a, b):
+        assert x.tobytes() == y.tobytes()
+
+
+@pytest.mark.parametrize("spacing", ["even", "uneven", "repeated"])
+def test_vertex_at_or_below_is_searchsorted(spacing):
+    """``jit.vertex_at_or_below`` (a walk from an even-spacing estimate, bisection when the walk
+    runs long) against ``np.searchsorted(side="right") - 1`` on polylines of every kind."""
+    from v2xbench.envs.v2x_intersection.jit import vertex_at_or_below
+
+    rng = np.random.default_rng(3)
+    for trial in range(40):
+        n = int(rng.integers(1, 60))
+        step = {"even": np.full(n, 1.5) + rng.normal(0, 0.05, n),
+                "uneven": rng.exponential(1.0, n) ** 3,
+                "repeated": rng.choice([0.0, 1.0, 2.5], n)}[spacing]
+        step[0] = 0.0
+        base = float(rng.uniform(0, 5000))
+        gs = np.concatenate([rng.uniform(-9, -1, 3), base + np.cumsum(step), base + 1e4 + np.arange(3)])
+        first, last = 3, 3 + n - 1
+        own = gs[first:last + 1]
+        g = np.concatenate([rng.uniform(base - 2, own[-1] + 2, 50), own, np.nextafter(own, -np.inf),
+                            np.nextafter(own, np.inf), [np.nan, -np.inf, np.inf]])
+        want = first + np.searchsorted(own, g, side="right") - 1
+        got = [vertex_at_or_below(gs, first, last, x) for x in g]
+        np.testing.assert_array_equal(got, want, err_msg=f"trial {trial}")
 
 
 @pytest.mark.parametrize("route_index", [0, 23])

@@ -543,6 +543,44 @@ def _np_min(a, b):
     return a if (a <= b or a != a) else b
 
 
+#: most steps :func:`vertex_at_or_below` walks from its estimate before it searches by bisection
+VERTEX_WALK_STEPS = 4
+
+
+@_njit_inline
+def vertex_at_or_below(gs, first, last, g):  # pragma: no cover
+    """``first + np.searchsorted(gs[first:last + 1], g, side="right") - 1``: the last vertex of
+    the polyline ``first..last`` whose arc length ``gs`` (non-decreasing) is ``<= g``, ``first - 1``
+    when none is (``last`` for a NaN ``g``, which NumPy sorts last).
+
+    The towns' polylines are resampled at near-even spacing, so the vertex that an even spacing
+    puts ``g`` at is at most one off: a short walk from it (checked by the same comparisons as a
+    search) replaces the bisection's ~6 unpredictable branches. Should the walk not get there in
+    :data:`VERTEX_WALK_STEPS` steps (an unevenly sampled polyline), the bisection answers."""
+    if g != g:
+        return last
+    e = first
+    span = gs[last] - gs[first]
+    if span > 0.0:
+        f = (g - gs[first]) / span * (last - first)
+        if f >= last - first:
+            e = last
+        elif f > 0.0:
+            e = first + np.int64(f)
+    for _ in range(VERTEX_WALK_STEPS):
+        if gs[e] <= g:
+            if e == last or gs[e + 1] > g:
+                return e
+            e += 1
+        else:
+            if e == first:
+                return first - 1
+            e -= 1
+            if gs[e] <= g:
+                return e
+    return first + np.searchsorted(gs[first:last + 1], g, side="right") - 1
+
+
 @_njit
 def pose_at_kernel(idx, s, points, heading, offset, n_points, gs, base, length):  # pragma: no cover
     """``town.model.PolylineIndex.pose_at``: positions ``(N, 2)`` and headings ``(N,)``."""
@@ -558,8 +596,7 @@ def pose_at_kernel(idx, s, points, heading, offset, n_points, gs, base, length):
         last = first + n_points[ln] - 1
         # the search over the polyline's own points gives what one over all of ``gs`` gives
         # after the clamp below (``gs`` ascends, and polylines are 1 km apart): fewer steps
-        i = first + np.searchsorted(gs[first:last + 1], g, side="right") - 1
-        i = _np_min(_np_max(i, first), last - 1)
+        i = _np_min(_np_max(vertex_at_or_below(gs, first, last, g), first), last - 1)
         s0, s1 = gs[i], gs[i + 1]
         t = (g - s0) / _np_max(s1 - s0, 1e-9) if s1 > s0 else 0.0
         p[k, 0] = points[i, 0] * (1.0 - t) + points[i + 1, 0] * t

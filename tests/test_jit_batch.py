@@ -187,3 +187,24 @@ def test_objects_observation_after_a_copy_reads_the_copy():
     twin.table.pos[1:] += 5.0  # moves the others in the copy only
     assert np.array_equal(ego_observation(w)["objects"], before["objects"])
     assert not np.array_equal(ego_observation(twin)["objects"], before["objects"])
+
+
+def test_one_world_perception_outputs_are_rewritten_each_tick():
+    """The one-world perception writes into per-episode output arrays (no arrays returned): the
+    world's ``ego_vis`` is the same array from tick to tick, holding the new tick's values, and a
+    new episode gets new arrays."""
+    import gymnasium as gym
+
+    if not HAVE_JIT:
+        pytest.skip("numba path only")
+    env = gym.make("V2XIntersection-v0", suite="test50", route_index=0)
+    env.reset(seed=0)
+    w = env.unwrapped.world
+    first, kept = w.ego_vis, w.ego_vis.copy()
+    for _ in range(15):
+        env.step(np.array([0.6, 0.0, 0.0], np.float32))
+    assert w.ego_vis is first and not np.array_equal(w.ego_vis, kept)
+    w.perceive()
+    assert w.ego_vis is first
+    env.reset(seed=1)
+    assert w.ego_vis is not first

@@ -163,8 +163,10 @@ class TrafficBatch:
 
 @_njit
 def perceive_one_kernel(consts):  # pragma: no cover
-    """``jit_perception.perceive_all_kernel`` with the arguments of entry 0 of ``consts``."""
-    return perceive_all_kernel(*consts[0])
+    """``jit_perception.perceive_all_kernel`` with the arguments of entry 0 of ``consts`` (its
+    results land in the last three, its output arrays; nothing is returned, which saves boxing
+    three arrays)."""
+    perceive_all_kernel(*consts[0])
 
 
 @_njit
@@ -232,8 +234,10 @@ class PerceiveBatch:
     def step_one(self) -> bool:
         """:meth:`step` for a batch of one world: one argument instead of 27."""
         w = self.worlds[0]
-        consts = self.one.get(w._perceive_consts())
+        args = w._perceive_consts()
+        consts = self.one.get(args)
         if consts is None:
             return False
-        w.active_rsu, w.ego_vis, w.rsu_vis = perceive_one_kernel(consts)
+        perceive_one_kernel(consts)
+        w.active_rsu, w.ego_vis, w.rsu_vis = args[-3:]
         return True

@@ -172,19 +172,23 @@ def perceive_workspace(n, static_boxes, static_heights, static_cos, static_sin, 
     return ws
 
 
+def perceive_outputs(n: int, slots: int) -> tuple:
+    """:func:`perceive_all_kernel`'s outputs, written by each call: ``(active_rsu (slots,),
+    ego_vis (n,), rsu_vis (slots, n))`` (returning fresh arrays to Python costs ~0.4 us each,
+    measured 2026-11-26)."""
+    return np.full(slots, -1, np.int64), np.zeros(n), np.zeros((slots, n))
+
+
 @_njit
 def perceive_kernel(pos, length, width, yaw, height, active, center, cos_yaw, sin_yaw, blen, bwid, bh, z0, half_diag,
                     ego_z, ego_r2, ego_range, rsu_pose, rsu_r2, rsu_range, half_fov, levels, pattern, shrink, lo,
-                    hi):  # pragma: no cover
+                    hi, ego_vis, rsu_vis):  # pragma: no cover
     """``world.World.perceive`` after the RSU selection: visible fraction of every active actor
     (rows >= 1) from the ego's sensor and from each selected RSU (``rsu_pose (slots, 4)``, NaN
     rows for empty slots), against all actors and static boxes as occluders.
 
     ``center`` ... ``half_diag``: :func:`perceive_workspace` (the static boxes' rows filled); the
-    actors' rows are written here.
-
-    Returns:
-        ``(ego_vis (N,), rsu_vis (slots, N))``.
+    actors' rows are written here. ``ego_vis (N,)``, ``rsu_vis (slots, N)``: the outputs, overwritten.
     """
     n = pos.shape[0]
     for i in range(n):
@@ -193,9 +197,9 @@ def perceive_kernel(pos, length, width, yaw, height, active, center, cos_yaw, si
         blen[i], bwid[i] = length[i], width[i]
         bh[i] = height[i] if active[i] else 0.0
         half_diag[i] = half_diagonal(length[i], width[i])
-    ego_vis = np.zeros(n)
+    ego_vis[:] = 0.0
     slots = rsu_pose.shape[0]
-    rsu_vis = np.zeros((slots, n))
+    rsu_vis[:] = 0.0
     sensor = np.empty(3)
     for q in range(slots + 1):
         if q == 0:
@@ -226,34 +230,35 @@ def perceive_kernel(pos, length, width, yaw, height, active, center, cos_yaw, si
                 ego_vis[near[a]] = vis[a]
             else:
                 rsu_vis[q - 1, near[a]] = vis[a]
-    return ego_vis, rsu_vis
 
 
 @_njit
 def perceive_all_kernel(rsu_pose, rsu_kind, trigger_kind, preference, max_angle, slots, pos, length, width, yaw,
                         height, active, center, cos_yaw, sin_yaw, blen, bwid, bh, z0, half_diag, ego_z, ego_r2,
-                        ego_range, rsu_r2, rsu_range, half_fov, levels, pattern, shrink, lo, hi):  # pragma: no cover
+                        ego_range, rsu_r2, rsu_range, half_fov, levels, pattern, shrink, lo, hi, active_rsu, ego_vis,
+                        rsu_vis):  # pragma: no cover
     """``world.World.perceive`` in one call: the RSU selection (:func:`select_active_kernel`;
     all ``-1`` without units), then :func:`perceive_kernel` from the selected units' poses
-    (``center`` ... ``half_diag``: :func:`perceive_workspace`).
+    (``center`` ... ``half_diag``: :func:`perceive_workspace`), written into the outputs
+    ``active_rsu (slots,)``, ``ego_vis (N,)``, ``rsu_vis (slots, N)`` (:func:`perceive_outputs`).
 
     Returns:
-        ``(active_rsu (slots,), ego_vis (N,), rsu_vis (slots, N))``.
+        the outputs ``(active_rsu, ego_vis, rsu_vis)``.
     """
     if rsu_pose.shape[0] == 0:
-        active_rsu = np.full(slots, -1, np.int64)
+        active_rsu[:] = -1
     else:
-        active_rsu = select_active_kernel(rsu_pose, rsu_kind, trigger_kind, pos[0, 0], pos[0, 1], yaw[0], rsu_range,
-                                          slots, preference, max_angle)
+        active_rsu[:] = select_active_kernel(rsu_pose, rsu_kind, trigger_kind, pos[0, 0], pos[0, 1], yaw[0],
+                                             rsu_range, slots, preference, max_angle)
     pose = np.full((slots, 4), np.nan)
     for k in range(slots):
         u = active_rsu[k]
         if u >= 0:
             for j in range(4):
                 pose[k, j] = rsu_pose[u, j]
-    ego_vis, rsu_vis = perceive_kernel(pos, length, width, yaw, height, active, center, cos_yaw, sin_yaw, blen, bwid,
-                                       bh, z0, half_diag, ego_z, ego_r2, ego_range, pose, rsu_r2, rsu_range, half_fov,
-                                       levels, pattern, shrink, lo, hi)
+    perceive_kernel(pos, length, width, yaw, height, active, center, cos_yaw, sin_yaw, blen, bwid, bh, z0, half_diag,
+                    ego_z, ego_r2, ego_range, pose, rsu_r2, rsu_range, half_fov, levels, pattern, shrink, lo, hi,
+                    ego_vis, rsu_vis)
     return active_rsu, ego_vis, rsu_vis
 
 

@@ -40,6 +40,7 @@ from .jit_batch import PerceiveBatch, TrafficBatch
 from .jit_perception import (
     object_rows_kernel,
     perceive_all_kernel,
+    perceive_outputs,
     perceive_workspace,
     seen_rows_kernel,
 )
@@ -505,7 +506,9 @@ class World:
         )
 
     def perceive(self) -> None:
-        """Step 7: visible fraction of every actor from the ego and from each active RSU."""
+        """Step 7: visible fraction of every actor from the ego and from each active RSU
+        (``active_rsu``, ``ego_vis``, ``rsu_vis``). With numba these arrays are the kernel's
+        output buffers, overwritten by the next tick's call: copy them to keep them."""
         cfg, t = self.config, self.table
         if HAVE_JIT:  # one kernel call, through a one-world jit_batch.PerceiveBatch (1 argument, not 27)
             if self._perceive_one is None:
@@ -529,8 +532,10 @@ class World:
 
     def _perceive_consts(self) -> tuple:
         """``perceive_all_kernel``'s arguments (all hold for the episode: the kernel reads the
-        table's columns in place and writes the actors' rows of its box workspace,
-        ``jit_perception.perceive_workspace``), kept until the table or the RSUs change."""
+        table's columns in place, writes the actors' rows of its box workspace,
+        ``jit_perception.perceive_workspace``, and its outputs, ``perceive_outputs``: the last three,
+        which become ``active_rsu``, ``ego_vis`` and ``rsu_vis``), kept until the table or the RSUs
+        change."""
         t, cfg = self.table, self.config
         cached = self._perceive_args
         if cached is None or cached[0] is not t or cached[1] is not self.rsus:
@@ -540,7 +545,7 @@ class World:
                 *perceive_workspace(len(t), self.static_boxes, self.static_heights, *self.static_trig,
                                     self._static_half_diag), EGO_SENSOR_Z,
                 float(cfg.ego_range) ** 2, float(cfg.ego_range), float(cfg.rsu_range) ** 2, float(cfg.rsu_range),
-                0.5 * RSU_HFOV, *VISIBILITY_SAMPLING))
+                0.5 * RSU_HFOV, *VISIBILITY_SAMPLING, *perceive_outputs(len(t), int(cfg.rsu_slots))))
         return cached[2]
 
     def _rsu_perception(self, boxes: Boxes, targets: np.ndarray) -> None:

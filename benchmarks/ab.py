@@ -10,7 +10,12 @@ then this checkout, each timing CPU seconds per tick of one workload:
 - ``batched``: the native TorchRL env with 32 worlds and random actions, per world-step;
 - ``test50``: every test50 route in turn (``--ticks`` / 50 ticks each, constant action, resets
   included; the routes built and 20 ticks of each driven before the clock starts), the workload
-  of ``v2xbench profile --mode test50``, with all 38 scenario types' hooks.
+  of ``v2xbench profile --mode test50``, with all 38 scenario types' hooks;
+- ``perception``: ``World.perceive`` alone, hot, on the states of the ``objects`` workload: after
+  each of ``--ticks`` steps it is called three more times (it writes only its outputs, the same
+  each time) and the third call is timed. A kernel looped on one state can mislead: the
+  vectorized sight test of 2026-11-26 took perception from 11.5 to 9.0 us on tick 60 of test50
+  route 0, and from 15.3 to 15.2 us over 500 of its states (docs/performance.md, "Stop 26").
 
 It prints both series and the median of the pairwise ratios (REV / this: above 1 means this
 checkout is faster), and writes them as JSON with ``--out``. Both sides are imported the same way:
@@ -60,6 +65,23 @@ if mode == "test50":
     for env in envs:
         drive(env, per)
     print(1e6 * (time.process_time() - c0) / (per * 50))
+elif mode == "perception":
+    import gymnasium as gym
+    import v2xbench  # noqa: F401
+    env = gym.make("V2XIntersection-v0", suite="test50", route_index=0)
+    act = np.array([0.3, 0.0, 0.0], np.float32)
+    w, clock, spent = env.unwrapped.world, time.perf_counter_ns, 0
+    env.reset(seed=0)
+    for k in range(300 + ticks):
+        _, _, term, trunc, _ = env.step(act)
+        if term or trunc:
+            env.reset(seed=k + 1)
+        w.perceive()
+        w.perceive()
+        t0 = clock()
+        w.perceive()
+        spent += (clock() - t0) if k >= 300 else 0
+    print(spent / 1e3 / ticks)
 elif mode == "objects":
     import gymnasium as gym
     import v2xbench  # noqa: F401
@@ -90,7 +112,7 @@ else:
     print(1e6 * (time.process_time() - c0) / (steps * 32))
 """
 
-MODES = ("objects", "batched", "test50")
+MODES = ("objects", "batched", "test50", "perception")
 _PARTS = ("envs", "agents", "collectors", "benchmarks")
 #: ticks of the untimed run of each side before the pairs (every kernel compiled or cached)
 WARMUP_TICKS = 2000
@@ -140,7 +162,7 @@ def ab(rev: str, mode: str = "objects", pairs: int = 5, ticks: int = 4000, repo:
             subprocess.run(["git", "-C", str(repo), "worktree", "remove", "--force", str(tree)], check=False,
                            capture_output=True)
     ratios = [x / y for x, y in zip(a, b)]
-    unit = "us per world-step" if mode == "batched" else "us per tick"
+    unit = {"batched": "us per world-step", "perception": "us per call"}.get(mode, "us per tick")
     return {"revision": rev, "commit": sha, "mode": mode, "unit": unit, "revision_us": a, "this_us": b,
             "median_ratio": statistics.median(ratios)}
 
@@ -157,7 +179,8 @@ def run(args: argparse.Namespace) -> int:
     if args.pairs < 1 or args.ticks < 1:
         raise SystemExit("--pairs and --ticks must be positive")
     res = ab(args.rev, args.mode, args.pairs, args.ticks)
-    fmt = lambda xs: " / ".join(f"{x:.0f}" for x in xs)  # noqa: E731
+    digits = 1 if args.mode == "perception" else 0
+    fmt = lambda xs: " / ".join(f"{x:.{digits}f}" for x in xs)  # noqa: E731
     print(f"{args.mode}, {res['unit']}: {args.rev} ({res['commit']}) {fmt(res['revision_us'])} -> "
           f"this checkout {fmt(res['this_us'])}; median ratio {res['median_ratio']:.3f} "
           f"(above 1: this checkout is faster)")

@@ -343,13 +343,19 @@ def test_world_reset_kernels_match_numpy(monkeypatch, town):
 
 
 def test_pose_at_matches_numpy(monkeypatch):
-    from v2xbench.envs.v2x_intersection.town import get_town, model
+    from v2xbench.envs.v2x_intersection.town import get_town
 
     ix = get_town("Town03").index
     rng = np.random.default_rng(1)
     lanes = rng.integers(0, len(ix.length), 200)
     s = rng.uniform(-5.0, 1.1, 200) * ix.length[lanes]
     s[:3] = (-0.0, 0.0, np.nan)
+    _assert_pose_at_matches(monkeypatch, ix, lanes, s)
+
+
+def _assert_pose_at_matches(monkeypatch, ix, lanes: np.ndarray, s: np.ndarray) -> None:
+    from v2xbench.envs.v2x_intersection.town import model
+
     a = ix.pose_at(lanes, s)
     with monkeypatch.context() as m:
         m.setattr(model, "HAVE_JIT", False)
@@ -360,7 +366,7 @@ def test_pose_at_matches_numpy(monkeypatch):
 
 def test_pose_at_at_vertices_matches_numpy(monkeypatch):
     """Arc lengths on the lanes (not clamped), at their vertices exactly and one ulp either side."""
-    from v2xbench.envs.v2x_intersection.town import get_town, model
+    from v2xbench.envs.v2x_intersection.town import get_town
 
     ix = get_town("Town04").index
     rng = np.random.default_rng(2)
@@ -368,13 +374,7 @@ def test_pose_at_at_vertices_matches_numpy(monkeypatch):
     vertex = ix.offset[lanes] + (rng.random(300) * ix.n_points[lanes]).astype(np.int64)
     at = ix.gs[vertex] - ix.base[lanes]
     s = np.concatenate([rng.random(300) * ix.length[lanes], at, np.nextafter(at, -np.inf), np.nextafter(at, np.inf)])
-    lanes = np.tile(lanes, 4)
-    a = ix.pose_at(lanes, s)
-    with monkeypatch.context() as m:
-        m.setattr(model, "HAVE_JIT", False)
-        b = ix.pose_at(lanes, s)
-    for x, y in zip(a, b):
-        assert x.tobytes() == y.tobytes()
+    _assert_pose_at_matches(monkeypatch, ix, np.tile(lanes, 4), s)
 
 
 @pytest.mark.parametrize("spacing", ["even", "uneven", "repeated"])

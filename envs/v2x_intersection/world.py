@@ -510,7 +510,7 @@ class World:
         (``active_rsu``, ``ego_vis``, ``rsu_vis``). With numba these arrays are the kernel's
         output buffers, overwritten by the next tick's call: copy them to keep them."""
         cfg, t = self.config, self.table
-        if HAVE_JIT:  # one kernel call, through a one-world jit_batch.PerceiveBatch (1 argument, not 27)
+        if HAVE_JIT:  # one kernel call, through a one-world jit_batch.PerceiveBatch (1 argument, not 34)
             if self._perceive_one is None:
                 self._perceive_one = PerceiveBatch([self])
             if not self._perceive_one.step_one():

@@ -11,6 +11,9 @@ then this checkout, each timing CPU seconds per tick of one workload:
 - ``test50``: every test50 route in turn (``--ticks`` / 50 ticks each, constant action, resets
   included; the routes built and 20 ticks of each driven before the clock starts), the workload
   of ``v2xbench profile --mode test50``, with all 38 scenario types' hooks;
+- ``expert``: the privileged expert drives test50 route 0 (``Expert.act`` then ``env.step``),
+  resets included, 300 ticks of warm-up then ``--ticks`` timed: the closed-loop evaluation's and
+  the dataset collection's tick;
 - ``perception``: ``World.perceive`` alone, hot, on the states of the ``objects`` workload: after
   each of ``--ticks`` steps it is called three more times (it writes only its outputs, the same
   each time) and the third call is timed (same code on both sides: 4 pairs within 13.8-14.3 us,
@@ -66,6 +69,25 @@ if mode == "test50":
     for env in envs:
         drive(env, per)
     print(1e6 * (time.process_time() - c0) / (per * 50))
+elif mode == "expert":
+    import gymnasium as gym
+    import v2xbench  # noqa: F401
+    from v2xbench.agents.expert import Expert
+    env = gym.make("V2XIntersection-v0", suite="test50", route_index=0)
+    agent = Expert()
+    def run(n, seed):
+        obs, _ = env.reset(seed=seed)
+        agent.bind(env.unwrapped.world)
+        for k in range(n):
+            obs, _, term, trunc, _ = env.step(agent.act(obs))
+            if term or trunc:
+                obs, _ = env.reset(seed=seed + k + 1)
+                agent.bind(env.unwrapped.world)
+    run(300, 1)
+    gc.collect()  # as benchmarks/settle.py: no full collection of set-up's objects in the timed loop
+    c0 = time.process_time()
+    run(ticks, 0)
+    print(1e6 * (time.process_time() - c0) / ticks)
 elif mode == "perception":
     import gymnasium as gym
     import v2xbench  # noqa: F401
@@ -113,7 +135,7 @@ else:
     print(1e6 * (time.process_time() - c0) / (steps * 32))
 """
 
-MODES = ("objects", "batched", "test50", "perception")
+MODES = ("objects", "batched", "test50", "perception", "expert")
 _PARTS = ("envs", "agents", "collectors", "benchmarks")
 #: ticks of the untimed run of each side before the pairs (every kernel compiled or cached)
 WARMUP_TICKS = 2000

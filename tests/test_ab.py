@@ -20,7 +20,7 @@ def test_package_dir_imports_from_the_given_tree(tmp_path):
     assert world_file.startswith(str(pkg)) and ab_file.startswith(str(pkg))
 
 
-@pytest.mark.parametrize("mode, ticks", [("objects", 20), ("test50", 50), ("perception", 20)])
+@pytest.mark.parametrize("mode, ticks", [("objects", 20), ("test50", 50), ("perception", 20), ("expert", 20)])
 def test_child_measures_this_checkout(mode, ticks):
     us = ab._measure(mode, ticks, None)
     assert 0.0 < us < 1e6

@@ -282,3 +282,19 @@ def test_resample_polyline_uneven_length_spacing_close_to_step():
 def test_resample_polyline_short_keeps_two_points():
     out = resample_polyline(np.array([[0.0, 0.0], [0.3, 0.0]]), 2.0)
     np.testing.assert_allclose(out, [[0.0, 0.0], [0.3, 0.0]])
+
+
+@pytest.mark.parametrize("shape", [(2,), (5, 2), (3, 4, 2), (0, 2)])
+def test_frame_transforms_give_the_stacked_formula_bytes(shape):
+    """``world_to_local_2d`` / ``local_to_world_2d`` fill their output column by column: the same
+    bytes, shape and dtype as stacking the two rotated coordinates."""
+    rng = np.random.default_rng(len(shape))
+    p, o, yaw = rng.normal(0, 50, shape), rng.normal(0, 5, 2), float(rng.uniform(-3, 3))
+    c, s = np.cos(yaw), np.sin(yaw)
+    d = p - o
+    want = np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], -1)
+    got = world_to_local_2d(p, o, yaw)
+    assert got.shape == want.shape and got.dtype == want.dtype and got.tobytes() == want.tobytes()
+    want = np.stack([c * p[..., 0] - s * p[..., 1], s * p[..., 0] + c * p[..., 1]], -1) + o
+    got = local_to_world_2d(p, o, yaw)
+    assert got.shape == want.shape and got.tobytes() == want.tobytes()

@@ -633,7 +633,10 @@ def test_expert_travel_time_kernel_matches_numpy(monkeypatch):
     a, vmax = rng.uniform(-5, 5, n), rng.uniform(0, 25, n)
     d[::7], d[::11], v[::5], v[::13] = 0.0, -0.0, 0.0, 0.04
     a[::3], a[::17], a[::19] = 0.0, 1e-3, -1e-3
-    cases = [(d, v, a, vmax), (d[:50], 3.0, a[:50], 14.0), (40.0, 2.5, 1.2, 10.0), (12.0, 8.0, -4.0, 8.0)]
+    cases = [(d, v, a, vmax), (d[:50], 3.0, a[:50], 14.0), (40.0, 2.5, 1.2, 10.0), (12.0, 8.0, -4.0, 8.0),
+             (d[:30], v[:30], np.float64(1.5), vmax[:30]),  # the kernel's direct path (junction._flat_args)
+             (d[:30], np.float64(2.0), a[:30], 9),  # an int: broadcast as before
+             (d[:30].astype(np.float32), v[:30], a[:30], 14.0)]
     for args in cases:
         x = junction.travel_time(*args)
         with monkeypatch.context() as m:

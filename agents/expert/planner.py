@@ -200,8 +200,9 @@ class Planner:
         p, hl, hw = self.p, self.hl, self.hw
         h, t = fc.pos.shape[:2]
         pts = fc.pos.reshape(-1, 2)
-        lo, hi = win.xy.min(0) - 6.0, win.xy.max(0) + 6.0
-        box = np.all((pts >= lo) & (pts <= hi), axis=1)
+        # within the path's bounding box + 6 m (column by column: np.all(..., axis=1) cost ~15 us)
+        wx, wy, px, py = win.xy[:, 0], win.xy[:, 1], pts[:, 0], pts[:, 1]
+        box = (px >= wx.min() - 6.0) & (px <= wx.max() + 6.0) & (py >= wy.min() - 6.0) & (py <= wy.max() + 6.0)
         if not np.any(box):
             return []
         idx = np.flatnonzero(box)

@@ -127,7 +127,7 @@ def forecast(
         p = objs.pos[cv][:, None, :] + objs.vel[cv][:, None, :] * taus[None, :, None]
         u = objs.vel[cv] / np.maximum(speed[cv], 1e-6)[:, None]
         parts_pos.append(p)
-        parts_dir.append(np.broadcast_to(u[:, None, :], (len(cv), t, 2)))
+        parts_dir.append(np.repeat(u[:, None, :], t, axis=1))  # (np.broadcast_to cost ~15 us)
     if not parts_pos:
         return Forecast(
             np.zeros(0, np.int64),

@@ -297,3 +297,18 @@ def test_route_track_lane_change_segments():
     assert track.merges and track.merges[0][0] == 0.0
     a, b = track.merges[0]
     assert track.merging(a) == 0.0 and track.merging(b - 0.1) is None
+
+
+def test_scalar_clip_matches_numpy():
+    """``scalar.clip`` gives ``np.clip``'s value for one number: signed zeros at a bound kept,
+    NaN passed through, bounds crossed from either side, no upper bound, NumPy scalars."""
+    from v2xbench.agents.expert.scalar import clip
+
+    nan = float("nan")
+    cases = [(-0.0, 0.0, 1.0), (0.0, -0.0, 1.0), (-0.0, -1.0, 0.0), (0.0, -1.0, -0.0), (nan, 0.0, 1.0),
+             (2.0, 0.0, 1.0), (-2.0, -1.0, 1.0), (0.5, 0.0, 1.0), (-7.0, -5.0, None), (3.0, -5.0, None),
+             (np.float64(1.5), 0.0, 1.0), (np.int64(9), 0, 4), (np.int64(-1), 0, 4), (1.0, 1.0, 1.0)]
+    for x, lo, hi in cases:
+        want = np.clip(x, lo, hi)
+        got = clip(x, lo, hi)
+        assert np.asarray(got, float).tobytes() == np.asarray(want, float).tobytes(), (x, lo, hi)

@@ -27,6 +27,7 @@ from v2xbench.envs.v2x_intersection.classes import BICYCLE, PEDESTRIAN
 from .junction import travel_time
 from .objects import Objects
 from .route_track import PathWindow, RouteTrack
+from .scalar import clip
 
 MAX_OFFSET = 2.9  # m
 IN_LANE_SLACK = 0.3  # m the ego centre may leave its lane centre band beyond the lane edge
@@ -212,7 +213,7 @@ class LateralPlanner:
         queued = ~objs.static & (speed < 0.3) & (np.abs(lat) < self.hw + e_lat + 0.3)
         if np.any(queued & (st > 0.0) & (st - e_long < lo)):
             return  # a vehicle waits in the lane before the obstacle: queue behind it first
-        k = int(np.clip(np.searchsorted(win.st, lo), 0, len(win.st) - 1))
+        k = int(clip(np.searchsorted(win.st, lo), 0, len(win.st) - 1))
         lane = int(win.lanes[k])
         best = self._best_offset(lane, lo, hi, objs, st, lat, e_lat, e_long, speed)
         if best is None or abs(best[0]) < 0.05:
@@ -226,7 +227,7 @@ class LateralPlanner:
             off, invades, s_ego, v, lo, hi, objs, st, lat, cos_r, e_lat, e_long, speed
         ):
             return
-        ramp = float(np.clip(2.0 * v + 8.0, 8.0, 25.0)) * max(abs(off) / 3.0, 0.5)
+        ramp = float(clip(2.0 * v + 8.0, 8.0, 25.0)) * max(abs(off) / 3.0, 0.5)
         s1 = s_ego + lo - self.hl - 1.0
         s0 = max(s1 - ramp, s_ego)
         s2 = s_ego + hi + self.hl + 1.5
@@ -252,7 +253,7 @@ class LateralPlanner:
                 return
             need = self._invader_offset(win, objs, st, lat, cos_r, e_lat, e_long, speed, v)
             if need is None:
-                ramp = float(np.clip(1.5 * v + 6.0, 6.0, 15.0))
+                ramp = float(clip(1.5 * v + 6.0, 6.0, 15.0))
                 man.s2, man.s3 = s_ego, s_ego + ramp
             elif need < man.offset:
                 man.offset = need  # a wider invader: move further over
@@ -323,7 +324,7 @@ class LateralPlanner:
         need = self._invader_offset(win, objs, st, lat, cos_r, e_lat, e_long, speed, v)
         if need is None or need > -0.1:
             return False
-        ramp = float(np.clip(1.0 * v + 4.0, 4.0, 12.0))
+        ramp = float(clip(1.0 * v + 4.0, 4.0, 12.0))
         self.man = Manoeuvre(need, s_ego, s_ego + ramp, np.inf, np.inf, "invading", False)
         return True
 
@@ -341,7 +342,7 @@ class LateralPlanner:
             if self._target_clear(
                 off, False, s_ego, v, 5.0, 15.0, objs, st, lat, cos_r, e_lat, e_long, speed
             ):
-                ramp = float(np.clip(1.5 * v + 8.0, 10.0, 20.0))
+                ramp = float(clip(1.5 * v + 8.0, 10.0, 20.0))
                 self.man = Manoeuvre(off, s_ego, s_ego + ramp, np.inf, np.inf, "emergency", False)
                 self.speed_cap = 8.0
                 return True
@@ -355,7 +356,7 @@ class LateralPlanner:
         if np.isfinite(man.s2):
             return
         if not np.any(behind):
-            ramp = float(np.clip(1.5 * v + 8.0, 10.0, 20.0))
+            ramp = float(clip(1.5 * v + 8.0, 10.0, 20.0))
             man.s2, man.s3 = s_ego, s_ego + ramp
         else:
             self.speed_cap = 8.0

@@ -27,7 +27,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from v2xbench.envs.v2x_intersection.classes import BICYCLE, PEDESTRIAN
 from v2xbench.envs.v2x_intersection.dynamics import VehicleParams
-from v2xbench.envs.v2x_intersection.geometry import world_to_local_2d
+from v2xbench.envs.v2x_intersection.geometry import stack_xy, world_to_local_2d
 from v2xbench.envs.v2x_intersection.routes import Route
 from v2xbench.envs.v2x_intersection.town.model import Town
 
@@ -38,6 +38,7 @@ from .longitudinal import LonParams, accel_now, envelope, rollout
 from .objects import Objects
 from .prediction import forecast
 from .route_track import RouteTrack
+from .scalar import clip
 
 N_WAYPOINTS = 8
 WAYPOINT_DT = 0.5  # s
@@ -125,11 +126,11 @@ class Planner:
         p, hl = self.p, self.hl
         pos = np.asarray(pos, float)
         j, s_ego = self.track.localize(pos)
-        ahead = float(np.clip(6.0 * v + 40.0, 60.0, 170.0))
+        ahead = float(clip(6.0 * v + 40.0, 60.0, 170.0))
         win0 = self.track.window(j, s_ego, ahead)
         d = objs.pos - pos
         objs = objs.take((d[:, 0] ** 2 + d[:, 1] ** 2) < p.relevance_m**2)
-        dirs = np.stack([np.cos(objs.yaw), np.sin(objs.yaw)], -1)
+        dirs = stack_xy(np.cos(objs.yaw), np.sin(objs.yaw))
         st, lat, _, cr, sr = win0.project(objs.pos, dirs)
         self.lateral.update(s_ego, v, win0, objs, st, lat, cr, sr)
         offs = self.lateral.offsets(s_ego)
@@ -152,7 +153,7 @@ class Planner:
             cons.append(
                 (
                     float(st[i] - e_long[i] - hl),
-                    float(np.clip(speed[i] * cr[i], -5.0, None)),
+                    float(clip(speed[i] * cr[i], -5.0, None)),
                     s0,
                     p.headway,
                 )
@@ -259,15 +260,15 @@ class Planner:
         veh = self.vehicle
         need = a + veh.drag * v
         if need >= 0.0:
-            return float(np.clip(need / veh.max_accel, 0.0, 1.0)), 0.0
+            return float(clip(need / veh.max_accel, 0.0, 1.0)), 0.0
         if v < 0.05 and a < 0.0:
             return 0.0, 1.0
-        return 0.0, float(np.clip(-need / veh.max_brake, 0.0, 1.0))
+        return 0.0, float(clip(-need / veh.max_brake, 0.0, 1.0))
 
     def _steer(self, pos: np.ndarray, yaw: float, v: float, win) -> float:
         p = self.p
         ld = float(
-            np.clip(p.lookahead_min + p.lookahead_gain * v, p.lookahead_min, p.lookahead_max)
+            clip(p.lookahead_min + p.lookahead_gain * v, p.lookahead_min, p.lookahead_max)
         )
         c, s = np.cos(yaw), np.sin(yaw)
         dx, dy = win.xy[:, 0] - pos[0], win.xy[:, 1] - pos[1]
@@ -278,10 +279,10 @@ class Planner:
         alpha = np.arctan2(y[k], x[k])
         dist = max(float(np.sqrt(d2[k])), 1e-3)
         delta = np.arctan2(2.0 * self.vehicle.wheelbase * np.sin(alpha), dist)
-        return float(np.clip(delta / self.vehicle.max_steer, -1.0, 1.0))
+        return float(clip(delta / self.vehicle.max_steer, -1.0, 1.0))
 
     def _waypoints(self, pos, yaw, se, ve, win) -> tuple[np.ndarray, np.ndarray]:
         every = int(round(WAYPOINT_DT / ROLL_DT))
         s, vv = se[every - 1 :: every][:N_WAYPOINTS], ve[every - 1 :: every][:N_WAYPOINTS]
-        xy = np.stack([np.interp(s, win.st, win.xy[:, 0]), np.interp(s, win.st, win.xy[:, 1])], -1)
+        xy = stack_xy(np.interp(s, win.st, win.xy[:, 0]), np.interp(s, win.st, win.xy[:, 1]))
         return world_to_local_2d(xy, pos, yaw).astype(np.float32), vv.astype(np.float32)

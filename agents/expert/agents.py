@@ -69,7 +69,7 @@ class Expert:
     def objects(self, obs: dict | None) -> Objects:
         """All active actors but the ego."""
         t = self.world.table
-        rows = np.flatnonzero(t.active)
+        rows = t.active.nonzero()[0]
         return from_table(t, rows[rows > 0], emergency_rows(self.world))
 
     def act(self, obs: dict | None = None) -> np.ndarray:
@@ -108,7 +108,7 @@ class EgoOnlyOracle(Expert):
         """``(objects the ego sees now, remembered objects it no longer sees)``."""
         w = self.world
         t = w.table
-        rows = np.flatnonzero(w.ego_vis >= VISIBLE_THRESHOLD)
+        rows = (w.ego_vis >= VISIBLE_THRESHOLD).nonzero()[0]
         now = from_table(t, rows[rows > 0], emergency_rows(w))
         return self.memory.update_split(now, w.tick * w.config.dt)
 

@@ -249,7 +249,7 @@ class JunctionRules:
         s0 = np.concatenate([fc.s0, s_s0])
         fstops = np.concatenate([fc.stops, np.zeros(len(s_own), bool)])
         still = np.concatenate([np.zeros(len(fc), bool), np.ones(len(s_own), bool)])
-        on = np.flatnonzero((branch >= 0) & crosses[np.maximum(branch, 0)])
+        on = ((branch >= 0) & crosses[np.maximum(branch, 0)]).nonzero()[0]
         if len(on) == 0:
             return False
         d_conf, s_mine = d_br[branch[on]], s_br[branch[on]]
@@ -259,7 +259,7 @@ class JunctionRules:
         stop_s = self.lmap.br_stop_s[branch[on]]
         stops = fstops[on] & (stop_s < d_conf) & (s0[on] + half_o < stop_s)
         live = (dist > -(half_o + 3.0)) & ~stops
-        if not np.any(live):
+        if not live.any():
             return False
         speed = objs.speed[own]
         prio = np.array([self._has_priority(e, int(o)) for o in via[branch[on]]])
@@ -285,7 +285,7 @@ class JunctionRules:
         t_e = travel_time(d_e, v_e, EGO_PULL_ACCEL, max(EGO_JUNCTION_SPEED, v))
         t_in_e, t_out_e, t_in_w = t_e[:n], t_e[n : 2 * n], t_e[2 * n :]
         hit = live & (t_in_o < t_out_e + BUFFER_AFTER) & (t_out_o > t_in_e - BUFFER_BEFORE)
-        if not np.any(hit):
+        if not hit.any():
             return False
         # right-of-way traffic far enough to brake gently for the ego may be made to (dense flows)
         t_react = np.minimum(t_in_e, t_in_w) + ASSERT_REACTION
@@ -303,7 +303,7 @@ class JunctionRules:
         standing_yields = still[on] & (dist - half_o > STANDING_CLEAR_M)
         yields = prio & close & (moving_yields | standing_yields)
         self.yielding.update(set(own[hit & yields].tolist()) - set(own[hit & ~yields].tolist()))
-        if np.any(hit & ~yields):
+        if (hit & ~yields).any():
             self.first_threat = float(np.min(s_mine[hit & ~yields]))
         self.debug = dict(
             own=own,
@@ -317,4 +317,4 @@ class JunctionRules:
             t_out_e=t_out_e,
             dist=dist,
         )
-        return bool(np.any(hit & ~yields))
+        return bool((hit & ~yields).any())

@@ -145,7 +145,7 @@ class LateralPlanner:
         intr = self._intruding(objs, lat, e_lat, speed, half_lane)
         block = intr & (np.abs(lat) < self.hw + e_lat + 0.3) & (st - e_long > self.hl - 0.5)
         block &= st < max(30.0, 3.0 * v + 20.0)
-        if not np.any(block):
+        if not block.any():
             return None
         lo = hi = float(np.min((st - e_long)[block]))
         for i in np.argsort(st):
@@ -171,7 +171,7 @@ class LateralPlanner:
         for margin in STATIC_MARGINS:
             need = self.hw + e_lat[span] + np.where(vru[span], VRU_MARGIN, margin)
             free = np.all(np.abs(lat[span][None, :] - cand[:, None]) >= need[None, :], axis=1)
-            if np.any(free):
+            if free.any():
                 c = cand[free]
                 cost = np.abs(c) + np.where(c > opp, OPPOSITE_PENALTY, 0.0)
                 k = int(np.argmin(cost))
@@ -188,18 +188,18 @@ class LateralPlanner:
         only for a real conflict, so that the ego does not stop half-turned toward the other lane."""
         moving = (speed > 0.3) & ~objs.static
         band = moving & (np.abs(lat - off) < self.hw + e_lat + 1.0)
-        if not np.any(band):
+        if not band.any():
             return True
         same = band & (cos_r > 0.5) & (np.abs(lat - off) < np.abs(lat))  # not the ego's follower
         behind_room = 8.0 + 1.5 * np.maximum(speed - v, 0.0) + 0.8 * speed
-        if np.any(same & (st > -self.hl - behind_room) & (st - e_long < self.hl + 6.0)):
+        if (same & (st > -self.hl - behind_room) & (st - e_long < self.hl + 6.0)).any():
             return False
         oncoming = band & (cos_r < -0.5) & (st > -self.hl)
-        if np.any(oncoming):
+        if oncoming.any():
             exit_st = hi + self.hl + (PASS_EXIT_M if strict else 2.0)  # ego back in its lane
             t_man = float(travel_time(exit_st, v, PASS_ACCEL, max(v, PASS_SPEED)))
             t_man += PASS_BUFFER_S if strict else 0.0
-            if np.any(oncoming & (st - e_long - speed * t_man < exit_st + (3.0 if strict else 0.0))):
+            if (oncoming & (st - e_long - speed * t_man < exit_st + (3.0 if strict else 0.0))).any():
                 return False
         return True
 
@@ -211,7 +211,7 @@ class LateralPlanner:
             return
         lo, hi = cl
         queued = ~objs.static & (speed < 0.3) & (np.abs(lat) < self.hw + e_lat + 0.3)
-        if np.any(queued & (st > 0.0) & (st - e_long < lo)):
+        if (queued & (st > 0.0) & (st - e_long < lo)).any():
             return  # a vehicle waits in the lane before the obstacle: queue behind it first
         k = int(clip(np.searchsorted(win.st, lo), 0, len(win.st) - 1))
         lane = int(win.lanes[k])
@@ -241,7 +241,7 @@ class LateralPlanner:
         span = (st + e_long > lo - 1.0) & (st - e_long < hi + 1.0) & (speed < 0.3)
         vru = (objs.kind == PEDESTRIAN) | (objs.kind == BICYCLE)
         need = self.hw + e_lat + np.where(vru, VRU_MARGIN, STATIC_MARGINS[-1])
-        return not np.any(span & (np.abs(lat - man.offset) < need))
+        return not (span & (np.abs(lat - man.offset) < need)).any()
 
     def _keep(self, s_ego, v, win, objs, st, lat, cos_r, e_lat, e_long, speed) -> None:
         man = self.man
@@ -266,7 +266,7 @@ class LateralPlanner:
             )
             more = intr & (st - e_long < man.s_obst[1] - s_ego + CLUSTER_GAP_M)
             more &= st + e_long > man.s_obst[1] - s_ego
-            if np.any(more):
+            if more.any():
                 hi = float(np.max((st + e_long)[more]))
                 ramp = man.s3 - man.s2
                 man.s_obst = (man.s_obst[0], s_ego + hi)
@@ -313,7 +313,7 @@ class LateralPlanner:
         onc &= lat > 0.0
         room = lat - e_lat - INVADER_MARGIN - self.hw  # how far the ego centre may be left
         onc &= room < 0.0
-        if not np.any(onc):
+        if not onc.any():
             return None
         lane = _ego_lane(win)
         right, _, _ = self._lane_room(lane)
@@ -332,7 +332,7 @@ class LateralPlanner:
     def _emergency(self, s_ego, v, win, objs, st, lat, cos_r, e_lat, e_long, speed) -> bool:
         ev = objs.emergency & (st < 0.0) & (st > -90.0) & (np.abs(lat) < 2.5) & (cos_r > 0.5)
         ev &= (speed > v + 0.5) | (st > -30.0)
-        if not np.any(ev):
+        if not ev.any():
             return False
         lane = _ego_lane(win)
         ln = self.track.town.lanes[lane]
@@ -355,7 +355,7 @@ class LateralPlanner:
         behind = ev & (st < self.hl + 12.0) & (st > -120.0)
         if np.isfinite(man.s2):
             return
-        if not np.any(behind):
+        if not behind.any():
             ramp = float(clip(1.5 * v + 8.0, 10.0, 20.0))
             man.s2, man.s3 = s_ego, s_ego + ramp
         else:

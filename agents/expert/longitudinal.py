@@ -56,7 +56,7 @@ def envelope(
     st0 = float(st[0])
     grid = np.arange(st0, float(st[-1]) + 1e-9, ENVELOPE_STEP)
     vmax = float(vlim.max())
-    slow = np.flatnonzero(vlim < vmax - 0.05)
+    slow = (vlim < vmax - 0.05).nonzero()[0]
     if len(slow) == 0:
         return st0, np.full(len(grid), vmax)
     slow = slow[:: max(1, len(slow) // 60)]

@@ -147,7 +147,7 @@ class Planner:
             vru, p.lat_margin_vru, np.where(objs.static, p.lat_margin_static, p.lat_margin)
         )
         in_corr = np.abs(lat - o_obj) < self.hw + e_lat + margin
-        lead = np.flatnonzero(in_corr & (st - e_long > hl - 1.0) & (st < win.st[-1]))
+        lead = (in_corr & (st - e_long > hl - 1.0) & (st < win.st[-1])).nonzero()[0]
         for i in lead[np.argsort(st[lead] - e_long[lead])][:3]:
             s0 = p.static_s0 if objs.static[i] else p.leader_s0
             cons.append(
@@ -204,9 +204,9 @@ class Planner:
         # within the path's bounding box + 6 m (column by column: np.all(..., axis=1) cost ~15 us)
         wx, wy, px, py = win.xy[:, 0], win.xy[:, 1], pts[:, 0], pts[:, 1]
         box = (px >= wx.min() - 6.0) & (px <= wx.max() + 6.0) & (py >= wy.min() - 6.0) & (py <= wy.max() + 6.0)
-        if not np.any(box):
+        if not box.any():
             return []
-        idx = np.flatnonzero(box)
+        idx = box.nonzero()[0]
         st, lat, _, cr, sr = win.project(pts[idx], fc.dirn.reshape(-1, 2)[idx])
         own = fc.owner[idx // t]
         kind = objs.kind[own]
@@ -219,12 +219,12 @@ class Planner:
         ego_hi = se[k] + hl + 1.0 + 0.6 * ve[k]
         hit = np.abs(lat - o) < hw + e_lat + np.where(vru, p.lat_margin_vru, p.lat_margin)
         hit &= (st + e_long > ego_lo) & (st - e_long < ego_hi) & (st > -hl)
-        if not np.any(hit):
+        if not hit.any():
             return []
         out = []
         hyp = idx[hit] // t
-        first = np.flatnonzero(np.concatenate([[True], hyp[1:] != hyp[:-1]]))
-        sel = np.flatnonzero(hit)[first]
+        first = np.concatenate([[True], hyp[1:] != hyp[:-1]]).nonzero()[0]
+        sel = hit.nonzero()[0][first]
         for q in sel:
             i = int(own[q])
             if i in self.junction.yielding:
@@ -274,7 +274,7 @@ class Planner:
         dx, dy = win.xy[:, 0] - pos[0], win.xy[:, 1] - pos[1]
         x, y = c * dx + s * dy, -s * dx + c * dy
         d2 = x * x + y * y
-        ok = np.flatnonzero((d2 >= ld * ld) & (x > 0.0))
+        ok = ((d2 >= ld * ld) & (x > 0.0)).nonzero()[0]
         k = int(ok[0]) if len(ok) else len(x) - 1
         alpha = np.arctan2(y[k], x[k])
         dist = max(float(np.sqrt(d2[k])), 1e-3)

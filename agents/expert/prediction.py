@@ -91,7 +91,7 @@ def forecast(
     moving = relevant & (speed > MOVING) & ~objs.static
     lane_kind = (objs.kind == CAR) | (objs.kind == LARGE_VEHICLE) | (objs.kind == BICYCLE)
     standing = relevant & lane_kind & ~objs.static & (speed <= MOVING)
-    cand = np.flatnonzero((moving | standing) & lane_kind)
+    cand = ((moving | standing) & lane_kind).nonzero()[0]
     lanes, s_l, lat_l, ok = lmap.assign(objs.pos[cand], objs.yaw[cand])
     brs = lmap.lane_branches[np.maximum(lanes, 0)]  # (C, 2, MAX_BRANCHES)
     valid = ok[:, :, None] & (brs >= 0)
@@ -103,7 +103,7 @@ def forecast(
     owner = hyp_owner[~is_still]
     on_lane = np.zeros(len(objs), bool)
     on_lane[owner] = True
-    cv = np.flatnonzero(moving & ~on_lane)
+    cv = (moving & ~on_lane).nonzero()[0]
     t = len(taus)
     parts_pos, parts_dir = [], []
     if len(owner):

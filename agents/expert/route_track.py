@@ -154,7 +154,7 @@ class RouteTrack:
         c, s = self.cos[a:b], self.sin[a:b]
         xy = self.points[a:b]
         off = np.zeros(len(st)) if offsets is None else offsets(st)
-        if np.any(off != 0.0):
+        if (off != 0.0).any():
             xy = xy + off[:, None] * np.stack([-s, c], -1)
         return PathWindow(
             xy=xy,

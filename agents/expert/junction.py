@@ -264,7 +264,7 @@ class JunctionRules:
         speed = objs.speed[own]
         prio = np.array([self._has_priority(e, int(o)) for o in via[branch[on]]])
         # right-of-way traffic that brakes (a queue, a hesitation) may drive on: no braking assumed
-        acc = np.clip(objs.accel[own], np.where(prio, 0.0, -1.5), 1.5)
+        acc = objs.accel[own].clip(np.where(prio, 0.0, -1.5), 1.5)
         acc = np.where(still[on], STANDING_PULL_ACCEL, acc)
         n = len(on)
         vmax_o = np.maximum(speed, 14.0)
@@ -304,7 +304,7 @@ class JunctionRules:
         yields = prio & close & (moving_yields | standing_yields)
         self.yielding.update(set(own[hit & yields].tolist()) - set(own[hit & ~yields].tolist()))
         if (hit & ~yields).any():
-            self.first_threat = float(np.min(s_mine[hit & ~yields]))
+            self.first_threat = float(s_mine[hit & ~yields].min())
         self.debug = dict(
             own=own,
             hit=hit,

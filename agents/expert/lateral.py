@@ -45,7 +45,7 @@ ABORT_MAX_OFFSET = 0.6  # m: beyond this shift a started pass is completed, not 
 
 def _ego_lane(win: PathWindow) -> int:
     """Route lane id under the ego (station 0 of the path window)."""
-    return int(win.lanes[min(int(np.searchsorted(win.st, 0.0)), len(win.st) - 1)])
+    return int(win.lanes[min(int(win.st.searchsorted(0.0)), len(win.st) - 1)])
 
 
 @dataclass
@@ -147,8 +147,8 @@ class LateralPlanner:
         block &= st < max(30.0, 3.0 * v + 20.0)
         if not block.any():
             return None
-        lo = hi = float(np.min((st - e_long)[block]))
-        for i in np.argsort(st):
+        lo = hi = float((st - e_long)[block].min())
+        for i in st.argsort():
             if (
                 not intr[i]
                 or st[i] - e_long[i] > hi + CLUSTER_GAP_M
@@ -174,7 +174,7 @@ class LateralPlanner:
             if free.any():
                 c = cand[free]
                 cost = np.abs(c) + np.where(c > opp, OPPOSITE_PENALTY, 0.0)
-                k = int(np.argmin(cost))
+                k = int(cost.argmin())
                 return float(c[k]), bool(c[k] > opp)
         return None
 
@@ -213,7 +213,7 @@ class LateralPlanner:
         queued = ~objs.static & (speed < 0.3) & (np.abs(lat) < self.hw + e_lat + 0.3)
         if (queued & (st > 0.0) & (st - e_long < lo)).any():
             return  # a vehicle waits in the lane before the obstacle: queue behind it first
-        k = int(clip(np.searchsorted(win.st, lo), 0, len(win.st) - 1))
+        k = int(clip(win.st.searchsorted(lo), 0, len(win.st) - 1))
         lane = int(win.lanes[k])
         best = self._best_offset(lane, lo, hi, objs, st, lat, e_lat, e_long, speed)
         if best is None or abs(best[0]) < 0.05:
@@ -267,7 +267,7 @@ class LateralPlanner:
             more = intr & (st - e_long < man.s_obst[1] - s_ego + CLUSTER_GAP_M)
             more &= st + e_long > man.s_obst[1] - s_ego
             if more.any():
-                hi = float(np.max((st + e_long)[more]))
+                hi = float((st + e_long)[more].max())
                 ramp = man.s3 - man.s2
                 man.s_obst = (man.s_obst[0], s_ego + hi)
                 man.s2 = max(man.s2, s_ego + hi + self.hl + 1.5)
@@ -317,7 +317,7 @@ class LateralPlanner:
             return None
         lane = _ego_lane(win)
         right, _, _ = self._lane_room(lane)
-        return float(max(np.min(room[onc]), right))
+        return float(max(room[onc].min(), right))
 
     def _invading(self, s_ego, v, win, objs, st, lat, cos_r, e_lat, e_long, speed) -> bool:
         """Start moving right, inside the lane, for oncoming vehicles that cut into it."""

@@ -149,7 +149,7 @@ def from_observation_rows(rows: np.ndarray, ego_xy: np.ndarray, ego_yaw: float) 
         accel=np.zeros(n),
         length=rows[:, 5],
         width=rows[:, 6],
-        static=_STATIC_KIND[np.clip(kind, 0, 63)],
+        static=_STATIC_KIND[kind.clip(0, 63)],
         emergency=np.zeros(n, bool),
         ids=np.full(n, -1, np.int64),
     )

@@ -148,7 +148,7 @@ class Planner:
         )
         in_corr = np.abs(lat - o_obj) < self.hw + e_lat + margin
         lead = (in_corr & (st - e_long > hl - 1.0) & (st < win.st[-1])).nonzero()[0]
-        for i in lead[np.argsort(st[lead] - e_long[lead])][:3]:
+        for i in lead[(st[lead] - e_long[lead]).argsort()][:3]:
             s0 = p.static_s0 if objs.static[i] else p.leader_s0
             cons.append(
                 (

@@ -95,7 +95,7 @@ def forecast(
     lanes, s_l, lat_l, ok = lmap.assign(objs.pos[cand], objs.yaw[cand])
     brs = lmap.lane_branches[np.maximum(lanes, 0)]  # (C, 2, MAX_BRANCHES)
     valid = ok[:, :, None] & (brs >= 0)
-    ci, si, _ = np.nonzero(valid)
+    ci, si, _ = valid.nonzero()
     hyp_owner, hyp_br, hyp_s0 = cand[ci], brs[valid], s_l[ci, si]
     hyp_lat = lat_l[ci, si]
     is_still = standing[hyp_owner]

@@ -138,7 +138,7 @@ class RouteTrack:
         n = len(self.points)
         lo, hi = max(self.idx - 10, 0), min(self.idx + 60, n)
         d = self.points[lo:hi] - pos
-        j = lo + int(np.argmin(d[:, 0] ** 2 + d[:, 1] ** 2))
+        j = lo + int((d[:, 0] ** 2 + d[:, 1] ** 2).argmin())
         self.idx = j
         dx, dy = pos[0] - self.points[j, 0], pos[1] - self.points[j, 1]
         return j, float(self.s[j] + self.cos[j] * dx + self.sin[j] * dy)
@@ -148,7 +148,7 @@ class RouteTrack:
         the ego); ``offsets(st) -> (P,)`` shifts it laterally (m, left positive)."""
         n = len(self.points)
         a = max(j - 8, 0)
-        b = int(np.searchsorted(self.s, s_ego + ahead_m))
+        b = int(self.s.searchsorted(s_ego + ahead_m))
         b = min(max(b, j + 2), n)
         st = self.s[a:b] - s_ego
         c, s = self.cos[a:b], self.sin[a:b]
@@ -209,7 +209,7 @@ class PathWindow:
         )
         dx = pts[:, 0:1] - ox[None]
         dy = pts[:, 1:2] - oy[None]
-        j = np.argmin(dx * dx + dy * dy, axis=1)
+        j = (dx * dx + dy * dy).argmin(axis=1)
         r = np.arange(len(pts))
         ex, ey = dx[r, j], dy[r, j]
         c, s = self.cos[sub][j], self.sin[sub][j]

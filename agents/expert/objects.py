@@ -139,7 +139,7 @@ def from_observation_rows(rows: np.ndarray, ego_xy: np.ndarray, ego_yaw: float) 
     kind = rows[:, 1].astype(np.int64)
     pos = local_to_world_2d(rows[:, 2:4], np.asarray(ego_xy, float), ego_yaw)
     c, s = np.cos(ego_yaw), np.sin(ego_yaw)
-    vel = np.stack([c * rows[:, 8] - s * rows[:, 9], s * rows[:, 8] + c * rows[:, 9]], -1)
+    vel = stack_xy(c * rows[:, 8] - s * rows[:, 9], s * rows[:, 8] + c * rows[:, 9])
     n = len(rows)
     return Objects(
         kind=kind,

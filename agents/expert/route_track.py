@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from v2xbench.envs.v2x_intersection.geometry import stack_xy
 from v2xbench.envs.v2x_intersection.routes import Route
 from v2xbench.envs.v2x_intersection.town.model import (
     CHANGE_LANE_LEFT,
@@ -155,7 +156,7 @@ class RouteTrack:
         xy = self.points[a:b]
         off = np.zeros(len(st)) if offsets is None else offsets(st)
         if (off != 0.0).any():
-            xy = xy + off[:, None] * np.stack([-s, c], -1)
+            xy = xy + off[:, None] * stack_xy(-s, c)
         return PathWindow(
             xy=xy,
             st=st,

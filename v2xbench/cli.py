@@ -9,6 +9,7 @@ Commands:
     leaderboard leaderboard table, plots and per-scenario breakdown from evaluation results
     bench       benchmark suite (speed vs highway-env, sensors, batched worlds, eval time, memory)
     profile     where a tick's time goes: per stage and per numba kernel (objects or batched)
+    floor       an objects tick's kernels back to back, without the Python between them
     fingerprint hash of what fixed runs compute (same hashes = same bytes, for speed work)
     ab          same-minute A/B of a tick's cost: this checkout against a git revision
     collect     expert data collection into TensorDict memmap shards (resumable)
@@ -301,6 +302,10 @@ def build_parser() -> argparse.ArgumentParser:
     _add_benchmark(sub, "profile", "tick_profile", "where a tick's time goes: per stage and per numba kernel",
                    "Time every stage of the tick and every numba kernel "
                    "(benchmarks/tick_profile.py): prints a table, writes OUT/profile_<mode>.json and .md.")
+    _add_benchmark(sub, "floor", "kernel_floor", "an objects tick's kernels back to back, without the Python between them",
+                   "Time env.step, then the tick's six numba kernels called back to back on a "
+                   "step's arguments, then each alone (benchmarks/kernel_floor.py): prints a table, "
+                   "writes OUT/floor_objects.json and .md.")
     _add_benchmark(sub, "perf", "perf_kernels", "Linux perf over a workload, numba's kernels named",
                    "Sample a batched or objects-mode run with perf record and name the samples "
                    "inside numba's kernels (benchmarks/perf_kernels.py): prints a table, writes "

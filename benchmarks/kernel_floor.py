@@ -25,10 +25,8 @@ Run ``v2xbench floor``; writes ``OUT/floor_objects.json`` and ``.md``.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import time
-from collections.abc import Iterator
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -48,13 +46,15 @@ KERNELS = (
 MAX_TICKS = 2000
 
 
-@contextlib.contextmanager
-def _capturing(calls: dict) -> Iterator[None]:
-    """Wrap the six kernels where the tick looks them up: each call stores ``(kernel, args)`` in
-    ``calls[name]`` (the last call wins) and runs the kernel. The originals are put back on exit."""
+def _capturing(calls: dict):
+    """Wrap the six kernels where the tick looks them up (a context manager): each call stores
+    ``(kernel, args)`` in ``calls[name]`` (the last call wins) and runs the kernel. The originals
+    are put back on exit (:func:`.tick_profile.patched`)."""
     import importlib
 
-    saved = []
+    from .tick_profile import patched
+
+    patches = []
     for mod_name, name in KERNELS:
         mod = importlib.import_module(f"v2xbench.envs.v2x_intersection.{mod_name}")
         kernel = getattr(mod, name)
@@ -63,13 +63,8 @@ def _capturing(calls: dict) -> Iterator[None]:
             calls[_n] = (_k, args)
             return _k(*args)
 
-        saved.append((mod, name, kernel))
-        setattr(mod, name, wrapped)
-    try:
-        yield
-    finally:
-        for mod, name, kernel in saved:
-            setattr(mod, name, kernel)
+        patches.append((mod, name, wrapped))
+    return patched(patches)
 
 
 def measure(episodes: int = 30, max_ticks: int = MAX_TICKS) -> dict:

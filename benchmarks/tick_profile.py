@@ -172,8 +172,9 @@ def _nrt_statistics(wanted: bool = True) -> Iterator[Callable[[], int] | None]:
 
 
 @contextlib.contextmanager
-def _patched(patches: list[tuple[object, str, object]]) -> Iterator[None]:
-    """Set ``owner.name = value`` for each patch; restore every original on exit."""
+def patched(patches: list[tuple[object, str, object]]) -> Iterator[None]:
+    """Set ``owner.name = value`` for each patch; restore every original on exit (also used by
+    ``kernel_floor``)."""
     saved = [(owner, name, getattr(owner, name)) for owner, name, _ in patches]
     try:
         for owner, name, value in patches:
@@ -361,7 +362,7 @@ def profile(mode: str = "objects", ticks: int = 3000, worlds: int = 32, routes: 
             scen_t.clear()
             start = allocations() if allocations else 0
 
-        with _patched(_stage_patches(stage_t, mode) + _kernel_patches(kernel_t)):
+        with patched(_stage_patches(stage_t, mode) + _kernel_patches(kernel_t)):
             if mode == "objects":
                 total, steps, config = _run_objects(ticks, clear)
             elif mode == "test50":

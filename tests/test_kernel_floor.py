@@ -38,7 +38,7 @@ def test_floor_report_adds_up_and_restores_the_kernels(tmp_path):
 
 
 @needs_jit
-def test_capture_keeps_the_last_call_and_puts_back_on_error():
+def test_capture_puts_the_kernels_back_on_error():
     before = _kernels()
     calls: dict = {}
     with pytest.raises(RuntimeError), kf._capturing(calls):

@@ -4,7 +4,8 @@
 
 1. validate actions (ego control, RSU message);
 2. the active RSU's message enters the V2X channel (serialized and counted there);
-3. ego dynamics (kinematic bicycle);
+3. ego dynamics (kinematic bicycle) under the agent's control, perturbed when a scenario set
+   ``control_noise`` on the previous tick (ControlLoss; the applied control is ``applied_control``);
 4. traffic lights, NPC vehicles and bicycles (IDM), pedestrians, then each scenario's hook;
 5. respawn NPCs that left the map or are stuck;
 6. collisions (an exact box test; a pymunk query on the reference path) and infraction / route-progress events;
@@ -233,6 +234,8 @@ class World:
         self.channel = Channel(self.channel_config, self.rng)
         self.tick = 0
         self.last_control = np.zeros(3)
+        self.applied_control = self.last_control
+        self.control_noise: tuple[float, float, float] | None = None
         self.last_events: list = []
         self.inbox: tuple | None = None  # (sender, sent_tick, payload) last delivered message
         self.ended = False
@@ -430,14 +433,26 @@ class World:
         return cached[2]
 
     def _take_control(self, control: np.ndarray) -> tuple[float, float, float]:
-        """Keep the ego's position before its move (for ``check_events``) and ``control`` as
-        ``last_control``; returns ``(throttle, steer, brake)`` as Python floats."""
+        """Keep the ego's position before its move (for ``check_events``) and ``control`` (the
+        agent's command) as ``last_control``; returns the control the ego's dynamics apply,
+        ``(throttle, steer, brake)`` as Python floats, also kept as ``applied_control``.
+
+        The applied control is the command plus ``control_noise`` (offsets a scenario set during
+        the previous tick's hooks, e.g. ControlLoss), clipped to the action ranges; without noise
+        it is the command itself. Calling this again within a tick gives the same result (the
+        noise is cleared only when the next tick's scenario hooks run, :meth:`run_scenarios`)."""
         if type(control) is np.ndarray and control.dtype == np.float64:
             throttle, steer, brake = control.tolist()
         else:
             throttle, steer, brake = (float(c) for c in control)
         self._old_pos = self.table.pos[0].tolist()  # (x, y) as Python floats
-        self.last_control = np.array((throttle, steer, brake))
+        self.applied_control = self.last_control = np.array((throttle, steer, brake))
+        noise = self.control_noise
+        if noise is not None:
+            throttle = min(max(throttle + noise[0], 0.0), 1.0)
+            steer = min(max(steer + noise[1], -1.0), 1.0)
+            brake = min(max(brake + noise[2], 0.0), 1.0)
+            self.applied_control = np.array((throttle, steer, brake))
         return throttle, steer, brake
 
     def move_ego(self, control: np.ndarray) -> None:
@@ -470,7 +485,8 @@ class World:
 
     def run_scenarios(self) -> None:
         """Step 4d: each scenario's hook; step 5: respawns (scenario actors that reach the end of
-        their plan leave the world)."""
+        their plan leave the world). A hook may set ``control_noise`` for the ego's next move."""
+        self.control_noise = None
         for sc in self.scenarios:
             sc.tick(self)
         if len(self._respawn):

@@ -2,19 +2,30 @@
 
 An agent is any object with::
 
-    obs_mode: str                 # observation mode it needs ("objects"; "sensors"/"bev" later)
-    privileged: bool              # True: it reads the simulator state (expert, oracles) through
-                                  # bind(world); evaluation on the leaderboard marks it as such
+    obs_mode: str                 # observation mode it needs ("objects", "sensors", "bev")
     rsu_policy: str               # what the RSU sends it: "share_objects" or "none"
+    privileged: bool              # optional, informative only (see below)
     def reset(self, route_info: dict) -> None: ...
     def act(self, obs: dict) -> np.ndarray: ...   # (3,) throttle, steer, brake   -- or --
                                                   # {"waypoints": (K, 2) ego frame, "speed": m/s}
 
-``route_info`` has ``town``, ``route_id``, ``seed``, ``route_points`` ((P, 2) world frame) and
-``commands`` ((P,) ``COMMAND_NAMES`` codes). Waypoint outputs are turned into controls by the
-shared :class:`~.controller.WaypointController` (:func:`to_control`). Agents register by name with
-:func:`register_agent` so that ``v2xbench eval --agent NAME`` finds them; any class following the
-protocol also runs with ``--agent path/to/file.py:ClassName``.
+``route_info`` is what CARLA's leaderboard gives an agent: the route and its commands, nothing
+about the scenarios on it. Keys: ``route_points`` ((P, 2) world frame, 1 m apart), ``commands``
+((P,) ``COMMAND_NAMES`` codes), ``town`` (the map's name, public like CARLA's HD map) and
+``seed`` (the job's world seed; the ``random`` baseline seeds its generator with it). It has no
+route id, scenario list, weather or time of day (:data:`ROUTE_INFO_KEYS`).
+
+Privilege is the harness's decision, never the agent's: only the built-in agents named in
+:data:`PRIVILEGED_AGENTS` are given the simulator (``bind(world)`` after every reset) and marked
+privileged in results and on the leaderboard (:func:`granted_privilege`). Any other agent (a
+``path/to/file.py:Class`` or a registered non-built-in name) that declares ``privileged = True``
+is refused by :func:`load_agent` with a ``ValueError``: it would otherwise run without the world
+it expects and be scored as if it were an ego-only driver.
+
+Waypoint outputs are turned into controls by the shared :class:`~.controller.WaypointController`
+(:func:`to_control`). Agents register by name with :func:`register_agent` so that
+``v2xbench eval --agent NAME`` finds them; any class following the protocol also runs with
+``--agent path/to/file.py:ClassName``.
 """
 
 from __future__ import annotations
@@ -35,7 +46,6 @@ class Agent(Protocol):
     """Structural type of a driving agent (see module docstring)."""
 
     obs_mode: str
-    privileged: bool
     rsu_policy: str
 
     def reset(self, route_info: dict) -> None: ...
@@ -58,14 +68,74 @@ def register_agent(name: str) -> Callable:
     return deco
 
 
+PRIVILEGED_AGENTS: frozenset[str] = frozenset({"expert", "oracle_ego", "oracle_v2x", "cautious_ego"})
+"""Registered names of the built-in agents that the harness gives the simulator (``bind``)."""
+
+ROUTE_INFO_KEYS: tuple[str, ...] = ("town", "seed", "route_points", "commands")
+"""The keys of ``route_info`` (see module docstring)."""
+
+_DEFAULTS = (("obs_mode", "objects"), ("privileged", False), ("rsu_policy", "share_objects"))
+
+
+def register_builtins() -> None:
+    """Import the modules that register the built-in agents (idempotent)."""
+    from . import builtin  # noqa: F401
+
+    try:  # the expert package registers expert / oracle_ego / oracle_v2x on import
+        from . import expert  # noqa: F401
+    except ImportError:
+        pass
+
+
+def _is_builtin(factory: Any) -> bool:
+    return getattr(factory, "__module__", "").startswith(__name__.rsplit(".", 1)[0] + ".")
+
+
+def granted_privilege(agent: str | Callable[[], Any]) -> bool:
+    """Whether the harness gives ``agent`` the simulator: a name in :data:`PRIVILEGED_AGENTS`
+    registered by V2XBench itself, or that built-in class (or a ``functools.partial`` of it)
+    passed as a factory. The agent object's own ``privileged`` attribute plays no part."""
+    import functools
+
+    register_builtins()
+    if isinstance(agent, str):
+        return agent in PRIVILEGED_AGENTS and agent in AGENTS and _is_builtin(AGENTS[agent])
+    while isinstance(agent, functools.partial):
+        agent = agent.func
+    return any(AGENTS.get(n) is agent and _is_builtin(agent) for n in PRIVILEGED_AGENTS)
+
+
+def complete_agent(agent: Any, label: str, privileged: bool) -> Any:
+    """Fill the optional members' defaults and check the protocol of an agent instance.
+
+    Raises:
+        ValueError: ``reset`` or ``act`` missing, or ``privileged = True`` declared by an agent
+            the harness does not grant it to (see module docstring).
+    """
+    for attr, default in _DEFAULTS:
+        if not hasattr(agent, attr):
+            setattr(agent, attr, default)
+    missing = [m for m in ("reset", "act") if not callable(getattr(agent, m, None))]
+    if missing:
+        raise ValueError(f"agent {label!r} lacks method(s) {', '.join(missing)} (see agents/interface.py)")
+    if getattr(agent, "privileged", False) and not privileged:
+        raise ValueError(
+            f"agent {label!r} declares privileged = True, but only the built-in agents "
+            f"{', '.join(sorted(PRIVILEGED_AGENTS))} may read the simulator; set privileged = False "
+            "and drive from the observation")
+    if privileged and not callable(getattr(agent, "bind", None)):
+        raise ValueError(f"privileged agent {label!r} has no bind(world) method")
+    return agent
+
+
 def load_agent(spec: str) -> Any:
     """An agent instance from a registered name or ``path/to/file.py:ClassName``.
 
     Raises:
-        ValueError: unknown name, missing file or class, or an object lacking the protocol.
+        ValueError: unknown name, missing file or class, an object lacking the protocol, or a
+            non-built-in agent declaring ``privileged = True``.
     """
-    from . import builtin  # noqa: F401  (registers the built-in agents)
-
+    register_builtins()
     if spec in AGENTS:
         agent = AGENTS[spec]()
     elif ":" in spec:
@@ -84,13 +154,7 @@ def load_agent(spec: str) -> Any:
     else:
         raise ValueError(f"unknown agent {spec!r}; registered: {', '.join(sorted(AGENTS))}; "
                          "or give path/to/file.py:ClassName")
-    for attr, default in (("obs_mode", "objects"), ("privileged", False), ("rsu_policy", "share_objects")):
-        if not hasattr(agent, attr):
-            setattr(agent, attr, default)
-    missing = [m for m in ("reset", "act") if not callable(getattr(agent, m, None))]
-    if missing:
-        raise ValueError(f"agent {spec!r} lacks method(s) {', '.join(missing)} (see agents/interface.py)")
-    return agent
+    return complete_agent(agent, spec, granted_privilege(spec))
 
 
 _CONTROLLER = WaypointController()

@@ -10,10 +10,15 @@ without simulating, until the harness stops the collector.
 Two ways to drive:
 
 - *Protocol agent* (``agent="route_follower"``, ``"path/to/file.py:Class"`` or a picklable
-  zero-argument factory): the agent runs inside the env, because a privileged agent needs the
-  world (``agent.bind(world)`` is called after every reset when ``agent.privileged``). Its control
-  for the current observation is exposed as observation ``agent_action (3,)``; the collector's
-  policy is :class:`CopyAgentAction`, so the collected ``action`` is the executed control.
+  zero-argument factory): by default the agent runs inside the env's process
+  (``agent_process = "in_process"``); with ``isolate=True`` it runs in a process of its own
+  (:class:`~.agent_process.IsolatedAgent`, ``agent_process = "isolated"``) that receives only
+  ``route_info`` and the observations, so it cannot read or patch the world. Privilege is the
+  harness's decision (``interface.granted_privilege``: the built-in expert and oracles only):
+  those agents get ``agent.bind(world)`` after every reset and cannot be isolated (``ValueError``);
+  any other agent declaring ``privileged = True`` is refused. Its control for the current
+  observation is exposed as observation ``agent_action (3,)``; the collector's policy is
+  :class:`CopyAgentAction`, so the collected ``action`` is the executed control.
 - *TorchRL policy* (``agent=None``): the collector's policy (any ``TensorDictModule`` reading the
   observation keys below and writing ``action``) drives; ``agent_action`` stays zero.
 
@@ -64,22 +69,31 @@ def agent_label(agent: Any) -> tuple[str, str]:
     return name, name
 
 
-def instantiate_agent(agent: Any) -> Any:
-    """An agent instance from a spec string (``interface.load_agent``) or a factory."""
-    from v2xbench.agents.interface import AGENTS, load_agent
+def instantiate_agent(agent: Any, isolate: bool = False) -> Any:
+    """An agent instance from a spec string (``interface.load_agent``) or a factory, or with
+    ``isolate`` an :class:`~.agent_process.IsolatedAgent` proxy running it in its own process.
 
+    Raises:
+        ValueError: see ``interface.load_agent`` / ``complete_agent``; a privileged agent with
+            ``isolate``.
+    """
+    from v2xbench.agents.interface import complete_agent, granted_privilege, load_agent
+
+    if isolate:
+        from .agent_process import IsolatedAgent
+
+        return IsolatedAgent(agent)
     if isinstance(agent, str):
-        if ":" not in agent and agent not in AGENTS:
-            try:  # the expert package registers expert / oracle_ego / oracle_v2x on import
-                import v2xbench.agents.expert  # noqa: F401
-            except ImportError:
-                pass
         return load_agent(agent)
-    obj = agent()
-    for attr, default in (("obs_mode", "objects"), ("privileged", False), ("rsu_policy", "share_objects")):
-        if not hasattr(obj, attr):
-            setattr(obj, attr, default)
-    return obj
+    return complete_agent(agent(), agent_label(agent)[0], granted_privilege(agent))
+
+
+def route_info(world, town: str, seed: int) -> dict:
+    """What an agent learns about a route at reset (``interface.ROUTE_INFO_KEYS``): the route and
+    its commands, the town and the world seed; no route id or scenario data."""
+    r = world.route
+    return {"town": str(town), "seed": int(seed), "route_points": r.points.copy(),
+            "commands": r.commands.copy()}
 
 
 def _spec(space, device) -> Composite | Unbounded:
@@ -125,6 +139,7 @@ class EvalEnv(EnvBase):
             ``rsu_policy`` default to the agent's declared ones; ``suite``/``route_index`` are not allowed (jobs choose).
         video_every, video_size: a frame every this many ticks, of this many pixels.
         agent_name: display name in the results (default: from the spec or factory).
+        isolate: run the protocol agent in a separate process (see module docstring).
     """
 
     batch_locked = True
@@ -133,7 +148,7 @@ class EvalEnv(EnvBase):
                  jobs: Sequence[J.Job] | None = None, seeds: int = 1, max_routes: int | None = None,
                  video: bool = False, config: dict | None = None, video_every: int = 5,
                  video_size: int = 256, agent_name: str | None = None,
-                 device: str | torch.device = "cpu") -> None:
+                 device: str | torch.device = "cpu", isolate: bool = False) -> None:
         torch.set_num_threads(1)
         super().__init__(batch_size=torch.Size([]), device=device)
         self.suite, self.out = str(suite), Path(out)
@@ -144,7 +159,14 @@ class EvalEnv(EnvBase):
         if agent is None and agent_name:  # a TorchRL policy: its display name is its spec
             self.agent_spec = agent_name
         self.agent_name = agent_name or self.agent_name
-        self.agent = instantiate_agent(agent) if agent is not None else None
+        if isolate and agent is None:
+            raise ValueError("isolate=True needs a protocol agent (a TorchRL policy runs in the "
+                             "collector; wrap it in agents.torchrl_policy.TensorDictPolicyAgent)")
+        from v2xbench.agents.interface import granted_privilege
+
+        self.privileged = agent is not None and granted_privilege(agent)  # the harness decides
+        self.agent_process = "isolated" if isolate else "in_process"
+        self.agent = instantiate_agent(agent, isolate) if agent is not None else None
         overrides = dict(config or {})
         bad = {"suite", "route_index"} & set(overrides)
         if bad:
@@ -216,13 +238,8 @@ class EvalEnv(EnvBase):
         self._log = RouteLog(self.world, self.video_every, self.video_size)
         obs = self._observe()
         if self.agent is not None:
-            r = self.world.route
-            self.agent.reset({
-                "town": spec.town, "route_id": spec.id, "seed": J.job_seed(spec.seed, job.seed_index),
-                "route_points": r.points.copy(), "commands": r.commands.copy(),
-                "weather": spec.weather, "time_of_day": spec.time_of_day,
-            })
-            if getattr(self.agent, "privileged", False) and callable(getattr(self.agent, "bind", None)):
+            self.agent.reset(route_info(self.world, spec.town, J.job_seed(spec.seed, job.seed_index)))
+            if self.privileged:
                 self.agent.bind(self.world)
             obs["agent_action"] = self._act(obs)
         self._obs = obs
@@ -246,7 +263,7 @@ class EvalEnv(EnvBase):
         res = build_result(
             job=job, spec=spec, seed=J.job_seed(spec.seed, job.seed_index), suite=self.suite,
             agent=self.agent_spec, agent_name=self.agent_name,
-            privileged=bool(getattr(self.agent, "privileged", False)), log=self._log,
+            privileged=self.privileged, agent_process=self.agent_process, log=self._log,
             ended_by=ended_by, wall_s=time.perf_counter() - self._t0, error=error, video=video,
             config=self.overrides)
         J.write_json_atomic(res, J.result_path(self.out, job.job_id))
@@ -312,6 +329,8 @@ class EvalEnv(EnvBase):
         if self._job is not None:
             (J.claims_dir(self.out) / self._job.job_id).unlink(missing_ok=True)
             self._job = None
+        if callable(getattr(self.agent, "close", None)) and self.agent_process == "isolated":
+            self.agent.close()
         super().close(*args, **kwargs)
 
 

@@ -22,6 +22,14 @@ result files for the progress bar and stops when every job has a result, then wr
 factory, or a TorchRL policy (a ``TensorDictModule`` reading the observation keys of
 :class:`~.eval_env.EvalEnv` and writing ``action``; it must be picklable for ``workers > 1``).
 
+Trust: only the built-in expert and oracles are privileged (``interface.PRIVILEGED_AGENTS``;
+results and summary record the harness's decision, not the agent's claim). With
+``isolate_agent=True`` (``--isolate-agent``) a protocol agent runs in a process of its own and
+sees only ``route_info`` and its observations (``agent_process.py``); privileged agents and
+TorchRL policies cannot be isolated (``ValueError``). Every result and the summary record
+``agent_process`` (``"isolated"`` or ``"in_process"``), and a directory holds one or the other:
+resuming with the other setting is refused like resuming with another agent.
+
 Summary (``metrics.aggregate`` over routes x seeds, bootstrap 95% CI of DS): DS, RC, IS,
 Efficiency, Comfortness, BPS, infractions per km; the same restricted to routes that contain a
 V2X scenario type (``v2x``); per scenario type: instances, success rate (passed with no collision
@@ -45,7 +53,7 @@ from v2xbench.envs.v2x_intersection.route_files import load_suite_cached
 from v2xbench.envs.v2x_intersection.scenarios import get_scenario
 
 from . import jobs as J
-from .eval_env import agent_label, copy_policy, make_env_factory
+from .eval_env import agent_label, copy_policy, instantiate_agent, make_env_factory
 
 FRAMES_PER_WORKER = 64  # collector frames per worker and batch (the harness checks progress per batch)
 SHUTDOWN_TIMEOUT_S = 3.0  # s for the workers to exit after the last result (then terminated)
@@ -65,7 +73,8 @@ def _check_manifest(out: Path, manifest: dict) -> None:
     path = out / "run.json"
     if path.is_file():
         old = json.loads(path.read_text())
-        for key in ("agent", "suite_key", "config_overrides"):
+        old.setdefault("agent_process", "in_process")  # directories written before isolation existed
+        for key in ("agent", "suite_key", "config_overrides", "agent_process"):
             if old.get(key) != manifest[key]:
                 raise ValueError(f"{out} holds results with {key}={old.get(key)!r}, not {manifest[key]!r}; "
                                  "use another --out (or delete it) to start afresh")
@@ -87,7 +96,7 @@ def evaluate(agent: Any = "route_follower", suite: str = "test50", seeds: int = 
              out: str | Path = "results/eval", video: bool = False, max_routes: int | None = None,
              config: Mapping[str, Any] | None = None, *, agent_name: str | None = None,
              frames_per_batch: int = FRAMES_PER_WORKER, progress: bool = True,
-             n_boot: int = 2000) -> dict:
+             n_boot: int = 2000, isolate_agent: bool = False) -> dict:
     """Evaluate ``agent`` on ``suite`` and return the summary (see module docstring).
 
     Args:
@@ -100,6 +109,7 @@ def evaluate(agent: Any = "route_follower", suite: str = "test50", seeds: int = 
         config: ``EnvConfig`` overrides (e.g. ``{"num_vehicles": 10}``).
         agent_name: display name (default: from the spec, factory or module class).
         frames_per_batch: frames per worker between two progress checks.
+        isolate_agent: run the agent in a separate process from the simulator (module docstring).
 
     Returns:
         The summary dict also written to ``<out>/summary.json``.
@@ -115,17 +125,33 @@ def evaluate(agent: Any = "route_follower", suite: str = "test50", seeds: int = 
     if policy_mode:
         spec = name = agent_name or type(agent).__name__
     name = agent_name or name
-    if not policy_mode and not isinstance(agent, str) and workers > 1:
+    if isolate_agent and policy_mode:
+        raise ValueError("--isolate-agent needs a protocol agent; a TorchRL policy runs in the collector "
+                         "(wrap it in agents.torchrl_policy.TensorDictPolicyAgent)")
+    privileged = False
+    if not policy_mode:
+        from v2xbench.agents.interface import granted_privilege
+
+        privileged = granted_privilege(agent)
+        if isolate_agent and privileged:
+            raise ValueError(f"agent {spec!r} is privileged (it reads the simulator) and cannot run "
+                             "isolated; evaluate it without --isolate-agent")
+    if not policy_mode and not isinstance(agent, str) and (workers > 1 or isolate_agent):
         import pickle
 
         try:
             pickle.dumps(agent)
         except Exception as e:  # noqa: BLE001
-            raise ValueError(f"agent factory {agent!r} is not picklable ({e}); workers > 1 needs a "
-                             "top-level class or function, or a spec string") from None
+            raise ValueError(f"agent factory {agent!r} is not picklable ({e}); workers > 1 and "
+                             "--isolate-agent need a top-level class or function, or a spec string") from None
+    if not policy_mode and workers > 1:  # a bad agent fails here, not in every worker process
+        probe = instantiate_agent(agent, isolate_agent)
+        if isolate_agent:
+            probe.close()
     cfg = json.loads(json.dumps(J.to_json_safe(dict(config or {}))))  # as it reads back from run.json
     manifest = {"agent": spec, "agent_name": name, "suite": str(suite), "suite_key": _suite_key(str(suite)),
-                "config_overrides": cfg, "policy": policy_mode}
+                "config_overrides": cfg, "policy": policy_mode, "privileged": privileged,
+                "agent_process": "isolated" if isolate_agent else "in_process"}
     out.mkdir(parents=True, exist_ok=True)
     _check_manifest(out, manifest)
     J.clear_stale_claims(out)
@@ -134,7 +160,8 @@ def evaluate(agent: Any = "route_follower", suite: str = "test50", seeds: int = 
     done0 = len(before)
     if done0 < len(jobs):
         env_fn = make_env_factory(suite=str(suite), out=str(out), agent=None if policy_mode else agent,
-                                  jobs=jobs, video=video, config=cfg, agent_name=name)
+                                  jobs=jobs, video=video, config=cfg, agent_name=name,
+                                  isolate=isolate_agent)
         policy = agent if policy_mode else copy_policy()
         _run(env_fn, policy, workers, frames_per_batch, out, jobs, done0, progress, name)
     wall = time.perf_counter() - t0
@@ -201,7 +228,8 @@ def summarize(out: str | Path, jobs: list[J.Job], n_boot: int = 2000) -> dict:
     first = next(iter(results.values()), {})
     return {
         "agent": manifest["agent"], "agent_name": manifest["agent_name"], "suite": manifest["suite"],
-        "privileged": bool(first.get("privileged", False)), "seeds": seeds, "n_routes": n_routes,
+        "privileged": bool(manifest.get("privileged", first.get("privileged", False))),
+        "agent_process": manifest.get("agent_process", "in_process"), "seeds": seeds, "n_routes": n_routes,
         "n_jobs": len(jobs), "n_results": len(results), "config_overrides": manifest["config_overrides"],
         "metrics": overall, "v2x": v2x, "n_v2x_routes": n_v2x,
         "per_scenario": per_scenario(routes, jobs, results),
@@ -247,7 +275,8 @@ def summary_markdown(s: dict) -> str:
     """The markdown report of a summary dict."""
     m, v = s["metrics"], s.get("v2x") or {}
     lines = [f"# {s['agent_name']} on {s['suite']}", "",
-             f"Agent `{s['agent']}`{' (privileged)' if s['privileged'] else ''}; {s['n_routes']} routes x "
+             f"Agent `{s['agent']}`{' (privileged)' if s['privileged'] else ''}"
+             f"{' (isolated process)' if s.get('agent_process') == 'isolated' else ''}; {s['n_routes']} routes x "
              f"{s['seeds']} seeds = {s['n_jobs']} runs, {s['n_results']} with results.", ""]
     if s.get("config_overrides"):
         lines += [f"Config overrides: `{s['config_overrides']}`", ""]

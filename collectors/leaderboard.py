@@ -5,8 +5,10 @@
 
 - ``leaderboard.md``: one row per result directory, sorted by driving score: agent, DS with the
   half-width of its bootstrap 95% CI, RC, IS, Efficiency, Comfortness, BPS and the DS of the
-  routes that contain a V2X scenario type; privileged agents (expert, oracles) are marked ``*``;
-  then a per-scenario-type table (success rate % / mean DS per agent);
+  routes that contain a V2X scenario type; privileged agents (the built-in expert and oracles,
+  as the harness decided: ``interface.PRIVILEGED_AGENTS``) are marked ``*``, agents that ran in a
+  separate process from the simulator (``--isolate-agent``) ``+``; then a per-scenario-type table
+  (success rate % / mean DS per agent);
 - ``leaderboard.json``: the same rows as data;
 - ``driving_score.png``, ``route_completion.png``, ``infraction_score.png``, ``bps.png``: bar
   plots (matplotlib, ``Agg`` backend; skipped with a note when matplotlib is not installed).
@@ -52,7 +54,8 @@ def load_rows(result_dirs: list[str | Path]) -> list[dict]:
         lo, hi = _num(m.get("driving_score_ci_low")), _num(m.get("driving_score_ci_high"))
         rows.append({
             "run": d.name, "dir": str(d), "agent": s["agent_name"], "agent_spec": s["agent"],
-            "privileged": bool(s.get("privileged")), "suite": s["suite"], "seeds": s["seeds"],
+            "privileged": bool(s.get("privileged")), "agent_process": s.get("agent_process", "in_process"),
+            "suite": s["suite"], "seeds": s["seeds"],
             "n_jobs": s["n_jobs"], "n_results": s["n_results"],
             "driving_score": _num(m["driving_score"]), "ds_ci_low": lo, "ds_ci_high": hi,
             "ds_ci_half": (hi - lo) / 2.0 if np.isfinite(hi - lo) else float("nan"),
@@ -77,7 +80,7 @@ def leaderboard_markdown(rows: list[dict]) -> str:
     lines = ["# V2XBench leaderboard", "",
              f"Suite: {', '.join(suites)}. DS: mean over routes x seeds (failed or missing runs count "
              "0) +- half-width of the bootstrap 95% CI. `*`: privileged agent (reads the simulator "
-             "state).", ""]
+             "state). `+`: the agent ran in a separate process from the simulator.", ""]
     if len(suites) > 1:
         lines += ["**Warning: the rows come from different suites and are not comparable.**", ""]
     configs = {json.dumps(r["config_overrides"], sort_keys=True) for r in rows}
@@ -87,7 +90,7 @@ def leaderboard_markdown(rows: list[dict]) -> str:
     lines += ["| # | agent | runs | DS | " + " | ".join(c for _, c, _ in COLUMNS) + " | V2X-type DS |",
               "|---" * (len(COLUMNS) + 5) + "|"]
     for k, r in enumerate(rows, 1):
-        star = "*" if r["privileged"] else ""
+        star = ("*" if r["privileged"] else "") + ("+" if r["agent_process"] == "isolated" else "")
         cells = " | ".join(_f(r[key], nd) for key, _, nd in COLUMNS)
         lines.append(f"| {k} | {r['label']}{star} | {r['n_results']}/{r['n_jobs']} | "
                      f"{_f(r['driving_score'])} +- {_f(r['ds_ci_half'])} | {cells} | "

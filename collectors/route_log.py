@@ -158,10 +158,13 @@ def empty_record(spec, seed: int, ended_by: int = ENDED_ERROR) -> RouteRecord:
 
 def build_result(*, job, spec, seed: int, suite: str, agent: str, agent_name: str,
                  privileged: bool, log: RouteLog | None, ended_by: int, wall_s: float,
+                 agent_process: str = "in_process",
                  error: BaseException | None = None, video: str | None = None,
                  config: dict | None = None) -> dict:
     """The JSON-ready result of one job (see ``jobs.py`` for where it is written).
 
+    ``privileged`` is the harness's decision (``interface.granted_privilege``) and
+    ``agent_process`` how the agent ran: ``"in_process"`` or ``"isolated"`` (its own process).
     A route that ended with ``error`` is recorded with ``ended_by = ENDED_ERROR`` and a driving
     score of 0 (the suite's DS counts it as 0 too); the RC reached before the error is kept.
     """
@@ -179,6 +182,7 @@ def build_result(*, job, spec, seed: int, suite: str, agent: str, agent_name: st
         "job_id": job.job_id, "route_id": spec.id, "seed_index": job.seed_index, "seed": seed,
         "suite": suite, "town": spec.town, "weather": spec.weather, "time_of_day": spec.time_of_day,
         "agent": agent, "agent_name": agent_name, "privileged": bool(privileged),
+        "agent_process": str(agent_process),
         "scenario_types": [s.type for s in spec.scenarios], "scenarios": scen,
         "ended_by": ENDED_BY_NAMES[ended_by], "ticks": len(rec.ego_speed),
         "metrics": metrics, "record": rec.to_dict(), "wall_seconds": round(float(wall_s), 3),

@@ -5,15 +5,18 @@ changing V2XBench::
 
     v2xbench eval --agent examples/my_agent.py:CautiousDriver --suite test50 --out results/cautious
 
+(add ``--isolate-agent`` to run it in a process of its own, apart from the simulator).
+
 The protocol (``v2xbench.agents.interface``):
 
 - ``obs_mode``: the observation it needs (``"objects"``: object lists, see below).
-- ``privileged``: ``False`` (it does not read the simulator; the expert and oracles do).
+- ``privileged``: ``False`` (it does not read the simulator; only the built-in expert and oracles
+  may, and the harness refuses any other agent that declares ``True``).
 - ``rsu_policy``: what the roadside unit sends it: ``"share_objects"`` (the objects the RSU sees)
   or ``"none"`` (no V2X).
-- ``reset(route_info)``: called at the start of every route with ``town``, ``route_id``, ``seed``,
-  ``route_points`` ((P, 2) world frame, 1 m apart), ``commands`` ((P,) navigation codes),
-  ``weather`` and ``time_of_day``. Clear all per-route state here.
+- ``reset(route_info)``: called at the start of every route with ``route_points`` ((P, 2) world
+  frame, 1 m apart) and ``commands`` ((P,) navigation codes), as CARLA gives an agent its route,
+  plus ``town`` and ``seed``; nothing about the scenarios. Clear all per-route state here.
 - ``act(obs) -> control``: ``(3,)`` array (throttle in [0, 1], steer in [-1, 1], brake in [0, 1])
   or, as here, ``{"waypoints": (K, 2) ego frame, "speed": m/s}``, which V2XBench's shared
   waypoint controller turns into a control.

@@ -32,21 +32,39 @@ EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "my_agent.py"
 FLAKY_AGENT = '''
 import numpy as np
 
+START_1, START_2 = {start_1}, {start_2}  # first route points of tiny_1 and tiny_2
+
+
 class FlakyAgent:
-    """Drives slowly on route tiny_0, raises in act() on tiny_1, raises in reset() on tiny_2."""
+    """Drives slowly on route tiny_0, raises in act() on tiny_1, raises in reset() on tiny_2
+    (it tells the routes apart by where they start: route_info has no route id)."""
     obs_mode, privileged, rsu_policy = "objects", False, "none"
 
     def reset(self, route_info):
-        self.route_id, self.ticks = route_info["route_id"], 0
-        if self.route_id == "tiny_2":
+        start = np.asarray(route_info["route_points"][0])
+        self.route, self.ticks = 0, 0
+        for k, p in ((1, START_1), (2, START_2)):
+            if np.allclose(start, p, atol=1e-6):
+                self.route = k
+        if self.route == 2:
             raise RuntimeError("reset exploded")
 
     def act(self, obs):
         self.ticks += 1
-        if self.route_id == "tiny_1" and self.ticks > 5:
+        if self.route == 1 and self.ticks > 5:
             raise ValueError("boom in act")
         return np.array([0.3, 0.0, 0.0], np.float32)
 '''
+
+
+def route_starts(suite: str) -> list[tuple[float, float]]:
+    """First route point of each route of a suite file."""
+    from v2xbench.envs.v2x_intersection.route_files import (
+        build_episode_from_spec,
+        load_suite_cached,
+    )
+
+    return [tuple(float(v) for v in build_episode_from_spec(s)[0].points[0]) for s in load_suite_cached(suite)]
 
 
 @pytest.fixture(scope="module")
@@ -81,7 +99,8 @@ def rf_run(suite, tmp_path_factory) -> tuple[Path, dict]:
 def flaky_run(suite, tmp_path_factory) -> tuple[Path, dict]:
     """An agent that fails on two of the three routes."""
     d = tmp_path_factory.mktemp("flaky")
-    (d / "flaky.py").write_text(FLAKY_AGENT)
+    starts = route_starts(suite)
+    (d / "flaky.py").write_text(FLAKY_AGENT.format(start_1=starts[1], start_2=starts[2]))
     out = d / "out"
     return out, evaluate(f"{d / 'flaky.py'}:FlakyAgent", suite, out=out, config=CFG, progress=False)
 
@@ -96,6 +115,7 @@ def test_one_result_per_job_and_summary(rf_run):
     assert sorted(res) == ["tiny_0_s0", "tiny_1_s0", "tiny_2_s0"]
     for jid, r in res.items():
         assert r["job_id"] == jid and r["agent"] == "route_follower" and r["error"] is None
+        assert r["privileged"] is False and r["agent_process"] == "in_process"
         assert r["ended_by"] in ("timeout", "completed") and r["ticks"] <= CFG["max_steps"]
         assert r["town"] == "Town01" and len(r["scenario_types"]) == len(r["scenarios"]) == 1
         assert set(r["scenarios"][0]) >= {"type", "triggered", "passed", "timed_out", "collision", "success"}
@@ -104,7 +124,7 @@ def test_one_result_per_job_and_summary(rf_run):
         assert m["driving_score"] == pytest.approx(r["metrics"]["driving_score"])
         assert len(rec.ego_speed) == r["ticks"] and rec.seed == r["seed"]
     assert not list((out / "routes").glob("*.tmp"))
-    assert summary["n_results"] == summary["n_jobs"] == 3
+    assert summary["n_results"] == summary["n_jobs"] == 3 and summary["agent_process"] == "in_process"
     ds = np.mean([r["metrics"]["driving_score"] for r in res.values()])
     assert summary["metrics"]["driving_score"] == pytest.approx(ds)
     assert summary["metrics"]["driving_score_ci_low"] <= ds <= summary["metrics"]["driving_score_ci_high"]

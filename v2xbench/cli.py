@@ -142,7 +142,8 @@ def _eval(args: argparse.Namespace) -> int:
 
     summary = evaluate(args.agent, suite=args.suite, seeds=args.seeds, workers=args.workers, out=args.out,
                        video=args.video, max_routes=args.max_routes, config=_parse_set(args.set),
-                       agent_name=args.agent_name, progress=not args.quiet)
+                       agent_name=args.agent_name, progress=not args.quiet,
+                       isolate_agent=args.isolate_agent)
     print(summary_markdown(summary))
     print(f"results: {Path(args.out) / 'routes'}, summary: {Path(args.out) / 'summary.md'}")
     return 0
@@ -293,6 +294,10 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--set", action="append", metavar="KEY=VALUE",
                     help="environment config override, e.g. --set num_vehicles=10 (repeatable)")
     ev.add_argument("--agent-name", default=None, help="display name in the summary and leaderboard")
+    ev.add_argument("--isolate-agent", action="store_true",
+                    help="run the agent in a separate process that receives only route_info and its "
+                    "observations (it cannot read or patch the simulator); not for the privileged "
+                    "built-in expert and oracles")
     ev.add_argument("--quiet", action="store_true", help="no progress bar")
     ev.set_defaults(func=_eval)
     _add_benchmark(sub, "bench", "suite",

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..routes import Route
 from ..town.model import Town
-from . import flows, highway, junctions, obstacles, parking, v2x, v2x_junction  # noqa: F401  (registers the types)
+from . import control_loss, flows, highway, junctions, obstacles, parking, v2x, v2x_junction  # noqa: F401  (registers the types)
 from .base import Scenario, Site
 from .placement import pick_site, route_through
 from .registry import SCENARIOS, get_scenario, register_scenario

@@ -1,5 +1,6 @@
-"""Static obstacles in the ego lane: accidents, road works, a parked vehicle, debris and an opening
-car door, on multi-lane roads and on two-way roads with oncoming traffic.
+"""Static obstacles in the ego lane: accidents, road works, a parked vehicle and an opening car
+door, on multi-lane roads and on two-way roads with oncoming traffic (ControlLoss, which used to
+be debris here, perturbs the ego's control instead: :mod:`.control_loss`).
 
 None of these is V2X-specific. The route always runs straight through the blocked lane (as in
 CARLA): the driver must leave it (change lane, or invade the opposite lane of a two-way road when
@@ -18,7 +19,6 @@ import numpy as np
 
 from ..actors import draw_size
 from ..classes import CAR, LARGE_VEHICLE, STATIC_OBSTACLE, TRAFFIC_CONE, TRAFFIC_SIGN
-from ..draws import signs
 from ..town.model import DRIVING, PARKING, Town
 from ..traffic import occupied
 from .base import Scenario, Site
@@ -435,64 +435,6 @@ class ParkedObstacleTwoWays(_ParkedBase):
     max_actors = 1 + FLOW_ROWS
     towns = TWO_WAY_TOWNS
     defaults = {**_ParkedBase.defaults, **FLOW_DEFAULTS}
-
-
-# ----------------------------------------------------------------------------------- control loss
-@register_scenario
-class ControlLoss(_LaneBlock):
-    """Debris lies in the ego lane: three small low boxes ``spacing`` m apart, alternating
-    left and right of the lane centre (each overlaps the ego's path). Running over a piece is a
-    collision with a static object and also makes the ego lose control: its heading gets a kick of
-    ``loss_yaw`` rad to a random side (CARLA's ControlLoss noise).
-
-    Parameters: ``spacing`` (m), ``loss_yaw`` (rad, 0 disables the kick).
-    """
-
-    name = "ControlLoss"
-    family = "obstacle"
-    n_items = 3
-    max_actors = 3
-    span = 22.0
-    trigger_distance = 30.0
-    towns = ("Town02", "Town06", "Town01", "Town05", "Town03")
-    defaults = {"spacing": 10.0, "loss_yaw": 0.1}
-
-    @classmethod
-    def find_sites(cls, town):
-        return lane_sites(town, cls.span)
-
-    def layout(self, width, rng):
-        gap = float(self.params["spacing"])
-        items = []
-        for k in range(self.n_items):
-            a = float(rng.uniform(0.5, 0.9))
-            items.append(
-                Item(
-                    STATIC_OBSTACLE,
-                    k * gap,
-                    0.45 * (-1) ** k,
-                    (a, a * rng.uniform(0.7, 1.0), 0.25),
-                    float(rng.uniform(-0.8, 0.8)),
-                )
-            )
-        return items
-
-    def spawn(self, world) -> None:
-        super().spawn(world)
-        self._hit = np.zeros(self.n_items, bool)
-
-    def update(self, world) -> None:
-        t = world.table
-        c, s = np.cos(t.yaw[0]), np.sin(t.yaw[0])
-        for k, row in enumerate(self.hazard_rows):
-            if self._hit[k]:
-                continue
-            d = t.pos[row] - t.pos[0]
-            dx, dy = c * d[0] + s * d[1], -s * d[0] + c * d[1]
-            r = 0.5 * max(t.length[row], t.width[row])
-            if abs(dx) < t.length[0] / 2 + r and abs(dy) < t.width[0] / 2 + r:
-                self._hit[k] = True
-                t.yaw[0] += float(self.params["loss_yaw"]) * signs(world.rng)
 
 
 # ------------------------------------------------------------------------------------ opening door

@@ -14,7 +14,7 @@ from v2xbench.collectors.dataset.loader import V2XDataset, replay_buffer
 from v2xbench.collectors.dataset.perturb import PerturbConfig, Perturber
 from v2xbench.collectors.dataset.record import REASONS, unpack_bev
 from v2xbench.collectors.dataset.shards import load_manifest, shards_dir, validate
-from v2xbench.envs.v2x_intersection.sensors import SensorRig
+from v2xbench.envs.v2x_intersection.sensors import BEV_CHANNELS, SensorRig
 
 from tests.dataset_helpers import TINY
 from v2xbench.cli import main
@@ -45,7 +45,7 @@ def test_manifest_and_shards(tiny_dataset):
             ego = set(td["gt", "ego", "id"][t][td["gt", "ego", "mask"][t]].tolist())
             assert ego <= ids
         bev = unpack_bev(td["bev_bits"][5].numpy())
-        assert bev.shape == (14, 128, 128) and bev.max() == 1
+        assert bev.shape == (len(BEV_CHANNELS), 128, 128) == (15, 128, 128) and bev.max() == 1
 
 
 def test_interrupted_collection_resumes_to_same_content(tiny_dataset, tmp_path, monkeypatch):

@@ -28,10 +28,12 @@ from v2xbench.envs.v2x_intersection.sensors import (
     EGO_CAMERA_NAMES,
     NUM_SEMANTIC,
     SEMANTIC_NAMES,
+    BevSpec,
     LidarSpec,
     SensorConfig,
     SensorRig,
     calibration,
+    capture_bev,
     capture_lidar,
     decode_instance,
     mosaic,
@@ -42,6 +44,7 @@ from v2xbench.envs.v2x_intersection.sensors.fan import fan_for, unoccluded_pixel
 from v2xbench.envs.v2x_intersection.sensors.semantics import M_CROSS_GAP, M_CROSS_STRIPE
 from v2xbench.envs.v2x_intersection.signals import GREEN, RED
 from v2xbench.envs.v2x_intersection.town.model import DRIVING
+from v2xbench.envs.v2x_intersection.visibility import VISIBLE_THRESHOLD
 from v2xbench.envs.v2x_intersection.world import World
 
 TOWN = "Town05"
@@ -203,6 +206,24 @@ def test_pedestrian_behind_truck_hidden_from_ego_seen_by_rsu(rig):
     pid = w.table.actor_id[2]
     assert pid not in gt["ego"]["id"] and pid in gt["rsu"]["id"] and pid in gt["fused"]["id"]
     assert pid not in gt["joint"]["id"]
+
+
+def test_ego_bev_draws_only_what_the_ego_sees(rig):
+    w = staged(LARGE_VEHICLE, (8.0, 2.5, 3.5))  # the pedestrian stands hidden behind the truck
+    w.perceive()
+    assert w.ego_vis[1] >= VISIBLE_THRESHOLD > w.ego_vis[2]
+    ego = dict(zip(BEV_CHANNELS, rig.capture_bev(w)))
+    full = dict(zip(BEV_CHANNELS, capture_bev(w, rig.ground(w), BevSpec(privileged=True))))
+    assert ego["vehicle"].sum() > 50 and ego["ego"].sum() > 20
+    assert ego["vru"].sum() == 0 and full["vru"].sum() >= 1
+    for name in BEV_CHANNELS:
+        if name != "vru":
+            np.testing.assert_array_equal(ego[name], full[name], err_msg=name)
+    w.table.height[1] = 0.0  # without the truck the pedestrian is seen, and drawn
+    w.table.active[1] = False
+    w.perceive()
+    assert w.ego_vis[2] >= VISIBLE_THRESHOLD
+    np.testing.assert_array_equal(rig.capture_bev(w)[BEV_CHANNELS.index("vru")], full["vru"])
 
 
 def test_pedestrian_behind_car_seen_by_rsu(rig):
@@ -414,7 +435,9 @@ def test_unoccluded_pixels_match_casting_each_object_alone(populated, rig):
 
 def test_bev_places_objects_in_the_ego_frame(rig):
     w = staged(CAR, (4.5, 1.9, 1.5))  # car 9 m ahead of the ego, pedestrian 16 m ahead
-    bev = dict(zip(BEV_CHANNELS, rig.capture_bev(w)))
+    w.perceive()
+    # the privileged raster: every actor, seen by the ego or not
+    bev = dict(zip(BEV_CHANNELS, capture_bev(w, rig.ground(w), BevSpec(privileged=True))))
     n, mpp = rig.config.bev.size, rig.config.bev.mpp
     r, c = np.nonzero(bev["vehicle"])
     x, y = (n / 2 - r - 0.5) * mpp, (n / 2 - c - 0.5) * mpp

@@ -13,6 +13,8 @@ from dataclasses import dataclass, fields
 import numpy as np
 from v2xbench.envs.v2x_intersection.actors import PARKED, STATIC
 from v2xbench.envs.v2x_intersection.classes import (
+    EMERGENCY_VEHICLE,
+    LARGE_VEHICLE,
     STATIC_OBSTACLE,
     TRAFFIC_CONE,
     TRAFFIC_LIGHT,
@@ -130,13 +132,16 @@ def from_observation_rows(rows: np.ndarray, ego_xy: np.ndarray, ego_yaw: float) 
     """Objects from observation rows ``(M, 11)`` (``observations.OBJECT_FEATURES``, ego frame).
 
     Rows with ``present == 0`` are dropped; ids are unknown (-1); static road furniture is
-    recognized by class.
+    recognized by class; an emergency vehicle (class ``EMERGENCY_VEHICLE``) becomes a large
+    vehicle flagged ``emergency``, as :func:`from_table` gives it.
     """
     rows = np.asarray(rows, np.float64)
     rows = rows[rows[:, 0] > 0.5]
     if len(rows) == 0:
         return Objects.empty()
     kind = rows[:, 1].astype(np.int64)
+    emergency = kind == EMERGENCY_VEHICLE
+    kind[emergency] = LARGE_VEHICLE
     pos = local_to_world_2d(rows[:, 2:4], np.asarray(ego_xy, float), ego_yaw)
     c, s = np.cos(ego_yaw), np.sin(ego_yaw)
     vel = stack_xy(c * rows[:, 8] - s * rows[:, 9], s * rows[:, 8] + c * rows[:, 9])
@@ -150,7 +155,7 @@ def from_observation_rows(rows: np.ndarray, ego_xy: np.ndarray, ego_yaw: float) 
         length=rows[:, 5],
         width=rows[:, 6],
         static=_STATIC_KIND[kind.clip(0, 63)],
-        emergency=np.zeros(n, bool),
+        emergency=emergency,
         ids=np.full(n, -1, np.int64),
     )
 

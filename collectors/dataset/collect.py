@@ -129,7 +129,7 @@ def _rig(cfg: CollectConfig):
         camera_size=tuple(cfg.camera_size), rsu_camera_size=tuple(cfg.camera_size),
         ego_lidar=ego_lidar_spec(max(4, round(32 * s)), max(16, round(360 * s))),
         rsu_lidar=rsu_lidar_spec(max(4, round(64 * s)), max(16, round(240 * s))),
-        bev=BevSpec() if "bev" in cfg.sensors else None))
+        bev=BevSpec(privileged=True) if "bev" in cfg.sensors else None))  # ground truth: every actor
 
 
 def _stack(rows: list[dict]) -> dict:

@@ -1,6 +1,11 @@
 """Object classes and the class groups used by metrics.
 
 Class ids are stable integers (they appear in observations, datasets and messages).
+
+:data:`EMERGENCY_VEHICLE` is an observed class only: the actor table keeps such a vehicle's
+physical class (a large vehicle, so that it drives and collides like one), and every observation
+of it - the object lists, the RSU's messages, the BEV and the camera / LiDAR semantics - reports
+class 8 while its siren and lights are on (``World.object_classes``).
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ TRAFFIC_LIGHT = 4
 TRAFFIC_SIGN = 5
 TRAFFIC_CONE = 6
 STATIC_OBSTACLE = 7  # buildings, walls, barriers, debris
+EMERGENCY_VEHICLE = 8  # an ambulance / fire engine with its siren and lights on (observed class)
 
 CLASS_NAMES: tuple[str, ...] = (
     "car",
@@ -25,18 +31,19 @@ CLASS_NAMES: tuple[str, ...] = (
     "traffic_sign",
     "traffic_cone",
     "static_obstacle",
+    "emergency_vehicle",
 )
 NUM_CLASSES = len(CLASS_NAMES)
 
 #: Metric groups (as the paper's perception table): vehicle, VRU, traffic light, traffic sign.
 GROUPS: dict[str, tuple[int, ...]] = {
-    "vehicle": (CAR, LARGE_VEHICLE),
+    "vehicle": (CAR, LARGE_VEHICLE, EMERGENCY_VEHICLE),
     "vru": (PEDESTRIAN, BICYCLE),
     "traffic_light": (TRAFFIC_LIGHT,),
     "traffic_sign": (TRAFFIC_SIGN,),
 }
 
-VEHICLE_CLASSES = np.array([CAR, LARGE_VEHICLE])
+VEHICLE_CLASSES = np.array([CAR, LARGE_VEHICLE, EMERGENCY_VEHICLE])
 VRU_CLASSES = np.array([PEDESTRIAN, BICYCLE])
 
 

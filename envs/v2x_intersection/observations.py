@@ -3,8 +3,11 @@
 Three modes (``config.obs_mode``): ``objects`` (below), ``sensors`` (the ego's ``objects`` key is
 replaced by ``cameras`` - 6 ego cameras, each ``rgb``/``depth``/``semantic``/``instance`` - and
 ``lidar`` - ``points (L, 6)`` padded + ``count``; the RSU observation adds its ``camera`` and
-``lidar``) and ``bev`` (the ego's ``objects`` key is replaced by ``bev (C, H, W)`` uint8). Sensor
-layouts and defaults: :mod:`.sensors`.
+``lidar``) and ``bev`` (the ego's ``objects`` key is replaced by ``bev (C, H, W)`` uint8, which
+draws only the actors the ego sees, as ``objects``; the raster of every actor is the privileged
+``BevSpec(privileged=True)``, never an observation). Sensor layouts and defaults: :mod:`.sensors`.
+Class ids are the observed ones (``World.object_classes``: an emergency vehicle is
+``classes.EMERGENCY_VEHICLE``), in every mode and in the RSU's messages.
 
 ``objects`` mode (fast, for RL). Ego observation (all float32):
 
@@ -228,7 +231,8 @@ def ego_observation(world) -> dict[str, np.ndarray]:
     if cfg.obs_mode == "objects":
         from .world import object_rows  # (world imports this module)
 
-        objs = object_rows(t, np.flatnonzero(world.ego_vis >= VISIBLE_THRESHOLD), ego_xy, ego_yaw)
+        objs = object_rows(t, np.flatnonzero(world.ego_vis >= VISIBLE_THRESHOLD), ego_xy, ego_yaw,
+                           world.object_classes())
         vis = world.ego_vis[objs[:, 9].astype(np.int64)] if len(objs) else np.zeros(0)
         out["objects"] = _rows(objs, vis, cfg.max_objects)
         return out
@@ -262,6 +266,8 @@ def fill_objects_observation(world, out: dict) -> None:
     else:
         payload, rx, ry, ryaw, age = _NO_PAYLOAD, 0.0, 0.0, 0.0, 0
     objects = out.get("objects")
+    if objects is not None:
+        world.object_classes()  # refreshes the class array the kernel reads (emergency vehicles)
     consts = world._obs_args.get((t, r, world.town), lambda: _obs_consts(world))
     ego_obs_packed_kernel(
         out["ego"], out["route"], out["v2x_objects"] if objects is None else objects, out["v2x_objects"],
@@ -272,7 +278,8 @@ def fill_objects_observation(world, out: dict) -> None:
 def _obs_consts(world) -> tuple:
     """``ego_obs_packed_kernel``'s arguments that hold for the episode (its table, route, town)."""
     cfg, t, r, ix, pr = world.config, world.table, world.route, world.town.index, world.params
-    return (r.points, r.commands, cfg.route_step, VISIBLE_THRESHOLD, t.pos, t.yaw, t.speed, t.accel, t.kind, t.length,
+    return (r.points, r.commands, cfg.route_step, VISIBLE_THRESHOLD, t.pos, t.yaw, t.speed, t.accel,
+            world.object_classes(), t.length,
             t.width, t.height, t.actor_id, ix.stop_at_end, ix.length, STOP_LINE_SETBACK, ix.points, ix.owner,
             ix.offset, ix.n_points, ix.gs, ix.base, pr.max_steer, pr.wheelbase, stop_sign_lanes(world.town),
             LIGHT_STOP_SIGN)

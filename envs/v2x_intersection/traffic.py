@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 
 from . import libm
-from .actors import DRIVER, EGO, PARKED, RIDER, STATIC, ActorTable
+from .actors import DRIVER, EGO, PARKED, RIDER, STATIC, ActorTable, draw_size
+from .classes import CAR, LARGE_VEHICLE
 from .draws import pick
 from .dynamics import IDMParams, idm_accel
 from .geometry import row_norms
@@ -369,3 +370,70 @@ def free_lane_spot(t: ActorTable, town: Town, lanes: np.ndarray, rng: np.random.
             continue
         return lane, s
     return None
+
+
+# ---------------------------------------------------------------------------- parked vehicles
+#: parking slots lie this far apart along their parking lane (``town.builder``)
+PARKING_SLOT_PITCH_M = 6.5
+#: the longest vehicle one slot holds (m); a longer one takes two neighbouring slots
+ONE_SLOT_MAX_LENGTH_M = 6.2
+
+
+def parking_neighbours(town: Town) -> np.ndarray:
+    """``(K, 2)``: per parking slot of ``town.parking`` the next and the previous slot of the same
+    parking lane (one pitch away, the same heading), -1 where there is none (lane end, a gap
+    left for a crosswalk). Cached on the town."""
+    store = town.cache("parking")
+    hit = store.get("neighbours")
+    if hit is None:
+        p = np.asarray(town.parking, float).reshape(-1, 3)
+        hit = np.full((len(p), 2), -1, np.int64)
+        if len(p) > 1:
+            gap = np.hypot(p[1:, 0] - p[:-1, 0], p[1:, 1] - p[:-1, 1])
+            turn = np.abs((p[1:, 2] - p[:-1, 2] + np.pi) % (2 * np.pi) - np.pi)
+            i = np.flatnonzero((np.abs(gap - PARKING_SLOT_PITCH_M) < 0.3) & (turn < 0.2))
+            hit[i, 0], hit[i + 1, 1] = i + 1, i
+        store["neighbours"] = hit
+    return hit
+
+
+def spawn_parked(t: ActorTable, town: Town, rng: np.random.Generator, row: int, count: int,
+                 large_fraction: float) -> int:
+    """Up to ``count`` parked vehicles from row ``row`` on random parking slots (a permutation of
+    the slots, then per vehicle its class - large with probability ``large_fraction`` - and
+    :func:`~.actors.draw_size`).
+
+    Large vehicles keep the full ``actors.SIZES`` range (6-11 m, as the scenarios' trucks): one
+    longer than :data:`ONE_SLOT_MAX_LENGTH_M` takes its slot and a free neighbouring one (the
+    next, else the previous) and stands centred between the two; only where both neighbours are
+    taken is it cut to one slot's length.
+
+    Returns:
+        the next free row.
+    """
+    slots = np.asarray(town.parking, float).reshape(-1, 3)
+    if len(slots) == 0 or count <= 0:
+        return row
+    nb = parking_neighbours(town)
+    taken = np.zeros(len(slots), bool)
+    placed = 0
+    for k in rng.permutation(len(slots)).tolist():
+        if placed >= count:
+            break
+        if taken[k]:
+            continue
+        kind = LARGE_VEHICLE if rng.random() < large_fraction else CAR
+        t.kind[row], t.behaviour[row], t.active[row] = kind, PARKED, True
+        t.length[row], t.width[row], t.height[row] = draw_size(kind, rng)
+        taken[k] = True
+        t.pos[row], t.yaw[row] = slots[k, :2], slots[k, 2]
+        if t.length[row] > ONE_SLOT_MAX_LENGTH_M:
+            j = next((int(j) for j in nb[k] if j >= 0 and not taken[j]), -1)
+            if j < 0:
+                t.length[row] = ONE_SLOT_MAX_LENGTH_M
+            else:
+                taken[j] = True
+                t.pos[row] = 0.5 * (slots[k, :2] + slots[j, :2])
+        row += 1
+        placed += 1
+    return row

@@ -70,7 +70,8 @@ _MAX_U32 = 0xFFFFFFFF
 PAYLOAD_LIMIT = 1.0e4
 
 #: Fields of one object in a "share objects" payload, in order. Positions and velocities are in
-#: the sending RSU's frame (m, m/s), yaw in rad, sizes in m; ``class_id`` as in ``classes.py``.
+#: the sending RSU's frame (m, m/s), yaw in rad, sizes in m; ``class_id`` as in ``classes.py``
+#: (8, ``EMERGENCY_VEHICLE``: an emergency vehicle with its siren on).
 OBJECT_FIELDS: tuple[str, ...] = (
     "class_id",
     "x",

@@ -19,11 +19,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .actors import DRIVER, EGO, PARKED, RIDER, SIZE_BOUNDS, WALKER, ActorTable, draw_size
+from .actors import DRIVER, EGO, RIDER, SIZE_BOUNDS, WALKER, ActorTable, draw_size
 from .channel import Channel, ChannelConfig, empty_message
 from .classes import (
     BICYCLE,
     CAR,
+    EMERGENCY_VEHICLE,
     LARGE_VEHICLE,
     PEDESTRIAN,
     STATIC_OBSTACLE,
@@ -64,6 +65,7 @@ from .traffic import (
     free_lane_spot,
     place_on_lane,
     respawn_followers,
+    spawn_parked,
     step_followers,
 )
 from .visibility import VISIBILITY_SAMPLING, VISIBLE_THRESHOLD, visible_fraction
@@ -228,6 +230,10 @@ class World:
             t.scenario[rows] = k
             sc.setup(self, rows)
             row += sc.max_actors
+        # emergency vehicles (with their siren on) exposed by the scenarios: observed as their own class
+        self._emergency = np.array([int(r) for sc in self.scenarios for r in getattr(sc, "emergency_rows", ())],
+                                   np.int64)
+        self._object_kind = t.kind.copy()
         self.collisions = CollisionWorld(t, self.static_boxes)
         triggers = np.array([sc.conflict_point for sc in self.scenarios]).reshape(-1, 2)
         self.rsus: RSUSet = deploy(self.town, self.route, triggers if len(triggers) else None)
@@ -273,17 +279,7 @@ class World:
         return row
 
     def _spawn_parked(self, row: int, count: int) -> int:
-        t, rng, slots = self.table, self.rng, self.town.parking
-        if len(slots) == 0:
-            return row
-        for k in rng.permutation(len(slots))[:count]:
-            kind = LARGE_VEHICLE if rng.random() < self.config.large_vehicle_fraction else CAR
-            t.kind[row], t.behaviour[row], t.active[row] = kind, PARKED, True
-            t.length[row], t.width[row], t.height[row] = draw_size(kind, rng)
-            t.length[row] = min(t.length[row], 6.2)  # slots are 6.5 m long
-            t.pos[row], t.yaw[row] = slots[k, :2], slots[k, 2]
-            row += 1
-        return row
+        return spawn_parked(self.table, self.town, self.rng, row, count, self.config.large_vehicle_fraction)
 
     def _spawn_walkers(self, row: int, count: int) -> int:
         t, rng, net = self.table, self.rng, self.sidewalks
@@ -367,7 +363,7 @@ class World:
                 check_header(sender, self.tick)
                 x, y, _, yaw = self.rsus.pose[u].tolist()
                 data = builtin_message_kernel(
-                    self.rsu_vis[0], VISIBLE_THRESHOLD, t.pos, t.yaw, t.speed, t.kind, t.length, t.width, t.height,
+                    self.rsu_vis[0], VISIBLE_THRESHOLD, t.pos, t.yaw, t.speed, self.object_classes(), t.length, t.width, t.height,
                     t.actor_id, x, y, yaw, self._max_rows, self.config.encoding == "float16", sender, self.tick,
                     ch.wire_code, ch.header_pad)
             if len(data):
@@ -585,10 +581,22 @@ class World:
             return np.zeros((0, 10), np.float32)
         x, y, _, yaw = self.rsus.pose[u]
         if HAVE_JIT:
-            return seen_rows_kernel(self.rsu_vis[slot], VISIBLE_THRESHOLD, t.pos, t.yaw, t.speed, t.kind, t.length,
-                                    t.width, t.height, t.actor_id, float(x), float(y), float(yaw))
+            return seen_rows_kernel(self.rsu_vis[slot], VISIBLE_THRESHOLD, t.pos, t.yaw, t.speed,
+                                    self.object_classes(), t.length, t.width, t.height, t.actor_id, float(x),
+                                    float(y), float(yaw))
         seen = np.flatnonzero(self.rsu_vis[slot] >= VISIBLE_THRESHOLD)
-        return object_rows(t, seen, np.array([x, y]), yaw)
+        return object_rows(t, seen, np.array([x, y]), yaw, self.object_classes())
+
+    def object_classes(self) -> np.ndarray:
+        """The class every actor row is observed as (object lists, RSU messages, BEV, camera
+        semantics): ``table.kind``, except :data:`~.classes.EMERGENCY_VEHICLE` for the scenarios'
+        emergency vehicles (their ``emergency_rows``, siren on). Worlds without one return
+        ``table.kind`` itself; otherwise one array per episode, refreshed in place by each call."""
+        if not len(self._emergency):
+            return self.table.kind
+        np.copyto(self._object_kind, self.table.kind)
+        self._object_kind[self._emergency] = EMERGENCY_VEHICLE
+        return self._object_kind
 
     def default_rsu_message(self) -> dict:
         """The built-in ``share_objects`` policy: pack what the RSU sees (or send nothing)."""
@@ -622,20 +630,23 @@ def _half_diagonals(boxes: np.ndarray) -> np.ndarray:
 TICK_STAGES = (World.run_scenarios, World.check_events, World.perceive)
 
 
-def object_rows(t: ActorTable, idx: np.ndarray, origin: np.ndarray, yaw: float) -> np.ndarray:
+def object_rows(t: ActorTable, idx: np.ndarray, origin: np.ndarray, yaw: float,
+                kind: np.ndarray | None = None) -> np.ndarray:
     """Rows ``(K, 10)`` of ``channel.OBJECT_FIELDS`` for actors ``idx``, in the frame at
-    ``origin (2,)`` / ``yaw``, sorted by distance."""
+    ``origin (2,)`` / ``yaw``, sorted by distance; class ids from ``kind`` (default
+    ``t.kind``; observations pass ``World.object_classes()``)."""
     if len(idx) == 0:
         return np.zeros((0, 10), np.float32)
+    kind = t.kind if kind is None else kind
     if HAVE_JIT:
-        return object_rows_kernel(np.asarray(idx, np.int64), t.pos, t.yaw, t.speed, t.kind, t.length, t.width,
+        return object_rows_kernel(np.asarray(idx, np.int64), t.pos, t.yaw, t.speed, kind, t.length, t.width,
                                   t.height, t.actor_id, float(origin[0]), float(origin[1]), float(yaw))
     local = world_to_local_2d(t.pos[idx], origin, yaw)
     order = np.argsort(np.linalg.norm(local, axis=1))
     idx, local = idx[order], local[order]
     vel = world_to_local_2d(t.velocity()[idx], np.zeros(2), yaw)
     rel_yaw = (t.yaw[idx] - yaw + np.pi) % (2 * np.pi) - np.pi
-    return np.stack([t.kind[idx], local[:, 0], local[:, 1], rel_yaw, t.length[idx], t.width[idx],
+    return np.stack([kind[idx], local[:, 0], local[:, 1], rel_yaw, t.length[idx], t.width[idx],
                      t.height[idx], vel[:, 0], vel[:, 1], t.actor_id[idx]], -1).astype(np.float32)
 
 

@@ -14,7 +14,7 @@ Everything is built on the 2.5D ray-casting core (:mod:`..raycast`); see DESIGN 
   :mod:`.shading` and :mod:`.textures` (colours, labels, intensity), :mod:`.fan` (ray layouts).
 """
 
-from .bev import BEV_CHANNELS, BevSpec, capture_bev
+from .bev import BEV_CHANNELS, BevSpec, bev_actor_rows, capture_bev
 from .calibration import calibration, project
 from .camera import (
     EGO_CAMERA_NAMES,
@@ -68,6 +68,7 @@ __all__ = [
     "boxes_in_frame",
     "build_scene",
     "calibration",
+    "bev_actor_rows",
     "capture_bev",
     "capture_lidar",
     "decode_instance",

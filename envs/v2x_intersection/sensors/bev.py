@@ -12,12 +12,21 @@ them; not parking), lane centre lines (lanes, ramps and junction connectors), la
 lines), vehicles (cars and large vehicles, the ego excluded), VRUs (pedestrians, bicycles), the
 ego, static obstacles (buildings, poles, cones, barriers), and traffic control drawn on the stop
 lines of the lanes it governs: light_green / light_yellow / light_red (signal-controlled lanes,
-the current state of ``world.lane_signal``) and stop_sign (stop-sign lanes). Map channels are
+the current state of ``world.lane_signal``), stop_sign (stop-sign lanes), and emergency
+(emergency vehicles with their siren on, :data:`~..classes.EMERGENCY_VEHICLE`; also in the
+vehicle channel). Map channels are
 sampled from the town's ground raster over ``s x s`` of its pixels per BEV pixel (``s = mpp /
 0.25 m``, OR of
 the samples, precomputed per town as a dilated channel-bit raster, so thin lines stay
 connected); objects are filled by pixel centres (extents below a pixel widened to one pixel) and
 stop lines drawn as 1 m wide lines.
+
+Which actors are drawn: the ego's observation (``BevSpec.privileged = False``, the default) draws
+only the actors the ego can see, by the same test as the ``objects`` observation (``world.ego_vis
+>= visibility.VISIBLE_THRESHOLD``: occluded and out-of-range actors are left out), plus the ego.
+``BevSpec(privileged=True)`` draws every active actor in reach: the ground-truth raster, for data
+sets and privileged agents only, never an ego observation (:func:`bev_actor_rows`). Map
+channels, signals and static boxes (buildings, poles) are drawn in both.
 """
 
 from __future__ import annotations
@@ -28,10 +37,11 @@ from dataclasses import dataclass
 import numpy as np
 from PIL import Image, ImageDraw
 
-from ..classes import BICYCLE, CAR, LARGE_VEHICLE, PEDESTRIAN
+from ..classes import BICYCLE, CAR, EMERGENCY_VEHICLE, LARGE_VEHICLE, PEDESTRIAN
 from ..jit import HAVE_JIT
 from ..signals import GREEN, NO_SIGNAL, RED, YELLOW
 from ..town.areas import stop_bars
+from ..visibility import VISIBLE_THRESHOLD
 from .ground import GroundRaster
 from .kernels import bev_ground_kernel, fill_boxes_kernel
 from .semantics import (
@@ -63,6 +73,7 @@ BEV_CHANNELS = (
     "light_yellow",
     "light_red",
     "stop_sign",
+    "emergency",
 )
 (
     DRIVABLE,
@@ -79,10 +90,11 @@ BEV_CHANNELS = (
     LIGHT_YELLOW,
     LIGHT_RED,
     STOP_SIGN_CH,
+    EMERGENCY_CH,
 ) = range(len(BEV_CHANNELS))
 _LIGHT_CH = {GREEN: LIGHT_GREEN, YELLOW: LIGHT_YELLOW, RED: LIGHT_RED}
 _KIND_CHANNEL = np.full(256, OBSTACLE)  # object class -> BEV channel (everything else: obstacle)
-_KIND_CHANNEL[[CAR, LARGE_VEHICLE]] = VEHICLE
+_KIND_CHANNEL[[CAR, LARGE_VEHICLE, EMERGENCY_VEHICLE]] = VEHICLE
 _KIND_CHANNEL[[PEDESTRIAN, BICYCLE]] = VRU
 
 
@@ -109,10 +121,28 @@ _SHIFTS = np.arange(len(BEV_CHANNELS), dtype=np.uint16)[:, None, None]
 
 @dataclass(frozen=True)
 class BevSpec:
-    """BEV raster size: ``size x size`` pixels at ``mpp`` metres per pixel."""
+    """BEV raster size: ``size x size`` pixels at ``mpp`` metres per pixel.
+
+    ``privileged``: draw every actor in reach, seen by the ego or not (ground truth for data sets
+    and privileged agents); ``False`` (an ego observation): only the actors the ego sees.
+    """
 
     size: int = 128
     mpp: float = 0.5
+    privileged: bool = False
+
+
+def bev_actor_rows(world, reach: float, privileged: bool = False) -> np.ndarray:
+    """Actor-table rows a BEV draws: active actors within ``reach`` m of the ego (row 0, always
+    drawn), and unless ``privileged`` only those the ego sees (``world.ego_vis >=
+    VISIBLE_THRESHOLD``, the ``objects`` observation's test). Increasing row order."""
+    t = world.table
+    ex, ey = float(t.pos[0, 0]), float(t.pos[0, 1])
+    keep = t.active & (np.hypot(t.pos[:, 0] - ex, t.pos[:, 1] - ey) < reach)
+    if not privileged:
+        keep &= np.asarray(world.ego_vis) >= VISIBLE_THRESHOLD
+        keep[0] = bool(t.active[0])
+    return np.flatnonzero(keep)
 
 
 @functools.lru_cache(maxsize=8)
@@ -177,13 +207,19 @@ def _fill_boxes(out, chans, boxes, ex, ey, yaw, mpp) -> None:
         out[chans[i], r0[i] : r1[i], k0[i] : k1[i]] |= inside.astype(np.uint8)
 
 
+def bev_reach(spec: BevSpec) -> float:
+    """Distance (m) from the ego within which actors and stop lines are drawn."""
+    return spec.size * float(spec.mpp) * 0.75 + 15.0
+
+
 def capture_bev(world, ground: GroundRaster, spec: BevSpec = BevSpec()) -> np.ndarray:
     """The ego-centred BEV of ``world``.
 
     Args:
-        world: a :class:`~..world.World` after ``reset``.
+        world: a :class:`~..world.World` after ``reset`` (its ``ego_vis`` of this tick).
         ground: the town's ground raster (:func:`.ground.ground_raster`).
-        spec: raster size and resolution.
+        spec: raster size and resolution, and whether it is the privileged raster (every actor)
+            or the ego's (the actors it sees).
 
     Returns:
         ``(len(BEV_CHANNELS), size, size)`` uint8 in ``{0, 1}``.
@@ -203,7 +239,7 @@ def capture_bev(world, ground: GroundRaster, spec: BevSpec = BevSpec()) -> np.nd
         row, col, inside = ground.pixel(ex + c * lx - si * ly - half, ey + si * lx + c * ly - half)
         bits = np.where(inside, _dilated_bits(ground, s)[row, col], np.uint16(0))
         out = ((bits[None] >> _SHIFTS) & 1).astype(np.uint8)
-    reach = n * mpp * 0.75 + 15.0
+    reach = bev_reach(spec)
 
     def to_px(pts: np.ndarray) -> np.ndarray:
         d = pts - (ex, ey)
@@ -211,7 +247,7 @@ def capture_bev(world, ground: GroundRaster, spec: BevSpec = BevSpec()) -> np.nd
         return np.stack([n / 2 - y / mpp - 0.5, n / 2 - x / mpp - 0.5], -1)
 
     # objects, filled by pixel centres (statics first, then actors)
-    idx = np.flatnonzero(t.active & (np.hypot(t.pos[:, 0] - ex, t.pos[:, 1] - ey) < reach))
+    idx = bev_actor_rows(world, reach, spec.privileged)
     sb = world.static_boxes
     near = np.flatnonzero(
         np.hypot(sb[:, 0] - ex, sb[:, 1] - ey) < reach + 0.5 * np.hypot(sb[:, 2], sb[:, 3])
@@ -220,9 +256,14 @@ def capture_bev(world, ground: GroundRaster, spec: BevSpec = BevSpec()) -> np.nd
     boxes = np.empty((k + len(idx), 5))
     boxes[:k] = sb[near]
     boxes[k:, :2], boxes[k:, 2], boxes[k:, 3], boxes[k:, 4] = t.pos[idx], t.length[idx], t.width[idx], t.yaw[idx]
+    kinds = world.object_classes()[idx]
     chans = np.full(len(boxes), OBSTACLE)
-    chans[k:] = _KIND_CHANNEL[t.kind[idx]]
+    chans[k:] = _KIND_CHANNEL[kinds]
     chans[k:][idx == 0] = EGO_CH
+    em = np.flatnonzero(kinds == EMERGENCY_VEHICLE)  # drawn twice: vehicle and emergency channels
+    if len(em):
+        boxes = np.concatenate([boxes, boxes[k + em]])
+        chans = np.concatenate([chans, np.full(len(em), EMERGENCY_CH)])
     _fill_boxes(out, chans, boxes, ex, ey, yaw, mpp)
     # traffic control on the stop lines (green 1, yellow 2, red 3, stop sign 4)
     bars, lanes = stop_bars(world.town)
@@ -242,4 +283,4 @@ def capture_bev(world, ground: GroundRaster, spec: BevSpec = BevSpec()) -> np.nd
     return out
 
 
-__all__ = ["BEV_CHANNELS", "BevSpec", "capture_bev", "stop_bars"]
+__all__ = ["BEV_CHANNELS", "BevSpec", "bev_actor_rows", "bev_reach", "capture_bev", "stop_bars"]

@@ -47,6 +47,7 @@ from .fan import Fan, fan_for
 from .ground import GroundRaster
 from .kernels import camera_hits_kernel
 from .scene import Scene
+from .semantics import SKY
 from .shading import shade
 
 #: Ego camera names, in the order of ``yaw`` below (nuScenes-like).
@@ -295,7 +296,7 @@ def blank_camera(spec: CameraSpec) -> dict[str, np.ndarray]:
     return {
         "rgb": np.zeros((h, w, 3), np.uint8),
         "depth": np.full((h, w), spec.far, np.float32),
-        "semantic": np.full((h, w), 14, np.uint8),
+        "semantic": np.full((h, w), SKY, np.uint8),
         "instance": np.zeros((h, w), np.int32),
     }
 

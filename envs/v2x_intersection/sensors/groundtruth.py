@@ -77,7 +77,7 @@ def candidate_boxes(world) -> dict[str, np.ndarray]:
     return {
         "id": np.concatenate([t.actor_id[rows], static_instance(js)]).astype(np.int64),
         "instance": np.concatenate([rows + 1, static_instance(js)]).astype(np.int64),
-        "class": np.concatenate([t.kind[rows], world.static_kinds[js]]).astype(np.int64),
+        "class": np.concatenate([world.object_classes()[rows], world.static_kinds[js]]).astype(np.int64),
         "center": center,
         "size": size,
         "yaw": np.concatenate([t.yaw[rows], sb[js, 4]]),

@@ -19,6 +19,10 @@ A decoration or rider carries the instance id, class and semantic id of its owne
 point clouds see one object. Per box the scene also holds a style (:mod:`.textures`), three
 instance colours (:data:`CAR_COLORS` etc. by ``world.table.color``; buildings by a hash of their
 index) and the float32 terms that shading needs (orientation, extents, face normals, sunlight).
+
+Classes and semantic ids are the observed ones (``World.object_classes``): an emergency vehicle
+with its siren on is :data:`~..classes.EMERGENCY_VEHICLE`, drawn as a truck in the livery
+:data:`EMERGENCY_RGB` (a signal yellow-green no other vehicle has).
 """
 
 from __future__ import annotations
@@ -29,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import libm
-from ..classes import BICYCLE, TRAFFIC_CONE, TRAFFIC_LIGHT, TRAFFIC_SIGN
+from ..classes import BICYCLE, EMERGENCY_VEHICLE, TRAFFIC_CONE, TRAFFIC_LIGHT, TRAFFIC_SIGN
 from ..jit import HAVE_JIT
 from ..raycast import Boxes
 from ..signals import GREEN, RED, YELLOW
@@ -41,7 +45,9 @@ S_CAR, S_TRUCK, S_PED, S_BIKE, S_POLE, S_SIGN_POLE, S_PLATE, S_CONE = range(8)
 S_OBSTACLE, S_BUILDING, S_SIGN, S_RIDER, S_HEAD = 8, 9, 10, 11, 12
 N_STYLES = S_HEAD + 4
 _NONE = np.zeros(0, np.int64)
-_KIND_STYLE = np.array([S_CAR, S_TRUCK, S_PED, S_BIKE, S_POLE, S_SIGN, S_CONE, S_OBSTACLE])
+_KIND_STYLE = np.array([S_CAR, S_TRUCK, S_PED, S_BIKE, S_POLE, S_SIGN, S_CONE, S_OBSTACLE, S_TRUCK])
+#: Body colour of an emergency vehicle (RGB 0-255): not in any vehicle palette.
+EMERGENCY_RGB = (206, 232, 30)
 _HEAD_K = np.zeros(4, np.int64)  # signal state + 1 -> head style offset
 _HEAD_K[[RED + 1, YELLOW + 1, GREEN + 1]] = (1, 2, 3)
 
@@ -356,7 +362,7 @@ def build_scene(world) -> Scene:
     t = world.table
     sp = _static_part(world)
     na = len(t)
-    kind = t.kind.astype(np.int64)
+    kind = world.object_classes().astype(np.int64)
     cidx = t.color.astype(np.int64) % 8
     style = _KIND_STYLE[kind]
     colors = np.zeros((na, 3, 3), np.float32)
@@ -367,6 +373,7 @@ def build_scene(world) -> Scene:
     colors[m, 0] = SHIRT_COLORS[cidx[m]]
     for st, rgb in _STYLE_RGB.items():
         colors[style == st, 0] = rgb
+    colors[kind == EMERGENCY_VEHICLE, 0] = EMERGENCY_RGB
     height = np.where(t.active, t.height, 0.0)
     bikes = np.flatnonzero(t.active & (kind == BICYCLE))
     full = t.height[bikes]

@@ -1,21 +1,24 @@
 """Semantic ids, instance-id encoding and ground materials shared by every sensor.
 
 Semantic ids (``uint8`` in images, float in LiDAR point rows) are the object class ids of
-:mod:`..classes` (0-7) followed by the ground and sky categories:
+:mod:`..classes` (0-8) followed by the ground and sky categories:
 
 ====  ===============  ===========================================================
 id    name             what
 ====  ===============  ===========================================================
-0-7   object classes   car, large_vehicle, pedestrian, bicycle, traffic_light,
-                       traffic_sign, traffic_cone, static_obstacle (incl. buildings)
-8     road             drivable asphalt (lanes and junction areas)
-9     lane_marking     painted lines: lane boundaries, stop lines, parking-slot lines
-10    crosswalk        the whole zebra-crossing area (stripes and the asphalt between)
-11    sidewalk         sidewalks, paved junction corners and curbs
-12    parking          parking lanes
-13    terrain          grass and everything else on the ground (also distant ground)
-14    sky              nothing hit within the sensor's range, looking up
+0-8   object classes   car, large_vehicle, pedestrian, bicycle, traffic_light,
+                       traffic_sign, traffic_cone, static_obstacle (incl. buildings),
+                       emergency_vehicle (siren on; ``World.object_classes``)
+9     road             drivable asphalt (lanes and junction areas)
+10    lane_marking     painted lines: lane boundaries, stop lines, parking-slot lines
+11    crosswalk        the whole zebra-crossing area (stripes and the asphalt between)
+12    sidewalk         sidewalks, paved junction corners and curbs
+13    parking          parking lanes
+14    terrain          grass and everything else on the ground (also distant ground)
+15    sky              nothing hit within the sensor's range, looking up
 ====  ===============  ===========================================================
+
+(Before issue 29 there were 8 object classes and the ground / sky ids were one lower.)
 
 Instance ids (``int32``): :data:`INSTANCE_NONE` (0) for ground and sky; actor row ``r`` of
 ``world.table`` is ``r + 1`` (the ego, row 0, is 1); static box ``j`` of ``world.static_boxes`` is
@@ -36,6 +39,7 @@ from ..classes import (
     BICYCLE,
     CAR,
     CLASS_NAMES,
+    EMERGENCY_VEHICLE,
     LARGE_VEHICLE,
     NUM_CLASSES,
     PEDESTRIAN,
@@ -46,7 +50,7 @@ from ..classes import (
 )
 
 # ----------------------------------------------------------------------------- semantic ids
-ROAD = NUM_CLASSES  # 8
+ROAD = NUM_CLASSES  # 9
 LANE_MARKING = NUM_CLASSES + 1
 CROSSWALK = NUM_CLASSES + 2
 SIDEWALK = NUM_CLASSES + 3
@@ -75,6 +79,7 @@ SEMANTIC_COLORS = np.array(
         (220, 220, 0),  # traffic sign
         (255, 120, 0),  # traffic cone
         (70, 70, 70),  # static obstacle / building
+        (255, 0, 255),  # emergency vehicle
         (128, 64, 128),  # road
         (157, 234, 50),  # lane marking
         (200, 200, 255),  # crosswalk
@@ -161,7 +166,7 @@ MATERIAL_REFLECTIVITY = _lut(_MAT_REFL, np.float32)
 
 #: LiDAR reflectivity of the object classes (signs and cones are retro-reflective).
 CLASS_REFLECTIVITY = np.zeros(NUM_SEMANTIC, np.float32)
-CLASS_REFLECTIVITY[[CAR, LARGE_VEHICLE, PEDESTRIAN, BICYCLE]] = (0.55, 0.5, 0.3, 0.4)
+CLASS_REFLECTIVITY[[CAR, LARGE_VEHICLE, PEDESTRIAN, BICYCLE, EMERGENCY_VEHICLE]] = (0.55, 0.5, 0.3, 0.4, 0.6)
 CLASS_REFLECTIVITY[[TRAFFIC_LIGHT, TRAFFIC_SIGN, TRAFFIC_CONE, STATIC_OBSTACLE]] = (
     0.45,
     0.9,

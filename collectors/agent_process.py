@@ -188,7 +188,12 @@ class IsolatedAgent:
                 raise AgentProcessError(f"agent did not answer {what} within {timeout:g} s (killed)")
             data = conn.recv_bytes(MAX_ANSWER_BYTES)
         except (EOFError, OSError) as e:
-            code = self._proc.poll() if self._proc is not None else None
+            code = None
+            if self._proc is not None:
+                try:  # the socket closes a moment before the process can be reaped
+                    code = self._proc.wait(timeout=2.0)
+                except subprocess.TimeoutExpired:
+                    pass
             self.close()
             raise AgentProcessError(f"agent process ended during {what} (exit code {code}; {e!r})") from None
         try:

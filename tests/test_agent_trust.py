@@ -235,6 +235,9 @@ def test_isolated_and_in_process_runs_match(suite, tmp_path):  # noqa: F811
         assert (a[jid]["agent_process"], b[jid]["agent_process"]) == ("in_process", "isolated")
     with pytest.raises(ValueError, match="agent_process"):  # no resuming in the other mode
         evaluate("route_follower", suite, out=tmp_path / "iso", **kw)
+    run = tmp_path / "in" / "run.json"  # a directory from before isolation existed: in-process
+    run.write_text(json.dumps({k: v for k, v in json.loads(run.read_text()).items() if k != "agent_process"}))
+    assert evaluate("route_follower", suite, out=tmp_path / "in", **kw)["run"]["jobs_run"] == 0
     lb = build_leaderboard([tmp_path / "in", tmp_path / "iso"], tmp_path / "lb", plots=False)
     assert {r["run"]: r["agent_process"] for r in lb["rows"]} == {"in": "in_process", "iso": "isolated"}
     md = Path(lb["markdown"]).read_text()

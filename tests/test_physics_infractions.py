@@ -11,11 +11,11 @@ from v2xbench.envs.v2x_intersection.config import make_config
 from v2xbench.envs.v2x_intersection.geometry import box_corners_2d
 from v2xbench.envs.v2x_intersection.infractions import (
     COLLISION_PEDESTRIAN,
+    COLLISION_SAME_ACTOR_S,
     COLLISION_STATIC,
     COLLISION_VEHICLE,
     NUM_EVENTS,
     RED_LIGHT,
-    REPEAT_COLLISION_S,
     ROUTE_DEVIATION,
     SCENARIO_TIMEOUT,
     STOP_SIGN,
@@ -151,7 +151,11 @@ def test_collision_world_matches_separating_axis_test(monkeypatch, jit):
 # ------------------------------------------------------------------------------ collisions in a world
 
 
-def test_ego_into_parked_vehicle_counts_once_per_contact_window(monitor_path):
+def test_ego_into_parked_vehicle_carla_collision_filter(monitor_path):
+    """CARLA's CollisionTest in a world: one long contact counts once (the ego stays within 3 m
+    of where it registered), a new contact after the ego backed off > 5 m counts again once 5 s
+    have passed since the registration, not before (the old rule, 3 s since the last contact,
+    gave 1 and 3 here)."""
     w = World(
         make_config(town="Town03", num_vehicles=0, num_parked=1, num_pedestrians=0, num_bicycles=0)
     )
@@ -171,14 +175,17 @@ def test_ego_into_parked_vehicle_counts_once_per_contact_window(monitor_path):
     assert w.monitor.counts[COLLISION_VEHICLE] == 1
     ev = [e for e in w.monitor.events if e[0] == COLLISION_VEHICLE]
     assert ev[0][1] == 1 and ev[0][2] == int(t.actor_id[1])
-    hold(touching, 50)  # 5 s of continuous contact
+    hold(touching, 80)  # 8 s of continuous contact: the ego stays at the registered place
     assert w.monitor.counts[COLLISION_VEHICLE] == 1
-    hold(away, 10)  # back off 1 s, hit again: inside the repeat window
-    hold(touching, 3)
-    assert w.monitor.counts[COLLISION_VEHICLE] == 1
-    hold(away, int(REPEAT_COLLISION_S / 0.1) + 5)  # stay away longer than the window
+    hold(away, 10)  # back off 1 s (20 m: the place is forgotten); 9 s since the registration
     hold(touching, 3)
     assert w.monitor.counts[COLLISION_VEHICLE] == 2
+    hold(away, 10)  # again, but only 1.3 s after that registration: the same actor is ignored
+    hold(touching, 3)
+    assert w.monitor.counts[COLLISION_VEHICLE] == 2
+    hold(away, int(COLLISION_SAME_ACTOR_S / 0.1) + 5)  # away longer than the window
+    hold(touching, 3)
+    assert w.monitor.counts[COLLISION_VEHICLE] == 3
     assert w.monitor.counts[COLLISION_PEDESTRIAN] == 0
 
 
@@ -369,7 +376,7 @@ def test_kernel_constants_match_the_monitor():
     from v2xbench.envs.v2x_intersection.town import model
 
     for name in ("RED_LIGHT", "STOP_SIGN", "OUTSIDE_LANES", "OFF_ROAD", "WRONG_WAY", "ROUTE_DEVIATION", "BLOCKED",
-                 "ROUTE_DEVIATION_M", "BLOCKED_S", "STOP_SPEED", "STOP_CHECK_M", "HELD_SPEED"):
+                 "ROUTE_DEVIATION_M", "BLOCKED_S", "STOP_SPEED", "STOP_CHECK_M", "HELD_SPEED", "HELD_BY_RED_M"):
         assert getattr(jit_events, "_" + name) == getattr(infractions, name), name
     assert jit_events._RED == signals.RED and jit_events._CONNECTOR == model.CONNECTOR
 
@@ -390,7 +397,10 @@ def _monitor_trace(monkeypatch, jit: bool, town, route, dt: float, seed: int):
             k = min(k + int(rng.integers(0, 3)), n - 1) if not 150 <= tick < 340 else k
             h = route.headings[k] + (np.pi if rng.random() < 0.1 else rng.normal(0.0, 0.2))
             left = np.array([-np.sin(route.headings[k]), np.cos(route.headings[k])])
-            t.pos[0] = route.points[k] + rng.choice([0.0, 0.0, 0.0, 1.5, 2.5, 4.0, 40.0]) * left
+            t.pos[0] = route.points[k] + rng.choice([0.0, 0.0, 0.0, 1.5, 2.5, 3.5, 4.0, 7.0, 40.0]) * left
+            t.length[0] = rng.uniform(3.0, 6.0)
+            if rng.random() < 0.05:
+                mon.route_lanes_test = not mon.route_lanes_test
             t.yaw[0] = h
             standing = 150 <= tick < 340  # long enough for the blocked clock (180 s)
             t.speed[0] = 0.0 if standing or rng.random() < 0.3 else rng.uniform(0.0, 12.0)

@@ -11,10 +11,14 @@ metric              definition
 route_completion    RC, percent (0-100) of the route length passed (``EventMonitor``).
 infraction_score    IS, product of one factor per infraction (:data:`INFRACTION_FACTORS`) times
                     ``1 - pct_outside_lanes / 100``; ``pct_outside_lanes = 100 * outside_lanes_m
-                    / driven_m`` (CARLA ``OutsideRouteLanesTest``: distance driven outside over
-                    distance driven). Repeated contacts with the same actor inside
-                    ``infractions.REPEAT_COLLISION_S`` (3 s) are already merged by
-                    ``EventMonitor``, so every collision row counts once here.
+                    / driven_m`` (CARLA ``OutsideRouteLanesTest``: distance driven outside the
+                    route's lanes over distance driven; off the drivable lanes, or outside
+                    junctions on a lane the route does not take, the opposite lane included).
+                    A bicycle hit is a vehicle collision (CARLA's bicycles are vehicles).
+                    ``EventMonitor`` already applies CARLA's collision filter (the last
+                    registered party is ignored for 5 s, any contact within 3 m of a registered
+                    collision's place until the ego is 5 m from it), so every collision row
+                    counts once here.
 driving_score       DS = RC x IS (0-100).
 efficiency          Bench2Drive: the route is cut into :data:`NUM_CHECKPOINTS` equal-length
                     checkpoints by route arc length; in each, over the ticks with at least one
@@ -137,7 +141,7 @@ class RouteRecord:
         route_s: ``(T,)`` route arc length reached at each tick (m; ``route.s[monitor.progress]``).
         events: ``(E, 4)`` rows ``(code, tick, other_id, value)`` of ``EventMonitor.events``
             (codes ``infractions.EVENT_NAMES``).
-        outside_lanes_m, driven_m: metres driven outside the lanes / in total.
+        outside_lanes_m, driven_m: metres driven outside the route's lanes / in total.
         bytes_sent: channel ``bytes_sent_total`` (bytes). peak_bps: channel ``peak_bps`` (B/s).
         sim_seconds: simulated time of the route (s).
         ended_by: ``ENDED_*`` code (``ENDED_BY_NAMES``).

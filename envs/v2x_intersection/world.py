@@ -489,10 +489,14 @@ class World:
             respawn_followers(self.table, self.town, self._drive_lanes, self.rng, self._respawn, 60.0)
 
     def check_events(self) -> None:
-        """Step 6: collisions, infraction and route-progress events (``last_events``); then the
-        tick counter moves on."""
+        """Step 6: collisions, infraction and route-progress events (``last_events``); pedestrians
+        and cyclists hit by the ego leave the world ``infractions.HIT_VRU_LEAVES_S`` after the
+        collision (``EventMonitor.leaving``); then the tick counter moves on."""
         self.last_events = self.monitor.update_world(self.tick + 1, self.table, self.collisions, self.lane_signal,
                                                      self._old_pos)
+        for row in self.monitor.leaving(self.tick + 1):
+            t = self.table
+            t.active[row], t.speed[row], t.hold[row] = False, 0.0, False
         if self.scenarios:  # the progress just moved: a route's last scenario may be passed
             s = self.scenarios[0].ego_s(self)  # the same for every scenario
             for sc in self.scenarios:

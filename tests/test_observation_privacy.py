@@ -201,3 +201,17 @@ def test_rsu_message_carries_the_emergency_class():
         if received >= 3:
             break
     assert sent >= 1 and received >= 3, (sent, received)
+
+
+def test_agents_read_the_emergency_class_from_observation_rows():
+    """An ego-only agent built on the expert's object model learns the emergency flag from the
+    object list (class 8), as the privileged expert does from the scenario."""
+    from v2xbench.agents.expert.objects import from_observation_rows
+
+    rows = np.zeros((3, 11), np.float32)
+    rows[:2, 0] = 1.0
+    rows[:2, 1] = (EMERGENCY_VEHICLE, LARGE_VEHICLE)
+    rows[:2, 2] = (-20.0, 10.0)
+    objs = from_observation_rows(rows, np.zeros(2), 0.0)
+    assert objs.emergency.tolist() == [True, False]
+    assert objs.kind.tolist() == [LARGE_VEHICLE, LARGE_VEHICLE]

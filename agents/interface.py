@@ -68,7 +68,9 @@ def register_agent(name: str) -> Callable:
     return deco
 
 
-PRIVILEGED_AGENTS: frozenset[str] = frozenset({"expert", "oracle_ego", "oracle_v2x", "cautious_ego"})
+PRIVILEGED_AGENTS: frozenset[str] = frozenset(
+    {"expert", "oracle_ego", "oracle_v2x", "cautious_ego", "stop_and_wait_ego"}
+)
 """Registered names of the built-in agents that the harness gives the simulator (``bind``)."""
 
 ROUTE_INFO_KEYS: tuple[str, ...] = ("town", "seed", "route_points", "commands")

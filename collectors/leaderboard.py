@@ -4,8 +4,8 @@
 (written by :func:`~.evaluate.evaluate`) and writes into ``--out``:
 
 - ``leaderboard.md``: one row per result directory, sorted by driving score: agent, DS with the
-  half-width of its bootstrap 95% CI, RC, IS, Efficiency, Comfortness, BPS and the DS of the
-  routes that contain a V2X scenario type; privileged agents (the built-in expert and oracles,
+  half-width of its bootstrap 95% CI, RC, IS, Efficiency, Comfortness, BPS and the DS (with its
+  CI) and Efficiency of the routes that contain a V2X scenario type; privileged agents (the built-in expert and oracles,
   as the harness decided: ``interface.PRIVILEGED_AGENTS``) are marked ``*``, agents that ran in a
   separate process from the simulator (``--isolate-agent``) ``+``; then a per-scenario-type table
   (success rate % / mean DS per agent);
@@ -61,6 +61,8 @@ def load_rows(result_dirs: list[str | Path]) -> list[dict]:
             "ds_ci_half": (hi - lo) / 2.0 if np.isfinite(hi - lo) else float("nan"),
             **{k: _num(m.get(k)) for k, _, _ in COLUMNS},
             "v2x_driving_score": _num(v.get("driving_score")),
+            "v2x_ds_ci_half": (_num(v.get("driving_score_ci_high")) - _num(v.get("driving_score_ci_low"))) / 2.0,
+            "v2x_efficiency": _num(v.get("efficiency")),
             "per_scenario": s.get("per_scenario", {}),
             "config_overrides": s.get("config_overrides") or {},
         })
@@ -87,14 +89,16 @@ def leaderboard_markdown(rows: list[dict]) -> str:
     if len(configs) > 1:
         lines += ["**Warning: the rows were run with different config overrides:** "
                   + "; ".join(f"{r['label']}: `{r['config_overrides'] or 'defaults'}`" for r in rows), ""]
-    lines += ["| # | agent | runs | DS | " + " | ".join(c for _, c, _ in COLUMNS) + " | V2X-type DS |",
-              "|---" * (len(COLUMNS) + 5) + "|"]
+    lines += ["| # | agent | runs | DS | " + " | ".join(c for _, c, _ in COLUMNS)
+              + " | V2X-type DS | V2X-type Efficiency |",
+              "|---" * (len(COLUMNS) + 6) + "|"]
     for k, r in enumerate(rows, 1):
         star = ("*" if r["privileged"] else "") + ("+" if r["agent_process"] == "isolated" else "")
         cells = " | ".join(_f(r[key], nd) for key, _, nd in COLUMNS)
         lines.append(f"| {k} | {r['label']}{star} | {r['n_results']}/{r['n_jobs']} | "
                      f"{_f(r['driving_score'])} +- {_f(r['ds_ci_half'])} | {cells} | "
-                     f"{_f(r['v2x_driving_score'])} |")
+                     f"{_f(r['v2x_driving_score'])} +- {_f(r['v2x_ds_ci_half'])} | "
+                     f"{_f(r['v2x_efficiency'])} |")
     types = sorted({t for r in rows for t in r["per_scenario"]})
     if types:
         lines += ["", "## Per scenario type", "", "Success rate % (passed, no collision in the scenario "

@@ -6,11 +6,10 @@ import numpy as np
 import pytest
 from v2xbench.envs.v2x_intersection import rsu as rsu_module
 from v2xbench.envs.v2x_intersection.geometry import transform_points, world_to_local_2d, wrap_angle
-from v2xbench.envs.v2x_intersection.routes import random_route, route_from_lanes
+from v2xbench.envs.v2x_intersection.routes import random_route
 from v2xbench.envs.v2x_intersection.rsu import (
     KIND_JUNCTION,
     KIND_STRAIGHT,
-    KIND_TRIGGER,
     MIN_SPACING,
     RSU_HEIGHT,
     RSU_PITCH,
@@ -25,7 +24,6 @@ from v2xbench.envs.v2x_intersection.town import get_town
 CASES = [("Town01", 0), ("Town01", 3), ("Town12", 3), ("Town03", 2), ("Town02", 4)]
 AHEAD = 30.0  # m: a straight unit stands this far along the route from the point it serves
 SNAP = getattr(rsu_module, "SNAP_M", 0.0)  # m: poles may move this far, onto the nearest sidewalk
-TRIGGER_AHEAD = getattr(rsu_module, "TRIGGER_AHEAD", 0.0)  # m past the hazard
 
 
 @pytest.fixture(scope="module")
@@ -121,7 +119,8 @@ def test_min_spacing_height_and_order(deployments, case):
     assert len(rsus) >= 3
     d = np.linalg.norm(rsus.pose[:, None, :2] - rsus.pose[None, :, :2], axis=2)
     d[np.diag_indices(len(rsus))] = np.inf
-    assert d.min() >= MIN_SPACING
+    same_kind = rsus.kind[:, None] == rsus.kind[None, :]
+    assert d[same_kind].min() >= MIN_SPACING  # street and junction units may stand closer
     np.testing.assert_array_equal(rsus.pose[:, 2], RSU_HEIGHT)
     assert np.all(np.diff(rsus.route_s) >= 0.0)
     assert rsus.pose.shape == (len(rsus), 4) and rsus.kind.shape == rsus.route_s.shape == (
@@ -140,39 +139,24 @@ def test_rsu_matrix_is_pitched_down():
     assert np.arctan2(axis[1], axis[0]) == pytest.approx(0.5, abs=0.02)
 
 
-def test_trigger_point_gets_a_unit():
-    town = get_town("Town04")  # no sidewalks: the pole stays where it is placed
-    route = route_from_lanes(town, [0, 20, 6, 28, 12])
-    trigger = route.points[420] + np.array([0.0, -6.0])  # a hazard on the shoulder
-    rsus = deploy(town, route, triggers=trigger[None])
-    units = np.flatnonzero(rsus.kind == KIND_TRIGGER)
-    assert len(units) == 1
-    u = units[0]
-    assert np.linalg.norm(rsus.pose[u, :2] - trigger) <= TRIGGER_AHEAD + SIDE_OFFSET + 6.0 + 1.5
-    to_trigger = np.arctan2(*(trigger - rsus.pose[u, :2])[::-1])
-    assert rsus.pose[u, 3] == pytest.approx(to_trigger, abs=1e-9)  # looking at the hazard
-    assert rsus.route_s[u] == pytest.approx(route.s[420], abs=1e-9)
-    # triggers are kept first: no other unit within MIN_SPACING of it
-    others = np.delete(np.arange(len(rsus)), u)
-    assert np.linalg.norm(rsus.pose[others, :2] - rsus.pose[u, :2], axis=1).min() >= MIN_SPACING
-    # without the trigger there is no trigger unit
-    assert not np.any(deploy(town, route).kind == KIND_TRIGGER)
+def test_poses_do_not_depend_on_the_scenarios():
+    """Roadside units are infrastructure: a world with the route's scenarios deploys exactly the
+    units of the same route without them, on test50 routes with V2X-type scenarios."""
+    from v2xbench.envs.v2x_intersection.config import make_config
+    from v2xbench.envs.v2x_intersection.route_files import build_episode_from_spec, load_suite
+    from v2xbench.envs.v2x_intersection.world import World
 
-
-def test_trigger_unit_in_a_city(deployments):
-    town, route, plain = deployments[("Town01", 0)]
-    k = len(route.points) // 2
-    trigger = route.points[k]
-    rsus = deploy(town, route, triggers=trigger[None])
-    units = np.flatnonzero(rsus.kind == KIND_TRIGGER)
-    assert len(units) == 1
-    u = units[0]
-    assert np.linalg.norm(rsus.pose[u, :2] - trigger) <= TRIGGER_AHEAD + SIDE_OFFSET + SNAP + 1.5
-    to_trigger = np.arctan2(*(trigger - rsus.pose[u, :2])[::-1])
-    assert abs(float(wrap_angle(rsus.pose[u, 3] - to_trigger))) < np.deg2rad(30.0)
-    d = np.linalg.norm(rsus.pose[:, None, :2] - rsus.pose[None, :, :2], axis=2)
-    d[np.diag_indices(len(rsus))] = np.inf
-    assert d.min() >= MIN_SPACING
+    episodes = [build_episode_from_spec(spec) + (spec,) for spec in load_suite("test50")[1]]
+    v2x = [e for e in episodes if any(sc.v2x for sc in e[1])][:3]
+    assert v2x, "test50 has V2X-type routes"
+    for route, scenarios, spec in v2x:
+        town = get_town(spec.town)
+        world = World(make_config(town=spec.town, num_vehicles=4, num_pedestrians=2))
+        world.reset(seed=0, route=route, scenarios=scenarios)
+        with_sc = world.rsus.pose.copy()
+        world.reset(seed=0, route=route, scenarios=[])
+        assert np.array_equal(with_sc, world.rsus.pose)
+        assert np.array_equal(with_sc, rsu_module._deploy(town, route).pose)
 
 
 # ------------------------------------------------------------------------------ select_active
@@ -204,23 +188,6 @@ def test_select_active_hand_cases():
     assert select_active(near_behind, ego, yaw, 75.0).tolist() == [0]
 
 
-def test_every_trigger_keeps_its_unit_and_is_preferred():
-    town = get_town("Town04")
-    route = route_from_lanes(town, [0, 20, 6, 28, 12])
-    near = route.points[[420, 440]] + np.array([0.0, -6.0])  # two hazards ~20 m apart
-    rsus = deploy(town, route, triggers=near)
-    units = np.flatnonzero(rsus.kind == KIND_TRIGGER)
-    assert len(units) == 2  # closer than MIN_SPACING to each other, both kept
-    # a scenario unit 30 m further than a street unit that faces the ego still serves it
-    pair = RSUSet(
-        np.array([[20.0, -9.0, RSU_HEIGHT, np.pi], [50.0, -9.0, RSU_HEIGHT, np.pi]]),
-        np.array([KIND_STRAIGHT, KIND_TRIGGER]),
-        np.array([0.0, 30.0]),
-    )
-    assert select_active(pair, np.zeros(2), 0.0, 75.0).tolist() == [1]
-    assert select_active(pair, np.zeros(2), 0.0, 45.0).tolist() == [0]  # out of range
-
-
 def test_select_active_falls_back_to_the_nearest():
     rsus = _units([(30.0, 0.0, 0.0), (-60.0, 0.0, 0.0)])  # neither faces the ego
     np.testing.assert_array_equal(select_active(rsus, np.zeros(2), 0.0, 75.0, slots=2), [0, -1])
@@ -243,10 +210,19 @@ def test_select_active_along_a_route(deployments, case):
             100.0
         )
         ok = ahead & facing & (dist < 75.0)
+        look = ego + rsu_module.LOOKAHEAD_M * np.array([np.cos(yaw), np.sin(yaw)]) - rsus.pose[:, :2]
+        d_look = np.linalg.norm(look, axis=1)
+        sees = ok & (d_look < 75.0) & (
+            np.abs(wrap_angle(np.arctan2(look[:, 1], look[:, 0]) - rsus.pose[:, 3]))
+            < rsu_module.VIEW_HALF_ANGLE
+        )
         if ok.any():
             n_ok += 1
             assert ok[u], "the active unit must be ahead of the ego and facing it"
-            assert dist[u] == dist[ok].min()  # the nearest such unit
+            if sees.any():  # a unit watching the road ahead: the one nearest to that point
+                assert sees[u] and d_look[u] == pytest.approx(d_look[sees].min())
+            else:
+                assert dist[u] == dist[ok].min()  # else the nearest forward-facing unit
         else:
             assert u == int(np.argmin(dist))  # fallback: the nearest unit
     # route-adaptive deployment: most of the time a forward-facing unit is in range
@@ -256,16 +232,15 @@ def test_select_active_along_a_route(deployments, case):
 def test_deployment_is_remembered_per_route_and_read_only():
     town = get_town("Town02")
     route = random_route(town, np.random.default_rng(7), 400.0)
-    trig = route.points[len(route.points) // 2][None]
-    first = deploy(town, route, trig)
-    assert deploy(town, route, trig) is first  # a replayed route reuses the placement
-    fresh = rsu_module._deploy(town, route, trig)
+    first = deploy(town, route)
+    assert deploy(town, route) is first  # a replayed route reuses the placement
+    fresh = rsu_module._deploy(town, route)
     for name in ("pose", "kind", "route_s"):
         assert np.array_equal(getattr(first, name), getattr(fresh, name))
         with pytest.raises(ValueError):
             getattr(first, name)[0] = 0
-    assert deploy(town, route, None) is not first  # other triggers, other placement
-    assert len(deploy(town, route, None)) == len(rsu_module._deploy(town, route, None))
+    other = random_route(town, np.random.default_rng(8), 400.0)
+    assert deploy(town, other) is not first  # another route, another placement
 
 
 @pytest.mark.parametrize("town_name", ["Town01", "Town03", "Town12"])

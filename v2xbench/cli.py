@@ -323,6 +323,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "Interleaved runs of a git revision (in a temporary worktree) and this "
                    "checkout, CPU time per tick (benchmarks/ab.py); prints both series and the median "
                    "ratio.")
+    _add_benchmark(sub, "coverage", "rsu_coverage", "how well the route's roadside units see the V2X hazards",
+                   "Drive every V2X-type scenario instance of a suite and measure how long each hazard "
+                   "is hidden from the ego and seen by the active roadside unit "
+                   "(benchmarks/rsu_coverage.py).")
     lb = sub.add_parser("leaderboard", help="leaderboard table and plots from evaluation result dirs")
     lb.add_argument("results", nargs="+", help="result directories (each with a summary.json)")
     lb.add_argument("--out", default="leaderboard")

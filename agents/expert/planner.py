@@ -101,6 +101,10 @@ class Planner:
         self.vehicle = vehicle or VehicleParams()
         self.hl, self.hw = 0.5 * self.p.ego_length, 0.5 * self.p.ego_width
         self.track: RouteTrack | None = None
+        #: optional ``f(stations, objs, st, lat, e_long) -> (P,)`` speed caps (m/s) along the path
+        #: window's stations, from the objects' stations ``st``, lateral offsets ``lat`` and
+        #: half-lengths along the path ``e_long``; ``None``: no extra caps
+        self.zone_caps = None
 
     def reset(self, town: Town, route: Route) -> None:
         """Start a new route."""
@@ -166,6 +170,8 @@ class Planner:
             reasons.append(why)
         # speed envelope (limits, curves, manoeuvre caps)
         vlim = np.minimum(win.vlim, self.lateral.speed_cap)
+        if self.zone_caps is not None:  # caller's speed zones (e.g. the cautious ego's)
+            vlim = np.minimum(vlim, self.zone_caps(win.st, objs, st, lat, e_long))
         man = self.lateral.man
         lon = self.lon if man is None or not man.invades else replace(self.lon, accel=PASS_ACCEL)
         env = envelope(win.st, vlim, hl, lon)

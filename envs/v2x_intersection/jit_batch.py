@@ -2,7 +2,7 @@
 each in one numba call.
 
 Called once per world, ``jit_tick.traffic_tick_kernel`` costs ~10 us of numba's dispatch alone
-(79 arguments to type and unbox; ``perceive_all_kernel`` takes 34). :class:`ArgLists` keeps each
+(79 arguments to type and unbox; ``perceive_all_kernel`` takes 31). :class:`ArgLists` keeps each
 world's arguments in numba typed lists, refreshed only when they change (a reset, a new lane-state
 array, a new plan), and :func:`traffic_batch_kernel` / :func:`perceive_batch_kernel` call the same
 kernels world after world, so a batch pays one dispatch per tick and stage
@@ -232,7 +232,7 @@ class PerceiveBatch:
         return True
 
     def step_one(self) -> bool:
-        """:meth:`step` for a batch of one world: one argument instead of 34."""
+        """:meth:`step` for a batch of one world: one argument instead of 31."""
         w = self.worlds[0]
         args = w._perceive_consts()
         consts = self.one.get(args)

@@ -20,6 +20,8 @@ from .jit import (
 )
 from .jit_grid import project_grid_kernel
 
+UNSEEN_KEY = 1.0e6  # m: units that do not see the ego's look-ahead point rank after all that do
+
 
 @_njit_inline
 def _frame_order(idx, pos, ox, oy, c, s):  # pragma: no cover
@@ -73,15 +75,18 @@ def object_rows_kernel(idx, pos, yaw, speed, kind, length, width, height, actor_
 
 
 @_njit
-def select_active_kernel(pose, kind, trigger_kind, ex, ey, eyaw, max_range, slots, preference, max_angle):  # pragma: no cover
-    """``rsu.select_active``: the ``slots`` units with the smallest key (distance, minus
-    ``preference`` for scenario units) among those ahead, facing the ego and in range; -1 pads;
-    slot 0 falls back to the nearest unit when none qualifies.
+def select_active_kernel(pose, ex, ey, eyaw, max_range, slots, max_angle, lookahead, view_half):  # pragma: no cover
+    """``rsu.select_active``: among the units ahead, facing the ego and in range, the ``slots``
+    best: units whose view (``view_half`` either side of their axis, within range) holds the
+    point ``lookahead`` m ahead of the ego, nearest to that point first, then the others by
+    their distance to the ego; -1 pads; slot 0 falls back to the nearest unit when none
+    qualifies.
 
     Ties between equal keys go to the lower index.
     """
     n = pose.shape[0]
     c, s = np.cos(eyaw), np.sin(eyaw)
+    px, py = ex + lookahead * c, ey + lookahead * s
     key = np.empty(n)
     dist = np.empty(n)
     two_pi = 2 * np.pi
@@ -93,7 +98,11 @@ def select_active_kernel(pose, kind, trigger_kind, ex, ey, eyaw, max_range, slot
         to_ego = np.arctan2(-d1, -d0)
         facing = abs((to_ego - pose[u, 3] + np.pi) % two_pi - np.pi) < max_angle
         if ahead and facing and dist[u] < max_range:
-            key[u] = dist[u] - (preference if kind[u] == trigger_kind else 0.0)
+            q0 = px - pose[u, 0]
+            q1 = py - pose[u, 1]
+            dq = np.sqrt(q0 * q0 + q1 * q1)
+            sees = dq < max_range and abs((np.arctan2(q1, q0) - pose[u, 3] + np.pi) % two_pi - np.pi) < view_half
+            key[u] = dq if sees else UNSEEN_KEY + dist[u]
         else:
             key[u] = np.inf
     out = np.full(slots, -1, np.int64)
@@ -233,7 +242,7 @@ def perceive_kernel(pos, length, width, yaw, height, active, center, cos_yaw, si
 
 
 @_njit
-def perceive_all_kernel(rsu_pose, rsu_kind, trigger_kind, preference, max_angle, slots, pos, length, width, yaw,
+def perceive_all_kernel(rsu_pose, max_angle, lookahead, view_half, slots, pos, length, width, yaw,
                         height, active, center, cos_yaw, sin_yaw, blen, bwid, bh, z0, half_diag, ego_z, ego_r2,
                         ego_range, rsu_r2, rsu_range, half_fov, levels, pattern, shrink, lo, hi, active_rsu, ego_vis,
                         rsu_vis):  # pragma: no cover
@@ -248,8 +257,8 @@ def perceive_all_kernel(rsu_pose, rsu_kind, trigger_kind, preference, max_angle,
     if rsu_pose.shape[0] == 0:
         active_rsu[:] = -1
     else:
-        active_rsu[:] = select_active_kernel(rsu_pose, rsu_kind, trigger_kind, pos[0, 0], pos[0, 1], yaw[0],
-                                             rsu_range, slots, preference, max_angle)
+        active_rsu[:] = select_active_kernel(rsu_pose, pos[0, 0], pos[0, 1], yaw[0], rsu_range, slots,
+                                             max_angle, lookahead, view_half)
     pose = np.full((slots, 4), np.nan)
     for k in range(slots):
         u = active_rsu[k]

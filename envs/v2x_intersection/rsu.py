@@ -1,12 +1,16 @@
 """Route-adaptive roadside-unit deployment and per-tick active-unit selection (paper appendix).
 
+Roadside units are infrastructure: their placement reads the town and the route only, never the
+scenario list, so a unit's pose carries no information about where a hazard will be
+(``tests/test_rsu.py`` checks that the poses are the same with and without scenarios).
+
 Candidates are placed (1) every ~``STRAIGHT_SPACING`` m along the route's non-junction parts,
 beside the road and looking back at the approaching ego; (2) at every junction the route crosses,
-on a corner offset from the centre, looking at the junction so all approaches are overlooked;
-(3) near each scenario trigger point. Every scenario keeps its unit; junction and street units
-closer than ``MIN_SPACING`` m to an already kept unit are pruned (junction units are kept before
-street units). Each tick the nearest forward-facing unit (ahead of the ego and within range) is
-active, scenario units counting ``TRIGGER_PREFERENCE_M`` m nearer than they are.
+on a corner offset from the centre, looking at the junction so all approaches are overlooked.
+Units closer than ``MIN_SPACING`` m to an already kept unit of their kind are pruned (a street
+unit looks along the road, a junction unit over the junction: they do not replace each other). Each tick the active unit is chosen from the ego's pose only: among the
+forward-facing units in range, the one watching the road ``LOOKAHEAD_M`` m ahead of the ego (the
+point within its camera's view), nearest to that point; else the nearest forward-facing unit.
 """
 
 from __future__ import annotations
@@ -16,23 +20,25 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import libm
-from .geometry import pose_matrix, wrap_angle
+from .geometry import pose_matrix, row_norms, wrap_angle
 from .jit import HAVE_JIT
-from .jit_perception import select_active_kernel, sidewalk_snap_kernel
+from .jit_perception import UNSEEN_KEY, select_active_kernel, sidewalk_snap_kernel
 from .routes import Route
 from .town.model import Town
 
-STRAIGHT_SPACING = 80.0  # m
-MIN_SPACING = 30.0  # m
+STRAIGHT_SPACING = 40.0  # m
+MIN_SPACING = 20.0  # m
 RSU_HEIGHT = 5.0  # m
 RSU_PITCH = np.deg2rad(12.0)  # rad, pitched down toward the road
 RSU_ROLL = np.deg2rad(1.0)  # rad, small roll offset (as the paper)
 SIDE_OFFSET = 9.0  # m from the route centre line to the pole
-TRIGGER_AHEAD = 14.0  # m past a scenario's hazard point where its unit stands
 SNAP_M = 8.0  # m: poles move to the nearest sidewalk point within this distance
-KIND_STRAIGHT, KIND_JUNCTION, KIND_TRIGGER = 0, 1, 2
-TRIGGER_PREFERENCE_M = 40.0  # m: active-unit selection favours scenario units by this much
+KIND_STRAIGHT, KIND_JUNCTION = 0, 1
 FACING_MAX_ANGLE = float(np.deg2rad(100.0))  # rad: a unit faces the ego within this angle
+#: m: the active unit is chosen for the road this far ahead of the ego (where hazards matter)
+LOOKAHEAD_M = 12.0
+#: rad: half the view in which a unit counts as watching a point (the RSU camera's 90 deg FOV)
+VIEW_HALF_ANGLE = float(np.deg2rad(45.0))
 
 
 @dataclass
@@ -41,7 +47,7 @@ class RSUSet:
 
     Attributes:
         pose: ``(U, 4)`` ``(x, y, z, yaw)`` (m, rad); pitch ``RSU_PITCH``, roll ``RSU_ROLL``.
-        kind: ``(U,)`` ``KIND_STRAIGHT | KIND_JUNCTION | KIND_TRIGGER``.
+        kind: ``(U,)`` ``KIND_STRAIGHT | KIND_JUNCTION``.
         route_s: ``(U,)`` route arc length the unit was placed for (m).
     """
 
@@ -61,23 +67,21 @@ class RSUSet:
 DEPLOY_CACHE_SIZE = 256  # deployments remembered per town (episodes that replay a route reuse them)
 
 
-def deploy(town: Town, route: Route, triggers: np.ndarray | None = None) -> RSUSet:
+def deploy(town: Town, route: Route) -> RSUSet:
     """Place RSUs for a route (see module docstring).
 
-    The placement depends only on the town, the route's points and the triggers, so it is
-    remembered per town (the last :data:`DEPLOY_CACHE_SIZE` routes; the arrays are read-only).
+    The placement depends only on the town and the route's points, so it is remembered per town
+    (the last :data:`DEPLOY_CACHE_SIZE` routes; the arrays are read-only).
 
     Args:
         town: the road network.
         route: the ego's route.
-        triggers: optional ``(T, 2)`` scenario hazard (conflict) points (m); each gets a unit.
     """
-    trig = None if triggers is None else np.asarray(triggers, float).reshape(-1, 2)
-    key = (route.points.tobytes(), route.lane_ids.tobytes(), None if trig is None else trig.tobytes())
+    key = (route.points.tobytes(), route.lane_ids.tobytes())
     cache = town.cache("rsu_deployments")
     units = cache.get(key)
     if units is None:
-        units = _deploy(town, route, trig)
+        units = _deploy(town, route)
         for a in (units.pose, units.kind, units.route_s):
             a.setflags(write=False)
         while cache and len(cache) >= DEPLOY_CACHE_SIZE:
@@ -87,7 +91,7 @@ def deploy(town: Town, route: Route, triggers: np.ndarray | None = None) -> RSUS
     return units
 
 
-def _deploy(town: Town, route: Route, triggers: np.ndarray | None) -> RSUSet:
+def _deploy(town: Town, route: Route) -> RSUSet:
     cands: list[tuple[float, float, float, int, float]] = []
     pts, hd, s = route.points, route.headings, route.s
     in_junction = town.index.junction[route.lane_ids] >= 0
@@ -102,13 +106,6 @@ def _deploy(town: Town, route: Route, triggers: np.ndarray | None) -> RSUSet:
         corner = j.center + (j.radius + 3.0) * np.array([np.cos(h_in - np.pi / 4), np.sin(h_in - np.pi / 4)])
         yaw = np.arctan2(*(j.center - corner)[::-1]) - np.pi / 8
         cands.append((corner[0], corner[1], float(yaw), KIND_JUNCTION, float(s[k])))
-    for tp in [] if triggers is None else np.asarray(triggers, float).reshape(-1, 2):
-        # a unit beside the road TRIGGER_AHEAD m past the hazard, looking back at it
-        k = int(np.argmin(np.linalg.norm(pts - tp, axis=1)))
-        ka = min(int(np.searchsorted(s, s[k] + TRIGGER_AHEAD)), len(pts) - 1)
-        p = _beside(pts[ka], hd[ka], SIDE_OFFSET)
-        yaw = np.arctan2(*(tp - p)[::-1])
-        cands.append((p[0], p[1], float(yaw), KIND_TRIGGER, float(s[k])))
     for sk in np.arange(STRAIGHT_SPACING / 2, route.length, STRAIGHT_SPACING):
         k = int(np.searchsorted(s, sk))
         k = min(k, len(pts) - 1)
@@ -122,9 +119,11 @@ def _deploy(town: Town, route: Route, triggers: np.ndarray | None) -> RSUSet:
     cands = [_on_sidewalk(town, c) for c in cands]
     order = sorted(range(len(cands)), key=lambda i: (-cands[i][3], cands[i][4]))
     kept: list[int] = []
-    for i in order:  # every scenario keeps its unit; the others keep their distance
-        if cands[i][3] == KIND_TRIGGER or all(
-            np.hypot(cands[i][0] - cands[j][0], cands[i][1] - cands[j][1]) >= MIN_SPACING for j in kept
+    for i in order:  # units of a kind keep their distance (a street unit looks along the road,
+        # a junction unit over the junction: both are kept where they stand close together)
+        if all(
+            np.hypot(cands[i][0] - cands[j][0], cands[i][1] - cands[j][1]) >= MIN_SPACING
+            for j in kept if cands[j][3] == cands[i][3]
         ):
             kept.append(i)
     kept.sort(key=lambda i: cands[i][4])
@@ -169,28 +168,32 @@ def _beside(p: np.ndarray, heading: float, offset: float) -> np.ndarray:
 
 
 def select_active(rsus: RSUSet, ego_xy: np.ndarray, ego_yaw: float, max_range: float, slots: int = 1) -> np.ndarray:
-    """Indices of the ``slots`` nearest forward-facing units (-1 pads when fewer qualify).
+    """Indices of the ``slots`` best forward-facing units (-1 pads when fewer qualify).
 
     Forward-facing: the unit is ahead of the ego (positive longitudinal offset, allowing 10 m
     behind) and its optical axis points back toward the ego's side (angle to the ego < 100 deg).
-    Scenario units (``KIND_TRIGGER``) count as ``TRIGGER_PREFERENCE_M`` m nearer than they are,
-    so the unit watching the conflict ahead serves the ego rather than a nearer street unit.
+    Best: units whose view (``VIEW_HALF_ANGLE`` either side of the axis, within range) holds the
+    point ``LOOKAHEAD_M`` m ahead of the ego come first, nearest to that point; then the other
+    forward-facing units, nearest to the ego. Without any, slot 0 is the nearest unit.
     """
     if len(rsus) == 0:
         return np.full(slots, -1, np.int64)
     if HAVE_JIT:
-        return select_active_kernel(rsus.pose, rsus.kind, KIND_TRIGGER, float(ego_xy[0]), float(ego_xy[1]),
-                                    float(ego_yaw), float(max_range), int(slots), float(TRIGGER_PREFERENCE_M),
-                                    FACING_MAX_ANGLE)
+        return select_active_kernel(rsus.pose, float(ego_xy[0]), float(ego_xy[1]), float(ego_yaw),
+                                    float(max_range), int(slots), FACING_MAX_ANGLE, LOOKAHEAD_M,
+                                    VIEW_HALF_ANGLE)
     d = rsus.pose[:, :2] - ego_xy
     dist = np.linalg.norm(d, axis=1)
     ahead = d @ np.array([np.cos(ego_yaw), np.sin(ego_yaw)]) > -10.0
     to_ego = libm.arctan2(-d[:, 1], -d[:, 0])
     facing = np.abs(wrap_angle(to_ego - rsus.pose[:, 3])) < FACING_MAX_ANGLE
     ok = ahead & facing & (dist < max_range)
-    # a unit placed for a scenario's conflict point wins over nearer general-purpose units
-    key = dist - TRIGGER_PREFERENCE_M * (rsus.kind == KIND_TRIGGER)
-    order = np.argsort(np.where(ok, key, np.inf))
+    q = ego_xy + LOOKAHEAD_M * np.array([np.cos(ego_yaw), np.sin(ego_yaw)]) - rsus.pose[:, :2]
+    dq = row_norms(q)
+    sees = (dq < max_range) & (np.abs(wrap_angle(libm.arctan2(q[:, 1], q[:, 0]) - rsus.pose[:, 3]))
+                               < VIEW_HALF_ANGLE)
+    key = np.where(sees, dq, UNSEEN_KEY + dist)
+    order = np.argsort(np.where(ok, key, np.inf), kind="stable")
     out = np.where(ok[order][:slots], order[:slots], -1)
     if out[0] < 0:  # nothing forward-facing: fall back to the nearest unit
         out[0] = int(np.argmin(dist))

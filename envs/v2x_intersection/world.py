@@ -54,7 +54,7 @@ from .pedestrians import SidewalkNetwork, ego_is_vehicle, step_walkers, walkers_
 from .physics import CollisionWorld
 from .raycast import Boxes
 from .routes import Route, random_route
-from .rsu import FACING_MAX_ANGLE, KIND_TRIGGER, TRIGGER_PREFERENCE_M, RSUSet, deploy, select_active
+from .rsu import FACING_MAX_ANGLE, LOOKAHEAD_M, VIEW_HALF_ANGLE, RSUSet, deploy, select_active
 from .signals import SignalPlan
 from .town import get_town
 from .town.model import DRIVING, RAMP
@@ -235,8 +235,8 @@ class World:
                                    np.int64)
         self._object_kind = t.kind.copy()
         self.collisions = CollisionWorld(t, self.static_boxes)
-        triggers = np.array([sc.conflict_point for sc in self.scenarios]).reshape(-1, 2)
-        self.rsus: RSUSet = deploy(self.town, self.route, triggers if len(triggers) else None)
+        # infrastructure: placed from the town and the route only, never from the scenario list
+        self.rsus: RSUSet = deploy(self.town, self.route)
         self.channel = Channel(self.channel_config, self.rng)
         self.tick = 0
         self.last_control = np.zeros(3)
@@ -526,7 +526,7 @@ class World:
         (``active_rsu``, ``ego_vis``, ``rsu_vis``). With numba these arrays are the kernel's
         output buffers, overwritten by the next tick's call: copy them to keep them."""
         cfg, t = self.config, self.table
-        if HAVE_JIT:  # one kernel call, through a one-world jit_batch.PerceiveBatch (1 argument, not 34)
+        if HAVE_JIT:  # one kernel call, through a one-world jit_batch.PerceiveBatch (1 argument, not 31)
             if self._perceive_one is None:
                 self._perceive_one = PerceiveBatch([self])
             if not self._perceive_one.step_one():
@@ -556,7 +556,7 @@ class World:
         cached = self._perceive_args
         if cached is None or cached[0] is not t or cached[1] is not self.rsus:
             cached = self._perceive_args = (t, self.rsus, (
-                self.rsus.pose, self.rsus.kind, KIND_TRIGGER, TRIGGER_PREFERENCE_M, FACING_MAX_ANGLE,
+                self.rsus.pose, FACING_MAX_ANGLE, LOOKAHEAD_M, VIEW_HALF_ANGLE,
                 int(cfg.rsu_slots), t.pos, t.length, t.width, t.yaw, t.height, t.active,
                 *perceive_workspace(len(t), self.static_boxes, self.static_heights, *self.static_trig,
                                     self._static_half_diag), EGO_SENSOR_Z,

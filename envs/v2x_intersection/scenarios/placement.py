@@ -151,8 +151,9 @@ def spawn_scripted(world, row: int, kind: int, pos: np.ndarray, yaw: float,
 
 
 def truck_size(rng: np.random.Generator) -> tuple[float, float, float]:
-    """A box truck / van tall enough to hide a pedestrian from an ego camera."""
-    return float(rng.uniform(7.0, 9.0)), 2.5, float(rng.uniform(3.2, 3.8))
+    """A box truck / van tall enough to hide a pedestrian from an ego camera (its width drawn
+    from the background large vehicles' range, so that no size tells a scenario truck apart)."""
+    return float(rng.uniform(7.0, 9.0)), float(rng.uniform(2.3, 2.6)), float(rng.uniform(3.2, 3.8))
 
 
 def straight_sites(town: Town, min_length: float = 70.0, parking: bool | None = None,

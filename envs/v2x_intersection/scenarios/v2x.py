@@ -2,9 +2,11 @@
 
 This module holds the crossing family (a pedestrian steps out in front of the ego from behind a
 truck or a row of parked vehicles) and the helpers shared with :mod:`.v2x_junction` (junction and
-turning families). Every hazard is *timed*: it waits hidden until the ego's estimated time of
-arrival at the conflict point equals its own, so the conflict really happens unless the ego
-reacts in time (typically only possible with the roadside unit's view).
+turning families). Every hazard waits hidden until a CARLA-style trigger fires (the ego's time to
+arrival at the conflict point at its current speed, or its distance to it), then moves on its
+own, whatever the ego does: the conflict really happens unless the ego reacts in time (for an
+ego that cannot see the hazard, typically only possible at low speed or with the roadside unit's
+view). See :class:`TimedScenario`.
 
 Every module in this package registers its scenarios with ``@register_scenario``.
 """
@@ -20,11 +22,10 @@ from ..jit import HAVE_JIT
 from ..jit_sight import KEEP_RADIUS_M, sight_fraction_kernel
 from ..pedestrians import ego_in_the_way
 from ..raycast import END_TOLERANCES, Boxes, segments_blocked
-from ..rsu import KIND_TRIGGER, deploy
+from ..rsu import deploy, select_active
 from ..signals import RED, YELLOW
 from ..town.model import DRIVING, MERGE, PARKING, Town
 from ..traffic import STOP_LINE_SETBACK
-from ..visibility import VISIBLE_THRESHOLD
 from .base import Scenario, Site
 from .placement import (
     clear_lanes,
@@ -43,6 +44,11 @@ CROSSWALK_HALF = 2.0
 PARKING_LANE_WIDTH = 2.5  # m
 WALKER_EGO_MARGIN = 0.4  # m around the ego's box in which a scenario walker stops for it
 EGO_EYE_Z = 1.8  # m, ego sensor height (as ``world.EGO_SENSOR_Z``)
+#: per-instance draws of :class:`TimedScenario` (uniform ranges)
+SPEED_SCALE = (0.85, 1.15)  # factor on the hazard's nominal speed
+START_DELAY_S = (0.0, 0.5)  # s from the trigger to the hazard's start
+TRIGGER_JITTER_S = (-0.2, 0.2)  # s added to the trigger's time to arrival
+POSITION_JITTER_M = (-0.4, 0.4)  # m along the road of the hazard's waiting spot
 
 
 # ---------------------------------------------------------------------------------------------
@@ -187,12 +193,17 @@ def route_eyes(world, route, s_values) -> np.ndarray:
     return np.concatenate([route.points[k], np.full((len(k), 1), EGO_EYE_Z)], 1)
 
 
-def trigger_rsu_eye(world, route, conflict_point: np.ndarray) -> np.ndarray:
-    """Position ``(3,)`` of the roadside unit the world deploys for a conflict point (as
-    :func:`~..rsu.deploy` places it: beside the route past the conflict, snapped to a sidewalk)."""
-    units = deploy(world.town, route, np.asarray(conflict_point, float)[None])
-    k = np.flatnonzero(units.kind == KIND_TRIGGER)
-    return units.pose[k[0], :3] if len(k) else units.pose[0, :3]
+def route_rsu_eye(world, route, conflict_s: float, before_m: float = 12.0) -> np.ndarray:
+    """Position ``(3,)`` of the roadside unit that serves the ego ``before_m`` m before route arc
+    length ``conflict_s`` (the route's own deployment, :func:`~..rsu.deploy`, which knows
+    nothing of scenarios; the nearest unit if none faces the ego there): a scenario may pick
+    where its hazard waits so that the infrastructure can see it, never the other way round."""
+    units = deploy(world.town, route)
+    if len(units) == 0:
+        return np.array([np.nan, np.nan, np.nan])
+    k = min(max(int(np.searchsorted(route.s, conflict_s - before_m)), 0), len(route.points) - 1)
+    u = select_active(units, route.points[k], float(route.headings[k]), world.config.rsu_range)[0]
+    return units.pose[u, :3]
 
 
 def box_points(center: np.ndarray, yaw: float, length: float, heights=(0.4, 1.0)) -> np.ndarray:
@@ -203,84 +214,104 @@ def box_points(center: np.ndarray, yaw: float, length: float, heights=(0.4, 1.0)
 
 
 class TimedScenario(Scenario):
-    """Base for hazards released when the ego's estimated arrival time at the conflict point
-    drops to the hazard's own time to it (see :meth:`due`).
+    """Base for hazards started by a CARLA-style trigger and then independent of the ego.
 
-    Held walkers stand still (speed 0, so nobody predicts them moving) and get their walking
-    speed when released (:meth:`hold_walker`, :meth:`release_walker`). A crossing walker (or
-    rider) is timed to step into the ego's path (:attr:`path_half_width` from the lane centre)
-    :attr:`aim_delay_s` after the ego's front reaches the crossing, and, while the ego cannot see
-    it, adapts its pace to the ego's progress (:meth:`paced_speed`): an ego that did not see it
-    coming meets it, seen from its own sensors only at the last moment, whereas a driver told by
-    the roadside unit (which sees it all along) slows down in time. Walkers pause only for an
-    ego that (nearly) stands in their way (:meth:`walkers_yield`).
+    **Trigger** (checked every tick until it fires, then never again; :meth:`triggered_now`): the
+    ego's time to arrival at the conflict point *at its current speed* drops to the instance's
+    trigger time (CARLA's ``InTimeToArrivalToLocation``; the front bumper's arrival if
+    :attr:`aim_front`), or the ego comes within :attr:`min_trigger_m` of the conflict point
+    (``InTriggerDistanceToLocation``). A standing ego never reaches a time to arrival, so standing
+    still and waiting does not start a hidden hazard. The trigger does not fire while the ego
+    faces a red or yellow light whose stop line lies before the conflict point
+    (:meth:`ego_at_red`): a scenario is not set off by a car waiting at its light.
+
+    **After the trigger** the hazard waits its start delay and moves at its own speed along its
+    path, whatever the ego does or sees: no release after the ego waited, no pacing. A walker
+    pauses only for a (nearly) standing car whose body blocks its next metre
+    (:meth:`walkers_yield`): what the pedestrian itself can see.
+
+    **Drawn per instance** (from the world's generator at reset, so each route and seed differ):
+    the hazard's speed (``params["speed"]`` times a factor in :data:`SPEED_SCALE`), its start
+    delay after the trigger (:data:`START_DELAY_S`), a jitter of the trigger time
+    (:data:`TRIGGER_JITTER_S`) and a shift of its waiting spot along the road
+    (:data:`POSITION_JITTER_M`, where the subclass uses :attr:`position_jitter`). The trigger
+    time is set so that a hazard that starts and moves as drawn enters the ego's path
+    :attr:`aim_delay_s` after the ego's centre gets there (negative: before) if the ego keeps the
+    speed it had at the trigger: the conflict really happens unless the ego reacts, which an ego
+    that cannot see the hazard can only do late.
     """
 
-    ego_v_max = 8.0  # m/s, ego cruise speed assumed by the arrival estimate
-    #: m: release anyway once the ego is this close (CARLA's minimum trigger distance) ...
+    #: m: CARLA's minimum trigger distance (InTriggerDistanceToLocation)
     min_trigger_m = 6.0
-    #: s: ... or once the ego has waited this long within 40 m of the conflict
-    max_wait_s = 4.0
-    #: m: never start once the ego's centre is this close (its body covers the conflict point)
-    occupied_m = 3.5
-    #: m/s: an ego this slow within ``min_trigger_m`` (pulling away from a stop line next to the
-    #: hazard) does not release it: no surprise is possible there
-    slow_start_speed = 3.0
+    #: m/s: below this ego speed the time to arrival counts as infinite
+    min_tta_speed = 0.1
     #: m: a crossing walker or rider is in the ego's way once it is this close to the centre
     #: line of the ego's lane (half the ego's width plus a small margin)
     path_half_width = 1.2
-    #: time the arrival to the ego's front bumper (walkers step into the car's path just as it
-    #: gets there, seen only at the last moment from the ego) rather than to its centre
-    aim_front = True
-    #: s: start this much earlier than the arrival estimates say
-    release_margin_s = 0.0
-    #: s: a walker aims to step into the ego's path this long after the ego's front gets there
-    #: (into the side of a car that did not brake; seen from the ego only at the last moment)
-    aim_delay_s = 0.25
-    #: fractions of its walking speed a released walker may slow to / speed up to while hidden
-    pace_range = (0.4, 1.6)
+    #: time the arrival to the ego's front bumper instead of its centre
+    aim_front = False
+    #: s: a hazard aims to enter the ego's path this long after the ego's timed point (its
+    #: centre) reaches the conflict point; negative: before. A walker crossing the path is in
+    #: the car's way from about 1.2 s before its centre arrives to L / 2v after, so -0.1 s hits
+    #: a car that keeps its speed across the trigger jitter, at 5-14 m/s
+    aim_delay_s = -0.1
     #: m/s: released walkers pause for an ego at most this fast that blocks their way
     yield_speed = 1.0
 
     def setup(self, world, rows: np.ndarray) -> None:
-        self._ego_wait = 0.0  # s the ego has been standing near the conflict
+        rng = world.rng
+        self.speed_scale = float(rng.uniform(*SPEED_SCALE))
+        self.start_delay = float(rng.uniform(*START_DELAY_S))
+        self.trigger_jitter = float(rng.uniform(*TRIGGER_JITTER_S))
+        self.position_jitter = float(rng.uniform(*POSITION_JITTER_M))
+        self.hazard_trigger_tick = -1  # tick the hazard's trigger fired (-1: not yet)
         self._walk_speed: dict[int, float] = {}  # walking speeds of held walkers
         self._walking: set[int] = set()  # walkers released
         super().setup(world, rows)
 
-    def ego_eta(self, world, s_target: float | None = None) -> float:
-        """Estimated time (s) for the ego to reach route arc length ``s_target`` (default: the
-        conflict point)."""
-        s = self.conflict_s if s_target is None else s_target
-        return eta(s - self.ego_s(world), float(world.table.speed[0]), v_max=self.ego_v_max)
+    def hazard_speed(self) -> float:
+        """The hazard's speed for this instance: ``params["speed"]`` times the drawn factor."""
+        return float(self.params["speed"]) * self.speed_scale
 
     def time_to_path(self, lateral: float, speed: float) -> float:
         """Time (s) a hazard ``lateral`` m from the ego lane's centre line, moving straight towards
         it at ``speed`` m/s, needs to enter the ego's path (:attr:`path_half_width`)."""
         return max(lateral - self.path_half_width, 0.0) / max(speed, 0.1)
 
-    def due(self, world, hazard_time: float) -> bool:
-        """Whether a hazard needing ``hazard_time`` s to reach the conflict must start now (call
-        once per tick while it waits): the ego's arrival estimate is down to ``hazard_time``, or
-        the ego is within ``min_trigger_m`` of the conflict, or it has stood still near it for
-        ``max_wait_s`` (so that a cautious ego never waits forever for a hazard waiting for it);
-        the arrival is the ego's front bumper's if :attr:`aim_front`, else its centre's;
-        never while the ego waits at a red light before the conflict or covers the conflict
-        point itself."""
-        if self.ego_at_red(world):  # the ego waits for its light: so does the hazard
-            self._ego_wait = 0.0
+    def trigger_time(self, hazard_time: float) -> float:
+        """Time to arrival (s) at which the trigger fires for a hazard that needs ``hazard_time`` s
+        after its start to reach the ego's path."""
+        return max(hazard_time + self.start_delay - self.aim_delay_s + self.trigger_jitter, 0.0)
+
+    def ego_tta(self, world) -> float:
+        """The ego's time to arrival (s) at the conflict point at its current speed (its front
+        bumper's if :attr:`aim_front`); ``inf`` for a (nearly) standing ego."""
+        d = self.conflict_s - self.ego_s(world) - self._front(world)
+        v = float(world.table.speed[0])
+        return max(d, 0.0) / v if v >= self.min_tta_speed else float("inf")
+
+    def triggered_now(self, world, hazard_time: float) -> bool:
+        """Whether the hazard's trigger fires this tick (see the class docstring); once it has
+        fired it stays fired, whatever the ego does."""
+        if self.hazard_trigger_tick >= 0:
+            return True
+        if self.ego_at_red(world):
             return False
         d = self.conflict_s - self.ego_s(world)
-        if d < self.occupied_m:  # the ego stands on the conflict point: too late to start
-            return False
-        slow = float(world.table.speed[0]) < 0.3 and d < 40.0
-        self._ego_wait = self._ego_wait + world.config.dt if slow else 0.0
-        if self._ego_wait > self.max_wait_s:
+        if d <= self.min_trigger_m or self.ego_tta(world) <= self.trigger_time(hazard_time):
+            self.hazard_trigger_tick = world.tick
             return True
-        if d < self.min_trigger_m:  # close: go now, unless the ego just pulls away beside it
-            return float(world.table.speed[0]) > self.slow_start_speed
-        eta = self.ego_eta(world, self.conflict_s - self._front(world))
-        return eta + self.aim_delay_s <= hazard_time + self.release_margin_s
+        return False
+
+    def since_trigger(self, world) -> float:
+        """Seconds since the hazard's trigger fired (negative before)."""
+        if self.hazard_trigger_tick < 0:
+            return -1.0
+        return (world.tick - self.hazard_trigger_tick) * world.config.dt
+
+    def started(self, world, hazard_time: float) -> bool:
+        """Whether the hazard moves: its trigger fired and its start delay has passed."""
+        return self.triggered_now(world, hazard_time) and self.since_trigger(world) >= self.start_delay
 
     def _front(self, world) -> float:
         """Distance (m) from the ego's centre to the point whose arrival is timed."""
@@ -288,7 +319,7 @@ class TimedScenario(Scenario):
 
     def ego_at_red(self, world) -> bool:
         """Whether the ego faces a red or yellow light whose stop line lies before the conflict
-        point (it will wait there, so the hazard must wait too)."""
+        point (the scenario is not triggered by a car waiting at its light)."""
         r, ix = world.route, world.town.index
         k = min(world.monitor.progress, len(r.lane_ids) - 1)
         lane = int(r.lane_ids[k])
@@ -298,9 +329,10 @@ class TimedScenario(Scenario):
         line_s = float(r.s[k + on_lane[-1]]) - STOP_LINE_SETBACK
         return line_s < self.conflict_s
 
-    def hold_walker(self, world, row: int) -> None:
-        """Make a freshly spawned walker wait, standing still."""
-        self._walk_speed[int(row)] = float(world.table.speed[row])
+    def hold_walker(self, world, row: int, speed: float | None = None) -> None:
+        """Make a freshly spawned walker wait, standing still; it walks at ``speed`` (default: its
+        spawn speed) once released."""
+        self._walk_speed[int(row)] = float(world.table.speed[row] if speed is None else speed)
         world.table.speed[row] = 0.0
         world.table.hold[row] = True
 
@@ -312,17 +344,18 @@ class TimedScenario(Scenario):
 
     def step_one_walker(self, world, row: int, lateral: float) -> None:
         """The ``update`` of a scenario with one crossing walker ``row`` that waits ``lateral`` m
-        from the ego lane's centre line: release it once :meth:`due`, then let it yield."""
-        if row not in self._walking and self.due(
-            world, self.time_to_path(lateral, float(self.params["speed"]))
+        from the ego lane's centre line: release it once :meth:`started`, then let it yield."""
+        if row not in self._walking and self.started(
+            world, self.time_to_path(lateral, self._walk_speed[row])
         ):
             self.release_walker(world, row)
         self.walkers_yield(world)
 
     def walkers_yield(self, world) -> None:
-        """Released walkers pause while a (nearly) standing ego's body blocks their next metre:
-        they walk on into a moving car's path (that is the hazard) but do not walk into a car
-        standing on their path; call every tick."""
+        """Released walkers pause while a (nearly) standing ego's body blocks their next metre
+        (they see the car in front of them); otherwise they walk at their own speed: into a
+        moving car's path (that is the hazard) but not into a car standing on it. Call every
+        tick."""
         t = world.table
         ego_standing = float(t.speed[0]) <= self.yield_speed
         for row in self._walking:
@@ -333,28 +366,7 @@ class TimedScenario(Scenario):
             ahead = t.pos[row] + left / dist * min(1.0, dist)
             blocked = ego_standing and bool(ego_in_the_way(t, ahead[None], WALKER_EGO_MARGIN)[0])
             t.hold[row] = blocked
-            t.speed[row] = 0.0 if blocked else self.paced_speed(world, row)
-
-    def paced_speed(self, world, row: int) -> float:
-        """Speed of released walker ``row`` this tick: while the ego cannot see it, it adapts its
-        pace (within :attr:`pace_range` of its walking speed) so that it steps into the ego's path
-        :attr:`aim_delay_s` after the ego's front gets there, whatever the ego did since the
-        release (braked for a junction, say); once seen it walks at its own speed."""
-        t = world.table
-        v = self._walk_speed[row]
-        if world.ego_vis[row] >= VISIBLE_THRESHOLD:
-            return v
-        r = world.route
-        h = float(r.headings[int(np.clip(np.searchsorted(r.s, self.conflict_s), 0, len(r.s) - 1))])
-        normal = np.array([-np.sin(h), np.cos(h)])
-        left = t.cross_to[row] - t.pos[row]
-        rate = abs(float(left @ normal)) / max(float(np.hypot(*left)), 1e-6)
-        to_path = abs(float((t.pos[row] - self.conflict_point) @ normal)) - self.path_half_width
-        if rate < 0.2 or to_path <= 0.0:
-            return v
-        eta = self.ego_eta(world, self.conflict_s - self._front(world)) + self.aim_delay_s
-        lo, hi = self.pace_range
-        return float(np.clip(to_path / rate / max(eta, 1e-3), lo * v, hi * v))
+            t.speed[row] = 0.0 if blocked else self._walk_speed[row]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -403,15 +415,14 @@ class DynamicObjectCrossing(TimedScenario):
         # hides it from the approaching ego until it steps past the truck's side, while the
         # roadside unit (past the crossing, looking back) sees it all the time
         self._start_lat = w / 2 + 0.3 + truck[1] - 0.5
-        start, _ = lane_point(town, lane, self.site.s_on_key + 0.2, side * self._start_lat)
+        s_walk = self.site.s_on_key + 0.2 + max(self.position_jitter, -0.1)  # not beside the truck
+        start, _ = lane_point(town, lane, s_walk, side * self._start_lat)
         # ... to the far sidewalk (past every lane: on a wider road a fixed offset left it
         # standing in a lane the route may use later)
         end, _ = lane_point(
-            town, lane, self.site.s_on_key + 0.5, -side * (kerb_offset(town, lane, -side) + 1.0)
+            town, lane, s_walk + 0.3, -side * (kerb_offset(town, lane, -side) + 1.0)
         )
-        spawn_walker(
-            world, self.rows[1], start, end, speed=float(self.params["speed"]), kind=PEDESTRIAN
-        )
+        spawn_walker(world, self.rows[1], start, end, speed=self.hazard_speed(), kind=PEDESTRIAN)
         self.hold_walker(world, self.rows[1])
         self.hazard_rows = [int(self.rows[1])]
 
@@ -427,7 +438,7 @@ class ParkingCrossingPedestrian(TimedScenario):
     conflict point: a tall van (3.2-3.6 m) whose front ends just before it, one or two cars behind
     the van and one car after a narrow gap. The pedestrian waits on the sidewalk behind the van's
     front, hidden from the ego, and walks through the gap and across the ego's lane when the
-    ego's arrival time equals its own.
+    trigger fires (see :class:`TimedScenario`).
 
     Parameters: ``speed`` (m/s) of the pedestrian; ``gap`` (m) between the van and the next car;
     ``cars`` parked cars behind the van.
@@ -477,9 +488,10 @@ class ParkingCrossingPedestrian(TimedScenario):
             s -= car[0] + float(rng.uniform(0.8, 1.5))
         # the pedestrian waits on the sidewalk beside the van's front, facing the gap
         self._start_lat = kerb_offset(town, lane, -1.0) + 0.8
-        start, _ = lane_point(town, lane, s_c - 0.25, -self._start_lat)
-        end, _ = lane_point(town, lane, s_c + 0.4, kerb_offset(town, lane, 1.0) + 1.0)
-        spawn_walker(world, self.rows[4], start, end, speed=float(self.params["speed"]))
+        s_walk = s_c - 0.25 + 0.25 * self.position_jitter  # inside the gap
+        start, _ = lane_point(town, lane, s_walk, -self._start_lat)
+        end, _ = lane_point(town, lane, s_walk + 0.65, kerb_offset(town, lane, 1.0) + 1.0)
+        spawn_walker(world, self.rows[4], start, end, speed=self.hazard_speed())
         self.hold_walker(world, self.rows[4])
         self.hazard_rows = [int(self.rows[4])]
 
@@ -495,8 +507,8 @@ class PedestrianCrossing(TimedScenario):
     right-hand corner: on a multi-lane approach it waits at the stop line of the lane to the
     ego's right, otherwise it is parked at the kerb just before the crosswalk. The pedestrians
     wait on the corner behind the truck's front and cross the whole road on the crosswalk; the
-    first starts when the ego's arrival time equals its time to reach the ego's lane, the others
-    follow after short, random delays (as CARLA's idle times).
+    first starts once the trigger fires (see :class:`TimedScenario`), the others follow after
+    short, random delays (as CARLA's idle times).
 
     Parameters: ``count`` pedestrians (1-3); ``speed`` (m/s) range low end (each walks at
     ``speed`` to ``speed + 0.5``).
@@ -565,26 +577,21 @@ class PedestrianCrossing(TimedScenario):
         for k in range(n):
             lat0 = outer + 0.6  # close behind the truck's side: hidden from afar too
             start, _ = lane_point(town, lane, s_front - 0.5 - 0.8 * k, -lat0)
-            end, _ = lane_point(town, lane, s_c - 1.0 + 0.9 * k, far)
-            speed = float(self.params["speed"]) + float(rng.uniform(0.0, 0.5))
+            end, _ = lane_point(town, lane, s_c - 1.0 + 0.9 * k + self.position_jitter, far)
+            speed = (float(self.params["speed"]) + float(rng.uniform(0.0, 0.5))) * self.speed_scale
             spawn_walker(world, self.rows[1 + k], start, end, speed=speed)
             self.hold_walker(world, self.rows[1 + k])
             to_path = max(lat0 - self.path_half_width, 0.0) / (lat0 + far)  # of the diagonal
             self._times.append(np.linalg.norm(end - start) * to_path / speed)
             self._delays.append(0.0 if k == 0 else float(rng.uniform(0.3, 1.5)))
         self.hazard_rows = [int(r) for r in self.rows[1 : 1 + n]]
-        self._released_at = None
 
     def update(self, world) -> None:
         t = world.table
-        if self._released_at is None:
-            if self.due(world, self._times[0]):
-                self._released_at = world.tick
-        if self._released_at is not None:
-            waited = (world.tick - self._released_at) * world.config.dt
-            clear = self.conflict_s - self.ego_s(world) > self.occupied_m
+        if self.started(world, self._times[0]):
+            waited = self.since_trigger(world) - self.start_delay
             for row, delay in zip(self.hazard_rows, self._delays):
-                if row not in self._walking and waited >= delay and clear:
+                if row not in self._walking and waited >= delay:
                     self.release_walker(world, row)
         self.walkers_yield(world)
         if self.passed and t.behaviour[self._truck_row] == DRIVER:  # the waiting truck drives on

@@ -12,7 +12,7 @@ Two families:
   flow of bicycles (:class:`CrossingBicycleFlow`) with priority arrives on the crossing road,
   hidden by a truck parked at the near kerb of that road and by the corner buildings.
 
-Hazards are timed to the ego's arrival (see :class:`~.v2x.TimedScenario`).
+Hazards start by CARLA-style triggers and then ignore the ego (see :class:`~.v2x.TimedScenario`).
 """
 
 from __future__ import annotations
@@ -32,12 +32,13 @@ from .v2x import (
     TimedScenario,
     box_points,
     carriageway_edge,
+    eta,
     has_crosswalk,
     kerb_offset,
     park_vehicle,
     route_eyes,
+    route_rsu_eye,
     sight_blocked,
-    trigger_rsu_eye,
 )
 
 #: m into the exit lane where the hazard of a left turn crosses (crosswalk, 4.5 m, truck, 0.6 m)
@@ -106,7 +107,6 @@ class _TurnCrossing(TimedScenario):
     v2x = True
     max_actors = 2
     trigger_distance = 45.0
-    ego_v_max = 6.0
     hazard_kind = PEDESTRIAN
     towns = ("Town01", "Town05", "Town02")
 
@@ -142,7 +142,7 @@ class _TurnCrossing(TimedScenario):
                 world, self.rows[0], inc, ix.length[inc] - 2 * CROSSWALK_HALF - 0.3, lat, size
             )
             self._lat0 = kerb_offset(town, ex, -1.0) + float(self.params["wait"])
-            start, _ = lane_point(town, ex, s_x, -self._lat0)
+            start, _ = lane_point(town, ex, s_x + 0.5 * self.position_jitter, -self._lat0)
         else:
             # a truck parked at the right kerb of the exit road past the crosswalk; the hazard
             # waits behind its front and crosses just ahead of it (hidden until the ego is in
@@ -150,14 +150,14 @@ class _TurnCrossing(TimedScenario):
             edge = carriageway_edge(town, ex, -1.0)
             park_vehicle(world, self.rows[0], ex, s_x - 0.6, -(edge + size[1] / 2 + KERB_GAP), size)
             self._lat0 = edge + size[1] + KERB_GAP + float(self.params["wait"])
-            start, _ = lane_point(town, ex, s_x - 1.2, -self._lat0)
+            start, _ = lane_point(town, ex, s_x - 1.2 + 0.5 * self.position_jitter, -self._lat0)
         end, _ = lane_point(town, ex, s_x + 0.3, kerb_offset(town, ex, 1.0) + 1.0)
         spawn_walker(
             world,
             self.rows[1],
             start,
             end,
-            speed=float(self.params["speed"]),
+            speed=self.hazard_speed(),
             kind=self.hazard_kind,
         )
         self.hold_walker(world, self.rows[1])
@@ -176,7 +176,7 @@ class VehicleTurningRoute(_TurnCrossing):
     its crosswalk. Left turn: a truck is parked at the right kerb of the exit road about 5 m past
     the crosswalk; the cyclist waits behind its front and rides across the road just ahead of it
     (about 18 m into the exit road, as CARLA's cyclist some 11 m after the junction). Either way
-    it starts when the ego's arrival time at the crossing equals its own.
+    it starts once the trigger fires (see :class:`~.v2x.TimedScenario`).
 
     Parameters: ``speed`` (m/s) of the cyclist; ``wait`` (m) how far from the kerb (right turn)
     or the truck's side (left turn) it waits.
@@ -194,7 +194,7 @@ class VehicleTurningRoutePedestrian(_TurnCrossing):
     As :class:`VehicleTurningRoute` with a pedestrian: after a right turn it walks from the inner
     corner (hidden by a truck at the approach's right kerb) across the exit road on the
     crosswalk; after a left turn it steps out from behind a truck parked at the exit road's right
-    kerb. Timed to the ego's arrival.
+    kerb. Started by the trigger of :class:`~.v2x.TimedScenario`.
 
     Parameters: ``speed`` (m/s) of the pedestrian; ``wait`` (m) how far from the kerb (right
     turn) or the truck's side (left turn) it waits.
@@ -250,14 +250,23 @@ def priority_sites(town: Town, turn: int, hazard_side: float | None) -> list[Sit
 class _PriorityHazard(TimedScenario):
     """Shared logic of the junction family: ``hazard_count`` actors with priority approach on a
     crossing road, held hidden ``distance`` m before the junction behind a truck parked at the near
-    kerb and released (at full speed) when their arrival time equals the ego's; the ego's
-    estimate assumes it drives off after its stop at the stop line."""
+    kerb.
+
+    Trigger (CARLA's InTriggerDistanceToLocation at the stop line): the ego's centre comes within
+    :attr:`line_trigger_m` of its stop line. At that moment, once, the hazard's start delay is set
+    from the ego's state: the time the ego would need to reach the conflict point driving off
+    from its current speed (:func:`~.v2x.eta`: 1.5 m/s^2 up to :attr:`ego_v_max`, plus the
+    drawn jitter) minus the hazard's own time to it; a hazard too far to make it at its drawn
+    speed goes faster, up to :attr:`speed_cap`. The hazard then starts after that delay,
+    ignoring the ego. An ego standing at its stop line never sets it off."""
 
     family = "junction"
     v2x = True
     trigger_distance = 45.0
     timeout_s = 90.0
-    ego_v_max = 5.0
+    ego_v_max = 5.0  # m/s: the driving-off model of the trigger's arrival estimate
+    line_trigger_m = 1.0  # m before the stop line (ego centre) where the trigger fires
+    speed_cap = 14.0  # m/s: the most a hazard speeds up to make the meeting (bicycles: 8)
     towns = ("Town01", "Town06", "Town02", "Town05")
     turn = RIGHT
     hazard_side: float | None = 1.0
@@ -305,9 +314,8 @@ class _PriorityHazard(TimedScenario):
                 break
             self._spawn_hazard(world, row, h_inc, s, plan)
             self.hazard_rows.append(row)
-        self._speed = float(self.params["speed"])
-        self._time = (l_h - s0 + s_h) / self._speed
-        self._ego_stopped = False
+        self._speed = self.hazard_speed()
+        self._time = (s_h - s0) / self._speed  # s_h: along the hazard's lanes from h_inc's start
         self._released = False
         t.hold[self.hazard_rows] = True
 
@@ -321,7 +329,7 @@ class _PriorityHazard(TimedScenario):
         eyes = route_eyes(
             world, self.route, self._line_s - 2.5 - np.array([0.0, 4.0, 10.0, 18.0, 25.0])
         )
-        rsu = trigger_rsu_eye(world, self.route, self.conflict_point)[None]
+        rsu = route_rsu_eye(world, self.route, self.conflict_s)[None]
         best, best_score = far, -1.0
         for s in np.arange(l_h - 2 * CROSSWALK_HALF - 6.0, far - 0.5, -1.0):
             p, h = lane_point(town, lane, s)
@@ -349,12 +357,18 @@ class _PriorityHazard(TimedScenario):
         t = world.table
         if self._released:
             return
-        s = self.ego_s(world)
-        if not self._ego_stopped and (
-            s > self._line_s - 10.0 and t.speed[0] < 0.5 or s > self._line_s + 1.0
-        ):
-            self._ego_stopped = True
-        if self._ego_stopped and self.due(world, self._time):
+        if self.hazard_trigger_tick < 0:
+            if self.ego_s(world) < self._line_s - self.line_trigger_m:
+                return
+            self.hazard_trigger_tick = world.tick  # fired: the timing is set once, here
+            t_ego = eta(self.conflict_s - self.ego_s(world), float(t.speed[0]), v_max=self.ego_v_max)
+            t_ego = max(t_ego + self.trigger_jitter - self.release_margin_s, 0.1)
+            if self._time > t_ego:  # too far to make it at its drawn speed: faster, up to the cap
+                cap = max(self.speed_cap, self._speed)
+                self._speed = min(self._speed * self._time / t_ego, cap)
+                self._time = self._time * float(self.hazard_speed()) / self._speed
+            self.start_delay = max(t_ego - self._time, 0.0)
+        if self.since_trigger(world) >= self.start_delay:
             self._released = True
             rows = np.array(self.hazard_rows, np.int64)
             limit = world.town.index.speed_limit[t.lane[rows]]
@@ -373,8 +387,8 @@ class NonSignalizedJunctionRightTurn(_PriorityHazard):
     no priority junction) the ego turns right into the lane of a car arriving straight from its
     left. A truck parked at the near kerb of the crossing road, just before the crosswalk, and the
     corner buildings hide the car from the ego waiting at its stop line; the car waits hidden
-    ``distance`` m before the junction and drives off at ``speed`` when its arrival time equals the
-    ego's (estimated as the ego driving off after its stop), ignoring the ego.
+    ``distance`` m before the junction and drives off at ``speed`` once the ego leaves its stop
+    line, timed to meet it there (see :class:`_PriorityHazard`), ignoring the ego.
 
     Parameters: ``speed`` (m/s) of the car; ``distance`` (m) from the junction where it waits;
     ``truck_gap`` (m) between the truck's front and the crosswalk.
@@ -394,8 +408,8 @@ class NonSignalizedJunctionLeftTurn(_PriorityHazard):
     At a priority junction (all-way stop where the town has none) the ego turns left across the
     crossing road while a car with priority arrives straight from its right, into the lane the ego
     turns into. A truck parked at the near kerb of the crossing road and the corner buildings hide
-    the car; it waits ``distance`` m before the junction and drives off at ``speed`` when its arrival
-    time equals the ego's (after the ego's stop), ignoring the ego.
+    the car; it waits ``distance`` m before the junction and drives off at ``speed`` once the ego
+    leaves its stop line, timed to meet it there (see :class:`_PriorityHazard`), ignoring the ego.
 
     Parameters: ``speed`` (m/s) of the car; ``distance`` (m) from the junction where it waits;
     ``truck_gap`` (m) between the truck's front and the crosswalk.
@@ -416,8 +430,8 @@ class CrossingBicycleFlow(_PriorityHazard):
     into the lane the ego turns into) or left (the flow comes from its right). The bicycles ride
     at the right edge of the crossing road (its bike lane); a truck parked at the near kerb and
     the corner buildings hide them. They wait ``distance`` m before the junction, ``spacing`` m
-    (plus up to 4 m) apart, and ride off at ``speed`` when the first one's arrival time equals the
-    ego's, ignoring the ego: the ego must find a gap in the flow.
+    (plus up to 4 m) apart, and ride off at ``speed`` once the ego leaves its stop line, the first
+    timed to meet it (see :class:`_PriorityHazard`), ignoring the ego: the ego must find a gap.
 
     Parameters: ``count`` bicycles (1-5); ``speed`` (m/s); ``distance`` (m); ``spacing`` (m);
     ``truck_gap`` (m) between the truck's front and the crosswalk.
@@ -425,6 +439,7 @@ class CrossingBicycleFlow(_PriorityHazard):
 
     name = "CrossingBicycleFlow"
     max_actors = 6
+    speed_cap = 8.0
     defaults = {"count": 4, "speed": 5.0, "distance": 25.0, "spacing": 7.0, "truck_gap": 0.3}
 
     @classmethod

@@ -1,0 +1,108 @@
+"""The benchmark measures cooperation fairly: a hidden hazard never reacts to the ego's waiting
+or to whether the ego can see it (CARLA-style triggers, then on its own), and a stop-and-wait
+ego gains nothing from standing before an occluder.
+
+Each test drives one scenario episode twice with the same seed and compares the hazard's
+trajectory (small background populations keep it fast)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from v2xbench.agents.route_follower import RouteFollower
+from v2xbench.envs.v2x_intersection.config import make_config
+from v2xbench.envs.v2x_intersection.observations import ego_observation
+from v2xbench.envs.v2x_intersection.scenarios import build_episode
+from v2xbench.envs.v2x_intersection.town import get_town
+from v2xbench.envs.v2x_intersection.world import World
+
+SMALL = dict(num_vehicles=4, num_parked=2, num_pedestrians=2, num_bicycles=0)
+CASES = [("DynamicObjectCrossing", "Town01", 5), ("ParkingCrossingPedestrian", "Town12", 2)]
+BRAKE = np.array([0.0, 0.0, 1.0], np.float32)
+
+
+def run(name: str, town: str, seed: int, policy, ticks: int, on_tick=None):
+    """Drive scenario ``name``: ``policy(world, scenario, obs, follower) -> control`` each tick;
+    returns the hazard's positions ``(T, 2)``, the ego's route progress ``(T,)`` and the
+    scenario."""
+    world = World(make_config(town=town, **SMALL))
+    route, scenarios = build_episode(name, get_town(town), np.random.default_rng(seed))
+    world.reset(seed=seed, route=route, scenarios=scenarios)
+    sc, follower = scenarios[0], RouteFollower()
+    row = sc.hazard_rows[0]
+    xy, s = [], []
+    for _ in range(ticks):
+        control = policy(world, sc, ego_observation(world), follower)
+        world.step(control, world.default_rsu_message())
+        if on_tick is not None:
+            on_tick(world)
+        xy.append(world.table.pos[row].copy())
+        s.append(sc.ego_s(world))
+    return np.array(xy), np.array(s), sc
+
+
+def stop_at(gap_m: float, then_drive: bool = False, after_s: float = 0.0):
+    """A policy: follow the route, stand once ``gap_m`` m before the conflict point; with
+    ``then_drive`` drive on ``after_s`` s after standing."""
+    stood = {"t": 0.0}
+
+    def policy(world, sc, obs, follower):
+        if sc.conflict_s - sc.ego_s(world) > gap_m and stood["t"] == 0.0:
+            return follower.act(obs)
+        stood["t"] += world.config.dt
+        if then_drive and stood["t"] > after_s:
+            return follower.act(obs)
+        return BRAKE
+
+    return policy
+
+
+@pytest.mark.parametrize("name,town,seed", CASES)
+def test_a_waiting_ego_never_releases_a_hazard(name, town, seed):
+    """Standing 25 s 40 m before the conflict point (inside the scenario, before any trigger)
+    leaves the hazard where it waits: waiting is not a trigger."""
+    xy, s, sc = run(name, town, seed, stop_at(40.0), 600)
+    assert sc.triggered  # the scenario runs its hooks: only the hazard waits
+    standing = s >= s[-1] - 0.5  # the ticks the ego stood
+    assert standing.sum() > 150
+    assert sc.hazard_trigger_tick < 0
+    assert np.allclose(xy[standing], xy[standing][0])
+
+
+@pytest.mark.parametrize("name,town,seed", CASES)
+def test_hazard_start_same_standing_or_driving(name, town, seed):
+    """Triggered by distance, the hazard starts at the same tick and walks the same first metres
+    whether the ego then stands still or drives on slowly 1 s later."""
+    gap = 5.0  # inside CARLA's 6 m minimum trigger distance
+    xy_a, _, sc_a = run(name, town, seed, stop_at(gap), 500)
+    xy_b, _, sc_b = run(name, town, seed, stop_at(gap, then_drive=True, after_s=0.3), 500)
+    assert sc_a.hazard_trigger_tick >= 0 and sc_a.hazard_trigger_tick == sc_b.hazard_trigger_tick
+    moved_a = np.flatnonzero(np.linalg.norm(xy_a - xy_a[0], axis=1) > 0.05)
+    moved_b = np.flatnonzero(np.linalg.norm(xy_b - xy_b[0], axis=1) > 0.05)
+    assert len(moved_a) and len(moved_b) and moved_a[0] == moved_b[0]
+    k = moved_a[0]
+    np.testing.assert_allclose(xy_a[k : k + 5], xy_b[k : k + 5])  # the first half second
+
+
+@pytest.mark.parametrize("name,town,seed", CASES)
+def test_hazard_ignores_the_ego_visibility_flag(name, town, seed):
+    """The same episode (the same controls, replayed) with the simulator's ego-visibility flags
+    forced to 'all seen' after every tick gives the same hazard trajectory: no pacing keyed on
+    what the ego can see."""
+    controls: list[np.ndarray] = []
+
+    def drive(world, sc, obs, follower):
+        controls.append(follower.act(obs))
+        return controls[-1]
+
+    def replay(world, sc, obs, follower):
+        return controls[world.tick]
+
+    def all_seen(world):
+        world.ego_vis[:] = 1.0
+
+    xy_a, _, sc_a = run(name, town, seed, drive, 400)
+    xy_b, _, _ = run(name, town, seed, replay, 400, on_tick=all_seen)
+    assert sc_a.hazard_trigger_tick >= 0, "the hazard never triggered"
+    assert np.linalg.norm(xy_a[-1] - xy_a[0]) > 1.0, "the hazard never moved"
+    np.testing.assert_array_equal(xy_a, xy_b)

@@ -106,3 +106,30 @@ def test_hazard_ignores_the_ego_visibility_flag(name, town, seed):
     assert sc_a.hazard_trigger_tick >= 0, "the hazard never triggered"
     assert np.linalg.norm(xy_a[-1] - xy_a[0]) > 1.0, "the hazard never moved"
     np.testing.assert_array_equal(xy_a, xy_b)
+
+
+def test_stop_and_wait_ego_stands_and_releases_nothing():
+    """The registered ``stop_and_wait_ego`` stands at least 5 s before the scenario's truck while
+    the hidden pedestrian waits; the pedestrian starts only after the ego drives on."""
+    from v2xbench.agents.interface import load_agent
+
+    name, town, seed = CASES[0]
+    world = World(make_config(town=town, **SMALL))
+    route, scenarios = build_episode(name, get_town(town), np.random.default_rng(seed))
+    world.reset(seed=seed, route=route, scenarios=scenarios)
+    agent = load_agent("stop_and_wait_ego")
+    agent.reset({})
+    agent.bind(world)
+    sc = scenarios[0]
+    stood, stood_at, last_stand = 0, None, -1
+    for _ in range(900):
+        world.step(agent.act(ego_observation(world)), world.default_rsu_message())
+        gap = sc.conflict_s - sc.ego_s(world)
+        if world.table.speed[0] < 0.1 and 10.0 < gap < 40.0:
+            stood += 1
+            stood_at, last_stand = gap, world.tick
+        if sc.passed:
+            break
+    assert stood * world.config.dt >= 5.0, "the agent did not stand before the truck"
+    assert sc.hazard_trigger_tick > last_stand, "the hazard started while the ego stood"
+    assert stood_at > sc.min_trigger_m

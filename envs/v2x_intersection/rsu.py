@@ -32,6 +32,11 @@ RSU_HEIGHT = 5.0  # m
 RSU_PITCH = np.deg2rad(12.0)  # rad, pitched down toward the road
 RSU_ROLL = np.deg2rad(1.0)  # rad, small roll offset (as the paper)
 SIDE_OFFSET = 9.0  # m from the route centre line to the pole
+STREET_AHEAD_M = 30.0  # m along the route from the point a street unit serves to where it stands
+JUNCTION_SETBACK_M = 3.0  # m before a junction's entry where a street unit stops short of it
+#: rad: a junction unit looks this far from the junction centre, toward the approach it serves
+#: (from the far-right corner: the near-right corner, where hidden walkers wait, in view)
+JUNCTION_TURN = float(np.pi / 8)
 SNAP_M = 8.0  # m: poles move to the nearest sidewalk point within this distance
 KIND_STRAIGHT, KIND_JUNCTION = 0, 1
 FACING_MAX_ANGLE = float(np.deg2rad(100.0))  # rad: a unit faces the ego within this angle
@@ -104,15 +109,20 @@ def _deploy(town: Town, route: Route) -> RSUSet:
         h_in = hd[max(entry - 1, 0)]
         # far-right corner as seen when arriving, looking back diagonally over the junction
         corner = j.center + (j.radius + 3.0) * np.array([np.cos(h_in - np.pi / 4), np.sin(h_in - np.pi / 4)])
-        yaw = np.arctan2(*(j.center - corner)[::-1]) - np.pi / 8
+        yaw = np.arctan2(*(j.center - corner)[::-1]) + JUNCTION_TURN
         cands.append((corner[0], corner[1], float(yaw), KIND_JUNCTION, float(s[k])))
     for sk in np.arange(STRAIGHT_SPACING / 2, route.length, STRAIGHT_SPACING):
         k = int(np.searchsorted(s, sk))
         k = min(k, len(pts) - 1)
         if in_junction[k]:
             continue
-        # the unit stands 30 m ahead of the point it serves, looking back at the ego
-        ahead = min(int(np.searchsorted(s, sk + 30.0)), len(pts) - 1)
+        # the unit stands 30 m ahead of the point it serves, looking back at the ego; on the same
+        # road: where a junction comes first, just before it (past it, a turn would leave the
+        # unit looking along another road)
+        ahead = min(int(np.searchsorted(s, sk + STREET_AHEAD_M)), len(pts) - 1)
+        entry = in_junction[k : ahead + 1].nonzero()[0]
+        if len(entry):
+            ahead = max(int(np.searchsorted(s, s[k + entry[0]] - JUNCTION_SETBACK_M)), k)
         p = _beside(pts[ahead], hd[ahead], SIDE_OFFSET)
         yaw = wrap_angle(hd[ahead] + np.pi - 0.35)
         cands.append((p[0], p[1], float(yaw), KIND_STRAIGHT, float(s[k])))

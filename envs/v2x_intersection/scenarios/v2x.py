@@ -267,6 +267,7 @@ class TimedScenario(Scenario):
         self.hazard_trigger_tick = -1  # tick the hazard's trigger fired (-1: not yet)
         self._walk_speed: dict[int, float] = {}  # walking speeds of held walkers
         self._walking: set[int] = set()  # walkers released
+        self._yielding: set[int] = set()  # walkers paused for the ego in their way
         super().setup(world, rows)
 
     def hazard_speed(self) -> float:
@@ -352,10 +353,11 @@ class TimedScenario(Scenario):
         self.walkers_yield(world)
 
     def walkers_yield(self, world) -> None:
-        """Released walkers pause while a (nearly) standing ego's body blocks their next metre
-        (they see the car in front of them); otherwise they walk at their own speed: into a
-        moving car's path (that is the hazard) but not into a car standing on it. Call every
-        tick."""
+        """Released walkers pause when a (nearly) standing ego's body blocks their next metre
+        (they see the car in front of them) and, once paused, wait until the car's body has left
+        their way (a pedestrian who stopped for a car does not walk into it as it pulls away);
+        otherwise they walk at their own speed: into a moving car's path (that is the hazard) but
+        not into a car standing on it. Call every tick."""
         t = world.table
         ego_standing = float(t.speed[0]) <= self.yield_speed
         for row in self._walking:
@@ -364,7 +366,12 @@ class TimedScenario(Scenario):
             if not t.active[row] or t.path[row] >= 0 or dist < 0.05:
                 continue
             ahead = t.pos[row] + left / dist * min(1.0, dist)
-            blocked = ego_standing and bool(ego_in_the_way(t, ahead[None], WALKER_EGO_MARGIN)[0])
+            in_way = bool(ego_in_the_way(t, ahead[None], WALKER_EGO_MARGIN)[0])
+            blocked = in_way and (ego_standing or row in self._yielding)
+            if blocked:
+                self._yielding.add(row)
+            else:
+                self._yielding.discard(row)
             t.hold[row] = blocked
             t.speed[row] = 0.0 if blocked else self._walk_speed[row]
 

@@ -312,3 +312,24 @@ def test_scalar_clip_matches_numpy():
         want = np.clip(x, lo, hi)
         got = clip(x, lo, hi)
         assert np.asarray(got, float).tobytes() == np.asarray(want, float).tobytes(), (x, lo, hi)
+
+
+def test_v2x_memory_keeps_an_object_the_rsu_stops_reporting():
+    """An object received over V2X and then no longer reported is remembered for the memory's
+    horizon, moved along its velocity; a fresh report nearby replaces it."""
+    from v2xbench.agents.expert.objects import AnonymousMemory, Objects
+
+    def one(x: float, vx: float) -> Objects:
+        z = np.zeros(1)
+        return Objects(kind=np.array([2]), pos=np.array([[x, 0.0]]), yaw=z, vel=np.array([[vx, 0.0]]),
+                       accel=z, length=z + 0.5, width=z + 0.5, static=np.zeros(1, bool),
+                       emergency=np.zeros(1, bool), ids=np.full(1, -1))
+
+    mem = AnonymousMemory(horizon_s=2.0)
+    assert len(mem.update(one(0.0, 1.0), 0.0)) == 1
+    kept = mem.update(Objects.empty(), 1.0)
+    assert len(kept) == 1 and kept.pos[0, 0] == pytest.approx(1.0)  # moved at its velocity
+    both = mem.update(one(1.2, 1.0), 1.2)  # a fresh report within 2 m: the same object
+    assert len(both) == 1 and both.pos[0, 0] == pytest.approx(1.2)
+    assert len(mem.update(Objects.empty(), 3.0)) == 1  # 1.8 s since the last report
+    assert len(mem.update(Objects.empty(), 3.3)) == 0  # forgotten after 2 s

@@ -7,7 +7,8 @@ agent                  objects the planner gets
 :class:`EgoOnlyOracle` actors the ego sees now (``world.ego_vis >= VISIBLE_THRESHOLD``) plus a
                        ``memory_s`` memory of what it saw, moved at constant velocity
 :class:`V2XOracle`     the above plus the objects received from the RSU over the channel
-                       (``obs["v2x_objects"]``, with the channel's latency and losses)
+                       (``obs["v2x_objects"]``, with the channel's latency and losses), with
+                       the same ``memory_s`` memory
 =====================  =====================================================================
 
 All three are privileged (the harness calls :meth:`bind` with the :class:`World` after every
@@ -21,7 +22,14 @@ from __future__ import annotations
 import numpy as np
 from v2xbench.envs.v2x_intersection.visibility import VISIBLE_THRESHOLD
 
-from .objects import ObjectMemory, Objects, dedupe, from_observation_rows, from_table
+from .objects import (
+    AnonymousMemory,
+    ObjectMemory,
+    Objects,
+    dedupe,
+    from_observation_rows,
+    from_table,
+)
 from .planner import N_WAYPOINTS, Plan, Planner, PlannerParams
 
 
@@ -117,16 +125,27 @@ class EgoOnlyOracle(Expert):
 
 
 class V2XOracle(EgoOnlyOracle):
-    """The ego-only oracle plus the objects the RSU sent over the channel (``obs["v2x_objects"]``).
+    """The ego-only oracle plus the objects the RSU sent over the channel (``obs["v2x_objects"]``),
+    remembered as long as what the ego saw (``memory_s``, matched by position: they carry no ids).
 
     Precedence where two sources report the same object (within 2 m): what the ego sees now, then
-    what the RSU sent, then the ego's memory (a remembered object moves at its last velocity, so a
-    fresh RSU track of it is better)."""
+    what the RSU sent (fresh, then remembered), then the ego's memory (a remembered object moves
+    at its last velocity, so an RSU track of it is better)."""
+
+    def __init__(self, params: PlannerParams | None = None, memory_s: float = 2.0) -> None:
+        super().__init__(params, memory_s)
+        self.v2x_memory = AnonymousMemory(memory_s)
+
+    def _on_start(self) -> None:
+        super()._on_start()
+        self.v2x_memory.reset()
 
     def objects(self, obs: dict | None) -> Objects:
         now, remembered = self.seen()
         if obs is None or "v2x_objects" not in obs:
             return Objects.concat([now, remembered])
-        t = self.world.table
+        w = self.world
+        t = w.table
         v2x = from_observation_rows(obs["v2x_objects"], t.pos[0], float(t.yaw[0]))
+        v2x = self.v2x_memory.update(v2x, w.tick * w.config.dt)
         return dedupe(dedupe(now, v2x), remembered)

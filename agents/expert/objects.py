@@ -195,6 +195,40 @@ class ObjectMemory:
         return seen, moved
 
 
+class AnonymousMemory:
+    """:class:`ObjectMemory` for objects without ids (those received over V2X): a remembered
+    object is the same as a fresh one within ``radius`` m of where it would be now.
+
+    Args:
+        horizon_s: how long an object that is no longer received is remembered (s).
+        radius: match distance (m).
+    """
+
+    def __init__(self, horizon_s: float = 2.0, radius: float = 2.0) -> None:
+        self.horizon_s, self.radius = horizon_s, radius
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget everything."""
+        self._objs = Objects.empty()
+        self._time = np.zeros(0)
+
+    def update(self, seen: Objects, time_s: float) -> Objects:
+        """Store ``seen`` and return it plus the remembered objects that no fresh one matches,
+        moved along their last velocity."""
+        live = time_s - self._time <= self.horizon_s
+        old, t_old = self._objs.take(live), self._time[live]  # positions at their own time
+        moved = old.take(np.arange(len(old)))
+        moved.pos = old.pos + old.vel * (time_s - t_old)[:, None]
+        keep = np.ones(len(old), bool)
+        if len(old) and len(seen):
+            d = np.linalg.norm(moved.pos[:, None, :] - seen.pos[None, :, :], axis=-1).min(1)
+            keep = d > self.radius
+        self._objs = Objects.concat([seen, old.take(keep)])
+        self._time = np.concatenate([np.full(len(seen), time_s), t_old[keep]])
+        return Objects.concat([seen, moved.take(keep)])
+
+
 def dedupe(primary: Objects, extra: Objects, radius: float = 2.0) -> Objects:
     """``primary`` plus the objects of ``extra`` farther than ``radius`` m from all of its members."""
     if len(extra) == 0:

@@ -25,6 +25,8 @@ from ..infractions import SCENARIO_TIMEOUT
 from ..routes import Route
 from ..town.model import Town
 
+REJOIN_M = 10.0  # m past a lanes-free scenario's end where driving outside the route lanes counts again
+
 
 @dataclass(frozen=True)
 class Site:
@@ -48,6 +50,10 @@ class Scenario:
     trigger_distance: ClassVar[float] = 35.0  # m before the conflict point
     timeout_s: ClassVar[float] = 60.0
     defaults: ClassVar[dict[str, Any]] = {}
+    #: leaving the route's lanes is the manoeuvre here (around a blocked lane, making room for an
+    #: emergency vehicle): the "outside the route's lanes" test is off from the trigger until the
+    #: ego is ``REJOIN_M`` m past ``end_s`` (CARLA's SwitchWrongDirectionTest); off-road counts
+    lanes_free: ClassVar[bool] = False
 
     def __init__(self, route: Route, site: Site, conflict_s: float, params: dict | None = None) -> None:
         unknown = set(params or {}) - set(self.defaults)
@@ -122,3 +128,7 @@ class Scenario:
         if not self.passed and not self.timed_out and self.elapsed_s > self.timeout_s:
             self.timed_out = True
             world.monitor.emit(SCENARIO_TIMEOUT, world.tick, -1, float(self.elapsed_s))
+        if self.lanes_free:
+            around = s < self.end_s + REJOIN_M
+            if around != (not world.monitor.route_lanes_test):
+                world.monitor.route_lanes_test = not around

@@ -163,6 +163,7 @@ class YieldToEmergencyVehicle(Scenario):
     """
 
     name = "YieldToEmergencyVehicle"
+    lanes_free = True  # changing lane to let it pass is the manoeuvre
     family = "emergency"
     max_actors = 1
     towns = ("Town04", "Town03", "Town01")

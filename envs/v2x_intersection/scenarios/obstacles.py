@@ -96,8 +96,6 @@ def plan_from(route, lane: int) -> list[int]:
     """The route's lane sequence from ``lane`` on (a fixed plan for scenario vehicles)."""
     return list(route.lanes[route.lanes.index(lane) :])
 
-REJOIN_M = 10.0  # m past a lane block's end where driving outside the route lanes counts again
-
 
 class LaneFlow:
     """A stream of vehicles along one lane, recycled in a fixed set of table rows.
@@ -230,6 +228,7 @@ class _LaneBlock(Scenario):
     with an oncoming :class:`LaneFlow` in the opposite lane (the ego invades it when clear)."""
 
     two_way: ClassVar[bool] = False
+    lanes_free = True  # driving around the block in another lane is the manoeuvre
     n_items: ClassVar[int] = 1  # boxes returned by layout()
     n_extra: ClassVar[int] = 0  # rows after the items used by subclasses
     span: ClassVar[float] = 20.0  # m of lane the layout covers after the conflict point
@@ -276,13 +275,6 @@ class _LaneBlock(Scenario):
         if self.flow is not None:
             self.flow.update(world)
         super().tick(world)
-        # as CARLA's SwitchWrongDirectionTest: driving around the block in another lane (the
-        # opposite one on two-way roads) is the manoeuvre, not an infraction, from the trigger
-        # until the ego is back in its lane REJOIN_M past the scenario's end
-        if self.triggered:
-            around = self.ego_s(world) < self.end_s + REJOIN_M
-            if around != (not world.monitor.route_lanes_test):
-                world.monitor.route_lanes_test = not around
 
 
 def _car(rng: np.random.Generator) -> tuple[float, float, float]:

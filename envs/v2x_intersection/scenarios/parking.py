@@ -320,6 +320,7 @@ class _SideHazardBase(Scenario):
 
     family = "hazard"
     two_way: ClassVar[bool] = False
+    lanes_free = True  # overtaking the riders in another lane is the manoeuvre
     trigger_distance = 45.0
     timeout_s = 80.0
     defaults = {"count": 2, "speed": 3.0, "spacing": 6.0}

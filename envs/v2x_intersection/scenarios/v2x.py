@@ -23,7 +23,6 @@ from ..jit_sight import KEEP_RADIUS_M, sight_fraction_kernel
 from ..pedestrians import ego_in_the_way
 from ..raycast import END_TOLERANCES, Boxes, segments_blocked
 from ..rsu import deploy, select_active
-from ..signals import RED, YELLOW
 from ..town.model import DRIVING, MERGE, PARKING, Town
 from ..traffic import STOP_LINE_SETBACK
 from .base import Scenario, Site
@@ -221,9 +220,8 @@ class TimedScenario(Scenario):
     trigger time (CARLA's ``InTimeToArrivalToLocation``; the front bumper's arrival if
     :attr:`aim_front`), or the ego comes within :attr:`min_trigger_m` of the conflict point
     (``InTriggerDistanceToLocation``). A standing ego never reaches a time to arrival, so standing
-    still and waiting does not start a hidden hazard. The trigger does not fire while the ego
-    faces a red or yellow light whose stop line lies before the conflict point
-    (:meth:`ego_at_red`): a scenario is not set off by a car waiting at its light.
+    still and waiting does not start a hidden hazard, but coming close does, whatever the
+    lights (pedestrians cross in front of a car waiting at a red light).
 
     **After the trigger** the hazard waits its start delay and moves at its own speed along its
     path, whatever the ego does or sees: no release after the ego waited, no pacing. A walker
@@ -296,8 +294,6 @@ class TimedScenario(Scenario):
         fired it stays fired, whatever the ego does."""
         if self.hazard_trigger_tick >= 0:
             return True
-        if self.ego_at_red(world):
-            return False
         d = self.conflict_s - self.ego_s(world)
         if d <= self.min_trigger_m or self.ego_tta(world) <= self.trigger_time(hazard_time):
             self.hazard_trigger_tick = world.tick
@@ -317,18 +313,6 @@ class TimedScenario(Scenario):
     def _front(self, world) -> float:
         """Distance (m) from the ego's centre to the point whose arrival is timed."""
         return 0.5 * float(world.table.length[0]) if self.aim_front else 0.0
-
-    def ego_at_red(self, world) -> bool:
-        """Whether the ego faces a red or yellow light whose stop line lies before the conflict
-        point (the scenario is not triggered by a car waiting at its light)."""
-        r, ix = world.route, world.town.index
-        k = min(world.monitor.progress, len(r.lane_ids) - 1)
-        lane = int(r.lane_ids[k])
-        if not (ix.stop_at_end[lane] and world.lane_signal[lane] in (RED, YELLOW)):
-            return False
-        on_lane = np.flatnonzero(r.lane_ids[k:] == lane)
-        line_s = float(r.s[k + on_lane[-1]]) - STOP_LINE_SETBACK
-        return line_s < self.conflict_s
 
     def hold_walker(self, world, row: int, speed: float | None = None) -> None:
         """Make a freshly spawned walker wait, standing still; it walks at ``speed`` (default: its

@@ -92,12 +92,13 @@ def measure(suite: str = "test50", agent: str = "expert", max_routes: int | None
                 ego_sees = world.ego_vis[moving].max() >= VISIBLE
                 rsu_sees = world.rsu_vis[:, moving].max() >= VISIBLE
                 r = rec[id(sc)]
-                r["hidden_s"] += dt * (not ego_sees)
-                r["covered_s"] += dt * (not ego_sees and rsu_sees)
-                r["rsu_s"] += dt * rsu_sees
+                r["hidden_s"] += dt * float(not ego_sees)
+                r["covered_s"] += dt * float(not ego_sees and rsu_sees)
+                r["rsu_s"] += dt * float(rsu_sees)
             if world.ended or world.is_route_complete() or all(sc.passed for sc in scs):
                 break
-        out += [{k: round(v, 1) if isinstance(v, float) else v for k, v in r.items()}
+        out += [{k: round(float(v), 1) if isinstance(v, (float, np.floating)) else v
+                 for k, v in r.items()}
                 for r in rec.values()]
     return out
 
@@ -109,9 +110,9 @@ def summarize(records: list[dict]) -> list[dict]:
         by[r["type"]].append(r)
     rows = []
     for name, rs in sorted(by.items()):
-        rows.append({"type": name, "n": len(rs), "in_view": sum(r["in_view"] for r in rs),
-                     "hidden": sum(r["hidden_s"] >= COVERED_S for r in rs),
-                     "covered": sum(r["covered_s"] >= COVERED_S for r in rs)})
+        rows.append({"type": name, "n": len(rs), "in_view": int(sum(r["in_view"] for r in rs)),
+                     "hidden": int(sum(r["hidden_s"] >= COVERED_S for r in rs)),
+                     "covered": int(sum(r["covered_s"] >= COVERED_S for r in rs))})
     total = {"type": "all", **{k: sum(r[k] for r in rows) for k in ("n", "in_view", "hidden", "covered")}}
     return rows + [total]
 

@@ -105,7 +105,8 @@ def test_straight_units_stand_beside_the_route_looking_back(deployments, case):
         assert 0.0 <= rsus.route_s[u] - sk < 1.5
         k0 = min(int(np.searchsorted(route.s, sk)), len(route.s) - 1)
         k = min(int(np.searchsorted(route.s, sk + AHEAD)), len(route.s) - 1)
-        entry = np.flatnonzero(town.index.junction[route.lane_ids[k0 : k + 1]] >= 0)
+        reach = min(int(np.searchsorted(route.s, sk + AHEAD + rsu_module.JUNCTION_SETBACK_M)), len(route.s) - 1)
+        entry = np.flatnonzero(town.index.junction[route.lane_ids[k0 : reach + 1]] >= 0)
         if len(entry):  # a junction first: the unit stands just before it, on the same road
             k = max(int(np.searchsorted(route.s, route.s[k0 + entry[0]] - rsu_module.JUNCTION_SETBACK_M)), k0)
         h = route.headings[k]

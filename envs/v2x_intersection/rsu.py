@@ -33,7 +33,7 @@ RSU_PITCH = np.deg2rad(12.0)  # rad, pitched down toward the road
 RSU_ROLL = np.deg2rad(1.0)  # rad, small roll offset (as the paper)
 SIDE_OFFSET = 9.0  # m from the route centre line to the pole
 STREET_AHEAD_M = 30.0  # m along the route from the point a street unit serves to where it stands
-JUNCTION_SETBACK_M = 3.0  # m before a junction's entry where a street unit stops short of it
+JUNCTION_SETBACK_M = 10.0  # m before a junction's entry where a street unit stops short of it (clear of the corner)
 #: rad: a junction unit looks this far from the junction centre, toward the approach it serves
 #: (from the far-right corner: the near-right corner, where hidden walkers wait, in view)
 JUNCTION_TURN = float(np.pi / 8)
@@ -117,10 +117,11 @@ def _deploy(town: Town, route: Route) -> RSUSet:
         if in_junction[k]:
             continue
         # the unit stands 30 m ahead of the point it serves, looking back at the ego; on the same
-        # road: where a junction comes first, just before it (past it, a turn would leave the
-        # unit looking along another road)
+        # road: where a junction comes first, JUNCTION_SETBACK_M before it (past it, a turn would
+        # leave the unit looking along another road; at the corner, buildings block the kerb)
         ahead = min(int(np.searchsorted(s, sk + STREET_AHEAD_M)), len(pts) - 1)
-        entry = in_junction[k : ahead + 1].nonzero()[0]
+        reach = min(int(np.searchsorted(s, sk + STREET_AHEAD_M + JUNCTION_SETBACK_M)), len(pts) - 1)
+        entry = in_junction[k : reach + 1].nonzero()[0]
         if len(entry):
             ahead = max(int(np.searchsorted(s, s[k + entry[0]] - JUNCTION_SETBACK_M)), k)
         p = _beside(pts[ahead], hd[ahead], SIDE_OFFSET)

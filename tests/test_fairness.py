@@ -133,3 +133,36 @@ def test_stop_and_wait_ego_stands_and_releases_nothing():
     assert stood * world.config.dt >= 5.0, "the agent did not stand before the truck"
     assert sc.hazard_trigger_tick > last_stand, "the hazard started while the ego stood"
     assert stood_at > sc.min_trigger_m
+
+
+def test_walker_steps_back_for_a_car_standing_in_its_way():
+    """A car standing across a walker's way that waits for it too: the walker pauses before the
+    car's body, then steps back to where it waited instead of standing there for good (no
+    deadlock) and never walks into the car."""
+    from v2xbench.envs.v2x_intersection import infractions as inf
+
+    name, town, seed = CASES[0]
+    world = World(make_config(town=town, **SMALL))
+    route, scenarios = build_episode(name, get_town(town), np.random.default_rng(seed))
+    world.reset(seed=seed, route=route, scenarios=scenarios)
+    sc, t = scenarios[0], world.table
+    row = sc.hazard_rows[0]
+    home = t.pos[row].copy()
+    sc.triggered, sc.trigger_tick = True, 0  # the scenario runs its hooks from now on
+    sc.release_walker(world, row)
+    way = t.cross_to[row] - home
+    way /= np.linalg.norm(way)
+    # the car stands across the walker's way, 4 m ahead of it, and does not move
+    t.pos[0] = home + 4.0 * way
+    t.yaw[0] = float(np.arctan2(way[0], -way[1]))  # its side faces the walker
+    t.speed[0] = 0.0
+    xy = []
+    for _ in range(80):
+        world.step(BRAKE, world.default_rsu_message())
+        xy.append(t.pos[row].copy())
+    xy = np.array(xy)
+    d_home = np.linalg.norm(xy - home, axis=1)
+    assert row in sc._retreating, "the walker did not step back"
+    assert d_home.max() < 3.0, "the walker walked into the car"
+    assert d_home[-1] < d_home.max() - 0.5, "it came back toward where it waited"
+    assert world.monitor.counts[inf.COLLISION_PEDESTRIAN] == 0

@@ -48,6 +48,7 @@ SPEED_SCALE = (0.85, 1.15)  # factor on the hazard's nominal speed
 START_DELAY_S = (0.0, 0.5)  # s from the trigger to the hazard's start
 TRIGGER_JITTER_S = (-0.2, 0.2)  # s added to the trigger's time to arrival
 POSITION_JITTER_M = (-0.4, 0.4)  # m along the road of the hazard's waiting spot
+RETREAT_AFTER_S = 3.0  # s a walker stands before a car in its way before it steps back
 
 
 # ---------------------------------------------------------------------------------------------
@@ -266,6 +267,9 @@ class TimedScenario(Scenario):
         self._walk_speed: dict[int, float] = {}  # walking speeds of held walkers
         self._walking: set[int] = set()  # walkers released
         self._yielding: set[int] = set()  # walkers paused for the ego in their way
+        self._paused: dict[int, float] = {}  # s each walker has been paused for the ego
+        self._home: dict[int, np.ndarray] = {}  # where each walker waited (it may step back there)
+        self._retreating: set[int] = set()  # walkers stepping back for a car that waits for them
         super().setup(world, rows)
 
     def hazard_speed(self) -> float:
@@ -318,6 +322,7 @@ class TimedScenario(Scenario):
         """Make a freshly spawned walker wait, standing still; it walks at ``speed`` (default: its
         spawn speed) once released."""
         self._walk_speed[int(row)] = float(world.table.speed[row] if speed is None else speed)
+        self._home[int(row)] = world.table.pos[row].copy()
         world.table.speed[row] = 0.0
         world.table.hold[row] = True
 
@@ -336,12 +341,20 @@ class TimedScenario(Scenario):
             self.release_walker(world, row)
         self.walkers_yield(world)
 
+    @staticmethod
+    def _clear_way(t, start: np.ndarray, end: np.ndarray) -> bool:
+        """Whether the straight way from ``start`` to ``end`` misses the ego's box."""
+        pts = start + np.linspace(0.0, 1.0, 12)[:, None] * (end - start)
+        return not bool(ego_in_the_way(t, pts, 0.0).any())
+
     def walkers_yield(self, world) -> None:
         """Released walkers pause when a (nearly) standing ego's body blocks their next metre
         (they see the car in front of them) and, once paused, wait until the car's body has left
-        their way (a pedestrian who stopped for a car does not walk into it as it pulls away);
-        otherwise they walk at their own speed: into a moving car's path (that is the hazard) but
-        not into a car standing on it. Call every tick."""
+        their way (a pedestrian who stopped for a car does not walk into it as it pulls away); a
+        walker paused :data:`RETREAT_AFTER_S` s steps back to where it waited (the car waits for
+        it too: one of them has to give way). Otherwise they walk at their own speed: into a
+        moving car's path (that is the hazard) but not into a car standing on it. Call every
+        tick."""
         t = world.table
         ego_standing = float(t.speed[0]) <= self.yield_speed
         for row in self._walking:
@@ -351,10 +364,23 @@ class TimedScenario(Scenario):
                 continue
             ahead = t.pos[row] + left / dist * min(1.0, dist)
             in_way = bool(ego_in_the_way(t, ahead[None], WALKER_EGO_MARGIN)[0])
+            if row in self._retreating:  # stepping back along a way clear of the car's body
+                in_way = bool(ego_in_the_way(t, ahead[None], 0.0)[0])
             blocked = in_way and (ego_standing or row in self._yielding)
             if blocked:
                 self._yielding.add(row)
+                self._paused[row] = self._paused.get(row, 0.0) + world.config.dt
+                if self._paused[row] >= RETREAT_AFTER_S and row in self._home and self._clear_way(
+                    t, t.pos[row], self._home[row]
+                ):
+                    # a car stands in the way and waits too: step back to the kerb it came from
+                    # (past the car's bumper, not through it)
+                    t.cross_from[row], t.cross_to[row] = t.cross_to[row].copy(), self._home.pop(row)
+                    self._retreating.add(row)
+                    blocked = False
             else:
+                self._paused[row] = 0.0
+            if not blocked:
                 self._yielding.discard(row)
             t.hold[row] = blocked
             t.speed[row] = 0.0 if blocked else self._walk_speed[row]

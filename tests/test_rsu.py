@@ -105,10 +105,11 @@ def test_straight_units_stand_beside_the_route_looking_back(deployments, case):
         assert 0.0 <= rsus.route_s[u] - sk < 1.5
         k0 = min(int(np.searchsorted(route.s, sk)), len(route.s) - 1)
         k = min(int(np.searchsorted(route.s, sk + AHEAD)), len(route.s) - 1)
-        reach = min(int(np.searchsorted(route.s, sk + AHEAD + rsu_module.JUNCTION_SETBACK_M)), len(route.s) - 1)
+        setback = rsu_module.JUNCTION_SETBACK_M
+        reach = min(int(np.searchsorted(route.s, sk + AHEAD + setback)), len(route.s) - 1)
         entry = np.flatnonzero(town.index.junction[route.lane_ids[k0 : reach + 1]] >= 0)
         if len(entry):  # a junction first: the unit stands just before it, on the same road
-            k = max(int(np.searchsorted(route.s, route.s[k0 + entry[0]] - rsu_module.JUNCTION_SETBACK_M)), k0)
+            k = max(int(np.searchsorted(route.s, route.s[k0 + entry[0]] - setback)), k0)
         h = route.headings[k]
         spot = route.points[k] + SIDE_OFFSET * np.array([np.sin(h), -np.cos(h)])  # to the right
         assert np.linalg.norm(rsus.pose[u, :2] - spot) <= SNAP + 1e-6

@@ -6,11 +6,12 @@ scenario list, so a unit's pose carries no information about where a hazard will
 
 Candidates are placed (1) every ~``STRAIGHT_SPACING`` m along the route's non-junction parts,
 beside the road and looking back at the approaching ego; (2) at every junction the route crosses,
-on a corner offset from the centre, looking at the junction so all approaches are overlooked.
-Units closer than ``MIN_SPACING`` m to an already kept unit of their kind are pruned (a street
-unit looks along the road, a junction unit over the junction: they do not replace each other). Each tick the active unit is chosen from the ego's pose only: among the
-forward-facing units in range, the one watching the road ``LOOKAHEAD_M`` m ahead of the ego (the
-point within its camera's view), nearest to that point; else the nearest forward-facing unit.
+on a corner offset from the centre, looking back over the junction at the approach. Units closer
+than ``MIN_SPACING`` m to an already kept unit of their kind are pruned (a street unit looks along
+the road, a junction unit over the junction: they do not replace each other). Each tick the
+active unit is chosen from the ego's pose only: among the forward-facing units in range, the one
+watching the road ``LOOKAHEAD_M`` m ahead of the ego (the point within its camera's view),
+nearest to that point; else the nearest forward-facing unit.
 """
 
 from __future__ import annotations
@@ -33,7 +34,8 @@ RSU_PITCH = np.deg2rad(12.0)  # rad, pitched down toward the road
 RSU_ROLL = np.deg2rad(1.0)  # rad, small roll offset (as the paper)
 SIDE_OFFSET = 9.0  # m from the route centre line to the pole
 STREET_AHEAD_M = 30.0  # m along the route from the point a street unit serves to where it stands
-JUNCTION_SETBACK_M = 10.0  # m before a junction's entry where a street unit stops short of it (clear of the corner)
+#: m before a junction's entry where a street unit stops short of it (clear of the corner)
+JUNCTION_SETBACK_M = 10.0
 #: rad: a junction unit looks this far from the junction centre, toward the approach it serves
 #: (from the far-right corner: the near-right corner, where hidden walkers wait, in view)
 JUNCTION_TURN = float(np.pi / 8)
@@ -107,7 +109,7 @@ def _deploy(town: Town, route: Route) -> RSUSet:
         k = int(inside[np.argmin(np.linalg.norm(pts[inside] - j.center, axis=1))])
         entry = int(inside[0])
         h_in = hd[max(entry - 1, 0)]
-        # far-right corner as seen when arriving, looking back diagonally over the junction
+        # far-right corner as seen when arriving, looking back over the junction at the approach
         corner = j.center + (j.radius + 3.0) * np.array([np.cos(h_in - np.pi / 4), np.sin(h_in - np.pi / 4)])
         yaw = np.arctan2(*(j.center - corner)[::-1]) + JUNCTION_TURN
         cands.append((corner[0], corner[1], float(yaw), KIND_JUNCTION, float(s[k])))

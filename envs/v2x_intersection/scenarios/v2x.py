@@ -312,7 +312,8 @@ class TimedScenario(Scenario):
 
     def started(self, world, hazard_time: float) -> bool:
         """Whether the hazard moves: its trigger fired and its start delay has passed."""
-        return self.triggered_now(world, hazard_time) and self.since_trigger(world) >= self.start_delay
+        fired = self.triggered_now(world, hazard_time)
+        return fired and self.since_trigger(world) >= self.start_delay
 
     def _front(self, world) -> float:
         """Distance (m) from the ego's centre to the point whose arrival is timed."""

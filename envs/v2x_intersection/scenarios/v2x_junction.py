@@ -12,7 +12,7 @@ Two families:
   flow of bicycles (:class:`CrossingBicycleFlow`) with priority arrives on the crossing road,
   hidden by a truck parked at the near kerb of that road and by the corner buildings.
 
-Hazards start by CARLA-style triggers and then ignore the ego (see :class:`~.v2x.TimedScenario`).
+Hazards start by CARLA-style triggers and then ignore the ego (see :class:`~.timed.TimedScenario`).
 """
 
 from __future__ import annotations
@@ -27,9 +27,9 @@ from ..traffic import STOP_LINE_SETBACK
 from .base import Site
 from .placement import clear_lanes, clear_near, lane_point, spawn_driver, spawn_walker, truck_size
 from .registry import register_scenario
+from .timed import TimedScenario
 from .v2x import (
     CROSSWALK_HALF,
-    TimedScenario,
     box_points,
     carriageway_edge,
     eta,
@@ -176,7 +176,7 @@ class VehicleTurningRoute(_TurnCrossing):
     its crosswalk. Left turn: a truck is parked at the right kerb of the exit road about 5 m past
     the crosswalk; the cyclist waits behind its front and rides across the road just ahead of it
     (about 18 m into the exit road, as CARLA's cyclist some 11 m after the junction). Either way
-    it starts once the trigger fires (see :class:`~.v2x.TimedScenario`).
+    it starts once the trigger fires (see :class:`~.timed.TimedScenario`).
 
     Parameters: ``speed`` (m/s) of the cyclist; ``wait`` (m) how far from the kerb (right turn)
     or the truck's side (left turn) it waits.
@@ -194,7 +194,7 @@ class VehicleTurningRoutePedestrian(_TurnCrossing):
     As :class:`VehicleTurningRoute` with a pedestrian: after a right turn it walks from the inner
     corner (hidden by a truck at the approach's right kerb) across the exit road on the
     crosswalk; after a left turn it steps out from behind a truck parked at the exit road's right
-    kerb. Started by the trigger of :class:`~.v2x.TimedScenario`.
+    kerb. Started by the trigger of :class:`~.timed.TimedScenario`.
 
     Parameters: ``speed`` (m/s) of the pedestrian; ``wait`` (m) how far from the kerb (right
     turn) or the truck's side (left turn) it waits.

@@ -184,3 +184,26 @@ def test_numpy_numba_and_batched_worlds_apply_the_same_perturbation(monkeypatch)
         if ref.scenarios[0].passed:
             break
     assert noisy >= 6 and ref.scenarios[0].passed
+
+
+def test_observed_yaw_rate_follows_the_applied_steer():
+    """Inside a noise window the observation's yaw rate is that of the applied (perturbed) steer,
+    not of the agent's command."""
+    world = World(make_config(town="Town02", **SMALL))
+    route, scs = _episode(4)
+    world.reset(seed=4, route=route, scenarios=scs)
+    driver, p = RouteFollower(), world.params
+    seen = 0
+    for _ in range(400):
+        world.step(driver.act(ego_observation(world)), world.default_rsu_message())
+        cmd, app = world.last_control, world.applied_control
+        v = float(world.table.speed[0])
+        obs = ego_observation(world)["ego"]
+        want = v * np.tan(app[1] * p.max_steer) / p.wheelbase
+        assert obs[2] == pytest.approx(want, rel=1e-5, abs=1e-6)
+        if abs(app[1] - cmd[1]) > 0.01 and v > 1.0:
+            seen += 1
+            assert obs[2] != pytest.approx(v * np.tan(cmd[1] * p.max_steer) / p.wheelbase, rel=1e-3)
+        if scs[0].passed:
+            break
+    assert seen > 0, "the ego never drove through a noise window"

@@ -18,10 +18,11 @@ from .jit_perception import route_window_kernel, v2x_rows_kernel, visible_object
 def ego_obs_kernel(ego_out, route_out, objects_out, v2x_out, info_out, with_objects, route_points, commands, k0,
                    route_step, vis, threshold, pos, yaw, speed, accel, kind, length, width, height, actor_id, lane,
                    stop_at_end, lane_length, setback, points, owner, offset, n_points, gs, base, has_msg, payload, rx,
-                   ry, ryaw, age, control, max_steer, wheelbase, lane_signal, stop_sign_lane, light_stop_sign,
-                   route_completion):  # pragma: no cover
+                   ry, ryaw, age, control, applied_steer, max_steer, wheelbase, lane_signal, stop_sign_lane,
+                   light_stop_sign, route_completion):  # pragma: no cover
     """Fill ``ego_out (9,)`` (``observations.EGO_FEATURES``: the light of route lane ``lane``, its
-    stop sign where ``stop_sign_lane``, the distance to its stop line, the ego's last ``control``),
+    stop sign where ``stop_sign_lane``, the distance to its stop line, the ego's last ``control``
+    (the agent's command) and the yaw rate of the steer its dynamics applied, ``applied_steer``),
     ``route_out (P, 3)``, ``objects_out (M, 11)`` (when ``with_objects``), ``v2x_out (M, 11)`` and
     ``info_out (6,)`` (zeros unless ``has_msg``: the ``payload`` sent by the unit at
     ``(rx, ry, ryaw)`` ``age`` ticks ago) for the ego in row 0.
@@ -61,7 +62,7 @@ def ego_obs_kernel(ego_out, route_out, objects_out, v2x_out, info_out, with_obje
     sp = speed[0]
     ego_out[0] = sp
     ego_out[1] = accel[0]
-    ego_out[2] = sp * np.tan(control[1] * max_steer) / wheelbase  # yaw rate
+    ego_out[2] = sp * np.tan(applied_steer * max_steer) / wheelbase  # yaw rate
     ego_out[3], ego_out[4], ego_out[5] = control[0], control[1], control[2]
     ego_out[6] = light
     ego_out[7] = dist_line
@@ -71,7 +72,7 @@ def ego_obs_kernel(ego_out, route_out, objects_out, v2x_out, info_out, with_obje
 
 @_njit
 def ego_obs_packed_kernel(ego_out, route_out, objects_out, v2x_out, info_out, with_objects, k0, vis, lane, has_msg,
-                         payload, rx, ry, ryaw, age, control, lane_signal, route_completion,
+                         payload, rx, ry, ryaw, age, control, applied_steer, lane_signal, route_completion,
                          consts):  # pragma: no cover
     """:func:`ego_obs_kernel` with the arguments that hold for an episode in ``consts[0]``
     (``observations.fill_objects_observation``, :class:`~.jit_args.PackedArgs`): ``(route_points,
@@ -82,4 +83,4 @@ def ego_obs_packed_kernel(ego_out, route_out, objects_out, v2x_out, info_out, wi
     return ego_obs_kernel(ego_out, route_out, objects_out, v2x_out, info_out, with_objects, c[0], c[1], k0, c[2], vis,
                           c[3], c[4], c[5], c[6], c[7], c[8], c[9], c[10], c[11], c[12], lane, c[13], c[14], c[15],
                           c[16], c[17], c[18], c[19], c[20], c[21], has_msg, payload, rx, ry, ryaw, age, control,
-                          c[22], c[23], lane_signal, c[24], c[25], route_completion)
+                          applied_steer, c[22], c[23], lane_signal, c[24], c[25], route_completion)

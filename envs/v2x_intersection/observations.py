@@ -223,7 +223,9 @@ def ego_observation(world) -> dict[str, np.ndarray]:
     if ix.stop_at_end[lane]:
         _, s_lane, _ = ix.project(ego_xy[None], point_ids=ix.lane_point_ids(lane))
         dist_line = float(ix.length[lane] - STOP_LINE_SETBACK - s_lane[0])
-    yaw_rate = t.speed[0] * float(libm.tan(world.last_control[1] * world.params.max_steer)) / world.params.wheelbase
+    # the yaw rate of the steer the dynamics applied (a scenario may perturb the command: ControlLoss)
+    steer = float(world.applied_control[1])
+    yaw_rate = t.speed[0] * float(libm.tan(steer * world.params.max_steer)) / world.params.wheelbase
     ego = np.array([t.speed[0], t.accel[0], yaw_rate, *world.last_control, light, dist_line,
                     world.monitor.route_completion], np.float32)
     v2x, info = _v2x(world, ego_xy, ego_yaw)
@@ -272,7 +274,8 @@ def fill_objects_observation(world, out: dict) -> None:
     ego_obs_packed_kernel(
         out["ego"], out["route"], out["v2x_objects"] if objects is None else objects, out["v2x_objects"],
         out["v2x_info"], objects is not None, k0, world.ego_vis, lane, has_msg, payload, rx, ry, ryaw, age,
-        world.last_control, world.lane_signal, world.monitor.route_completion, consts)
+        world.last_control, float(world.applied_control[1]), world.lane_signal, world.monitor.route_completion,
+        consts)
 
 
 def _obs_consts(world) -> tuple:

@@ -78,6 +78,7 @@ class Scenario:
         self.elapsed_s = 0.0  # s since the trigger, not counting red-light waits
         self.passed = False
         self.timed_out = False
+        self.lanes_off = False  # a lanes-free scenario that has the route-lanes test off now
 
     # ------------------------------------------------------------------ placement
     @classmethod
@@ -129,6 +130,8 @@ class Scenario:
             self.timed_out = True
             world.monitor.emit(SCENARIO_TIMEOUT, world.tick, -1, float(self.elapsed_s))
         if self.lanes_free:
-            around = s < self.end_s + REJOIN_M
-            if around != (not world.monitor.route_lanes_test):
-                world.monitor.route_lanes_test = not around
+            self.lanes_off = s < self.end_s + REJOIN_M
+            # off while any lanes-free scenario of the route is (so overlapping ones do not fight)
+            off = any(sc.lanes_off for sc in world.scenarios)
+            if off == world.monitor.route_lanes_test:
+                world.monitor.route_lanes_test = not off

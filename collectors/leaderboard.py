@@ -5,10 +5,10 @@
 
 - ``leaderboard.md``: one row per result directory, sorted by driving score: agent, DS with the
   half-width of its bootstrap 95% CI, RC, IS, Efficiency, Comfortness, BPS and the DS (with its
-  CI) and Efficiency of the routes that contain a V2X scenario type; privileged agents (the built-in expert and oracles,
-  as the harness decided: ``interface.PRIVILEGED_AGENTS``) are marked ``*``, agents that ran in a
-  separate process from the simulator (``--isolate-agent``) ``+``; then a per-scenario-type table
-  (success rate % / mean DS per agent);
+  CI) and Efficiency of the routes that contain a V2X scenario type; privileged agents (the
+  built-in expert and oracles, as the harness decided: ``interface.PRIVILEGED_AGENTS``) are marked
+  ``*``, agents that ran in a separate process from the simulator (``--isolate-agent``) ``+``;
+  then a per-scenario-type table (success rate % / mean DS per agent);
 - ``leaderboard.json``: the same rows as data;
 - ``driving_score.png``, ``route_completion.png``, ``infraction_score.png``, ``bps.png``: bar
   plots (matplotlib, ``Agg`` backend; skipped with a note when matplotlib is not installed).
@@ -38,6 +38,11 @@ def _f(x, nd: int = 1) -> str:
     return f"{x:.{nd}f}" if np.isfinite(x) else "-"
 
 
+def _ci_half(lo: float, hi: float) -> float:
+    """Half-width of a confidence interval (NaN where a bound is missing)."""
+    return (hi - lo) / 2.0 if np.isfinite(hi - lo) else float("nan")
+
+
 def load_rows(result_dirs: list[str | Path]) -> list[dict]:
     """One row per directory with a ``summary.json``, sorted by driving score (best first).
 
@@ -52,16 +57,17 @@ def load_rows(result_dirs: list[str | Path]) -> list[dict]:
         s = json.loads(p.read_text())
         m, v = s["metrics"], s.get("v2x") or {}
         lo, hi = _num(m.get("driving_score_ci_low")), _num(m.get("driving_score_ci_high"))
+        v_lo, v_hi = _num(v.get("driving_score_ci_low")), _num(v.get("driving_score_ci_high"))
         rows.append({
             "run": d.name, "dir": str(d), "agent": s["agent_name"], "agent_spec": s["agent"],
             "privileged": bool(s.get("privileged")), "agent_process": s.get("agent_process", "in_process"),
             "suite": s["suite"], "seeds": s["seeds"],
             "n_jobs": s["n_jobs"], "n_results": s["n_results"],
             "driving_score": _num(m["driving_score"]), "ds_ci_low": lo, "ds_ci_high": hi,
-            "ds_ci_half": (hi - lo) / 2.0 if np.isfinite(hi - lo) else float("nan"),
+            "ds_ci_half": _ci_half(lo, hi),
             **{k: _num(m.get(k)) for k, _, _ in COLUMNS},
             "v2x_driving_score": _num(v.get("driving_score")),
-            "v2x_ds_ci_half": (_num(v.get("driving_score_ci_high")) - _num(v.get("driving_score_ci_low"))) / 2.0,
+            "v2x_ds_ci_half": _ci_half(v_lo, v_hi),
             "v2x_efficiency": _num(v.get("efficiency")),
             "per_scenario": s.get("per_scenario", {}),
             "config_overrides": s.get("config_overrides") or {},

@@ -34,8 +34,8 @@ from .planner import N_WAYPOINTS, Plan, Planner, PlannerParams
 
 
 def emergency_rows(world) -> list[int]:
-    """Actor rows of emergency vehicles exposed by the world's scenarios (``emergency_rows``)."""
-    return [int(r) for sc in world.scenarios for r in getattr(sc, "emergency_rows", ())]
+    """Actor rows of the world's emergency vehicles (``World.emergency_rows``, set at reset)."""
+    return world.emergency_rows.tolist()
 
 
 class Expert:

@@ -32,16 +32,25 @@ def standing_large(objs: Objects, st: np.ndarray, lat: np.ndarray, max_lat: floa
             & (np.abs(lat) < max_lat)).nonzero()[0]
 
 
-class CautiousEgo(EgoOnlyOracle):
-    """The ego-only oracle, slow past the standing large vehicles it sees (module docstring)."""
+class _ZoneCapEgo(EgoOnlyOracle):
+    """The ego-only oracle with speed caps along its path from :meth:`_caps` (the planner's
+    ``zone_caps``), set for each episode."""
 
-    cap = 3.0  # m/s while passing
-    before_m = 8.0  # m before the vehicle's rear where the cap starts
-    max_lat = 8.0  # m: vehicles this close to the path count (parked at either kerb)
+    max_lat = 8.0  # m: standing vehicles this close to the path count (parked at either kerb)
 
     def _on_start(self) -> None:
         super()._on_start()
         self.planner.zone_caps = self._caps
+
+    def _caps(self, stations, objs, st, lat, e_long) -> np.ndarray:
+        raise NotImplementedError
+
+
+class CautiousEgo(_ZoneCapEgo):
+    """The ego-only oracle, slow past the standing large vehicles it sees (module docstring)."""
+
+    cap = 3.0  # m/s while passing
+    before_m = 8.0  # m before the vehicle's rear where the cap starts
 
     def _caps(self, stations, objs, st, lat, e_long) -> np.ndarray:
         caps = np.full(len(stations), np.inf)
@@ -51,17 +60,15 @@ class CautiousEgo(EgoOnlyOracle):
         return caps
 
 
-class StopAndWaitEgo(EgoOnlyOracle):
+class StopAndWaitEgo(_ZoneCapEgo):
     """The ego-only oracle that stands ``wait_s`` s before each standing large vehicle it sees
     ahead (once per vehicle), then drives on (module docstring)."""
 
     wait_s = 5.0
     stop_gap_m = 10.0  # m before the vehicle's rear where it stands
-    max_lat = 8.0
 
     def _on_start(self) -> None:
         super()._on_start()
-        self.planner.zone_caps = self._caps
         self._waited: dict[tuple[int, int], float] = {}  # vehicle key -> s stood before it
 
     def _key(self, objs: Objects, i: int) -> tuple[int, int]:

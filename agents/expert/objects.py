@@ -160,6 +160,13 @@ def from_observation_rows(rows: np.ndarray, ego_xy: np.ndarray, ego_yaw: float) 
     )
 
 
+def moved_to(objs: Objects, times: np.ndarray, time_s: float) -> Objects:
+    """A copy of ``objs`` (seen at ``times``, s) moved along their velocities to ``time_s``."""
+    moved = objs.take(np.arange(len(objs)))
+    moved.pos = objs.pos + objs.vel * (time_s - times)[:, None]
+    return moved
+
+
 class ObjectMemory:
     """Keeps objects seen in the last ``horizon_s`` seconds, propagated at constant velocity.
 
@@ -190,9 +197,7 @@ class ObjectMemory:
         self._time = np.concatenate([np.full(len(seen), time_s), t_old])
         if len(old) == 0:
             return seen, old
-        moved = old.take(np.arange(len(old)))
-        moved.pos = old.pos + old.vel * (time_s - t_old)[:, None]
-        return seen, moved
+        return seen, moved_to(old, t_old, time_s)
 
 
 class AnonymousMemory:
@@ -218,8 +223,7 @@ class AnonymousMemory:
         moved along their last velocity."""
         live = time_s - self._time <= self.horizon_s
         old, t_old = self._objs.take(live), self._time[live]  # positions at their own time
-        moved = old.take(np.arange(len(old)))
-        moved.pos = old.pos + old.vel * (time_s - t_old)[:, None]
+        moved = moved_to(old, t_old, time_s)
         keep = np.ones(len(old), bool)
         if len(old) and len(seen):
             d = np.linalg.norm(moved.pos[:, None, :] - seen.pos[None, :, :], axis=-1).min(1)

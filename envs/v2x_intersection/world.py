@@ -230,9 +230,10 @@ class World:
             t.scenario[rows] = k
             sc.setup(self, rows)
             row += sc.max_actors
-        # emergency vehicles (with their siren on) exposed by the scenarios: observed as their own class
-        self._emergency = np.array([int(r) for sc in self.scenarios for r in getattr(sc, "emergency_rows", ())],
-                                   np.int64)
+        #: actor rows of the emergency vehicles (siren on) the scenarios expose (their
+        #: ``emergency_rows``): observed as their own class, known to privileged agents
+        self.emergency_rows = np.array(
+            [int(r) for sc in self.scenarios for r in getattr(sc, "emergency_rows", ())], np.int64)
         self._object_kind = t.kind.copy()
         self.collisions = CollisionWorld(t, self.static_boxes)
         # infrastructure: placed from the town and the route only, never from the scenario list
@@ -596,10 +597,10 @@ class World:
         semantics): ``table.kind``, except :data:`~.classes.EMERGENCY_VEHICLE` for the scenarios'
         emergency vehicles (their ``emergency_rows``, siren on). Worlds without one return
         ``table.kind`` itself; otherwise one array per episode, refreshed in place by each call."""
-        if not len(self._emergency):
+        if not len(self.emergency_rows):
             return self.table.kind
         np.copyto(self._object_kind, self.table.kind)
-        self._object_kind[self._emergency] = EMERGENCY_VEHICLE
+        self._object_kind[self.emergency_rows] = EMERGENCY_VEHICLE
         return self._object_kind
 
     def default_rsu_message(self) -> dict:

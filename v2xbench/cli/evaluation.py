@@ -1,0 +1,62 @@
+"""``v2xbench eval`` and ``leaderboard``: closed-loop evaluation and its tables."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from v2xbench.cli.common import parse_set
+
+
+def _eval(args: argparse.Namespace) -> int:
+    from v2xbench.collectors.evaluate import evaluate, summary_markdown
+
+    summary = evaluate(args.agent, suite=args.suite, seeds=args.seeds, workers=args.workers, out=args.out,
+                       video=args.video, max_routes=args.max_routes, config=parse_set(args.set),
+                       agent_name=args.agent_name, progress=not args.quiet,
+                       isolate_agent=args.isolate_agent)
+    print(summary_markdown(summary))
+    print(f"results: {Path(args.out) / 'routes'}, summary: {Path(args.out) / 'summary.md'}")
+    return 0
+
+
+def _leaderboard(args: argparse.Namespace) -> int:
+    from v2xbench.collectors.leaderboard import build_leaderboard
+
+    res = build_leaderboard(args.results, args.out, plots=not args.no_plots)
+    print(Path(res["markdown"]).read_text())
+    if res["note"]:
+        print(res["note"], file=sys.stderr)
+    print(f"wrote {res['markdown']}" + (f" and {len(res['plots'])} plots" if res["plots"] else ""))
+    return 0
+
+
+def register(sub) -> None:
+    """Add this module's sub-commands to the ``v2xbench`` parser."""
+    ev = sub.add_parser("eval", help="evaluate an agent on a route suite (resumable)",
+                        description="Closed-loop evaluation through TorchRL collectors. Writes "
+                        "OUT/routes/<route>_s<k>.json per run and OUT/summary.{json,md}; running "
+                        "again on the same OUT resumes.")
+    ev.add_argument("--agent", default="route_follower",
+                    help="registered agent name (route_follower, expert, ...) or path/to/file.py:ClassName")
+    ev.add_argument("--suite", default="test50", help="suite name (test50, val, train) or suite JSON path")
+    ev.add_argument("--seeds", type=int, default=1, help="seed indices per route")
+    ev.add_argument("--workers", type=int, default=1, help="collector worker processes")
+    ev.add_argument("--out", default="results/eval")
+    ev.add_argument("--video", action="store_true", help="save a top-down GIF per route in OUT/videos")
+    ev.add_argument("--max-routes", type=int, default=None, help="only the first N routes of the suite")
+    ev.add_argument("--set", action="append", metavar="KEY=VALUE",
+                    help="environment config override, e.g. --set num_vehicles=10 (repeatable)")
+    ev.add_argument("--agent-name", default=None, help="display name in the summary and leaderboard")
+    ev.add_argument("--isolate-agent", action="store_true",
+                    help="run the agent in a separate process that receives only route_info and its "
+                    "observations (it cannot read or patch the simulator); not for the privileged "
+                    "built-in expert and oracles")
+    ev.add_argument("--quiet", action="store_true", help="no progress bar")
+    ev.set_defaults(func=_eval)
+    lb = sub.add_parser("leaderboard", help="leaderboard table and plots from evaluation result dirs")
+    lb.add_argument("results", nargs="+", help="result directories (each with a summary.json)")
+    lb.add_argument("--out", default="leaderboard")
+    lb.add_argument("--no-plots", action="store_true", help="only the markdown and JSON tables")
+    lb.set_defaults(func=_leaderboard)

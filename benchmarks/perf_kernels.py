@@ -218,7 +218,8 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="v2xbench-perf-") as tmp:
         data = str(Path(tmp) / "perf.data")
-        env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "numba"))  # compile here: object code kept
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "numba"),  # compile here: object code
+                   V2XBENCH_CACHE_DIR=str(Path(tmp) / "v2xbench"))  # kept, no cache hit
         print(f"[perf] {args.mode}: compiling every kernel in a fresh process, then {args.seconds:.0f} s sampled ...",
               flush=True)
         proc = subprocess.Popen([sys.executable, "-m", "v2xbench.benchmarks.perf_kernels", "--child", args.mode,

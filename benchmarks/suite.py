@@ -37,7 +37,7 @@ import time  # noqa: E402
 from datetime import datetime, timezone  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-ROWS = ("objects", "sensors", "batched", "eval", "scaling", "memory")
+ROWS = ("objects", "sensors", "batched", "eval", "scaling", "memory", "first_use")
 GOALS = {"objects_ratio": 50.0, "sensors_ticks_per_s": 100.0, "batched_agent_steps_per_s": 20000.0,
          "eval_seconds": 600.0}
 OBJECTS_CONFIG = {"suite": "test50", "route_index": 0}
@@ -117,6 +117,10 @@ def run_rows(rows: tuple[str, ...], quick: bool) -> dict:
             from . import memory
 
             res[row] = memory.measure(30 if quick else 10_000, 3 if quick else 20)
+        elif row == "first_use":
+            from . import first_use
+
+            res[row] = first_use.measure(quick)
         else:
             raise ValueError(f"bench: unknown row {row!r} (rows: {', '.join(ROWS)})")
         res[row]["bench_seconds"] = time.perf_counter() - t0
@@ -197,6 +201,15 @@ def table(report: dict) -> str:
         m = r["memory"]
         add(f"memory over {m['resets']:,} resets", f"RSS {m['rss_start_mib']:.0f} -> {m['rss_end_mib']:.0f} MiB "
             f"(max {m['rss_max_mib']:.0f}; +{m['growth_second_half_mib']:.1f} MiB in the second half)", "flat")
+    if "first_use" in r:
+        f = r["first_use"]
+
+        def _secs(x: dict) -> str:
+            return f"{x['seconds']:.0f} s" + ("" if x["returncode"] == 0 else " (FAILED)")
+
+        cold = f"empty kernel cache {_secs(f['cold'])}, then " if f.get("cold") else ""
+        add("first use: `v2xbench warmup` (compile every numba kernel)",
+            f"{cold}cached {_secs(f['warm'])}", "documented in the README")
     return "\n".join(lines) + "\n"
 
 

@@ -8,9 +8,10 @@ that on random scenes. Where a kernel calls ``arctan2``, ``power``, ``tan``, ``h
 ``arcsin``, its NumPy path takes them from :mod:`.libm` (the C library, as numba does), since
 NumPy's own ufuncs differ from it by an ulp on CPUs with AVX-512.
 
-Kernels are cached on disk (``cache=True``). numba checks only the caller's own source file, so
-after editing a kernel that others in another module call, delete the stale caches
-(``find . -name '*.nb[ic]' -delete``).
+Kernels are cached on disk (``cache=True``) in the user cache folder, keyed by the content of all
+of the package's kernel sources (:mod:`.jit_cache`): every clone and process with the same
+sources shares one compiled copy, and editing any kernel recompiles all of them.
+``v2xbench warmup`` compiles ahead of time.
 """
 
 from __future__ import annotations
@@ -25,9 +26,13 @@ try:  # pragma: no cover - depends on the environment
     import numba
 
     HAVE_JIT = True
+    from .jit_cache import install as _install_cache
+
+    KERNEL_CACHE_DIR = _install_cache(numba)
 except ImportError:  # pragma: no cover
     numba = None
     HAVE_JIT = False
+    KERNEL_CACHE_DIR = None
 
 
 def _njit(fn):

@@ -15,6 +15,7 @@ Commands:
     collect     expert data collection into TensorDict memmap shards (resumable)
     data        validate a collected data set (missing / corrupt shards)
     qa          build Chat-V2XBench from a data set, print its statistics, score answers
+    warmup      compile the numba kernels ahead of time (first use in a fresh environment)
 """
 
 from __future__ import annotations
@@ -22,10 +23,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-from v2xbench.cli import bench, data, drive, evaluation
+from v2xbench.cli import bench, data, drive, evaluation, warmup
 
 #: Sub-command modules, each with ``register(subparsers)``, in help order.
-COMMAND_MODULES = (drive, evaluation, bench, data)
+COMMAND_MODULES = (drive, evaluation, bench, data, warmup)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -47,6 +48,3 @@ def main(argv: list[str] | None = None) -> int:
         print(f"v2xbench: error: {e}", file=sys.stderr)
         return 2
 
-
-if __name__ == "__main__":
-    sys.exit(main())

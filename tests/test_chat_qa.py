@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
-from tensordict import TensorDict
 from v2xbench.agents.expert import Expert
 from v2xbench.collectors.chat.export import build, load_items, stats
 from v2xbench.collectors.chat.facts import TREND_EPS, keyframe_facts
@@ -14,7 +14,7 @@ from v2xbench.collectors.chat.generate import keyframe_qa
 from v2xbench.collectors.chat.scoring import closed_label, coordinates, score, slots
 from v2xbench.collectors.dataset.collect import _rig
 from v2xbench.collectors.dataset.record import light_info
-from v2xbench.collectors.dataset.shards import shards_dir
+from v2xbench.collectors.dataset.shards import load_shard, shards_dir
 from v2xbench.envs.v2x_intersection.config import make_config
 from v2xbench.envs.v2x_intersection.geometry import (
     invert_transform,
@@ -37,7 +37,7 @@ def qa(tiny_dataset):
 
 
 def _shard(root, episode):
-    return TensorDict.load_memmap(shards_dir(root) / episode / "data")
+    return load_shard(root, episode)
 
 
 def test_four_levels_and_stats(qa, tiny_dataset, capsys):
@@ -215,3 +215,56 @@ def test_show_keyframe(qa, tiny_dataset, tmp_path, capsys):
     assert "| alignment | rsu_to_ego |" in md and "Prompt context" in md
     w, h = Image.open(out).size
     assert w > 3 * 64 and h > 3 * 32
+
+
+def test_bad_predictions_are_named_by_file_and_line(qa, tiny_dataset, tmp_path, capsys):
+    pred = tmp_path / "pred.jsonl"
+    good = json.dumps({"id": qa[0]["id"], "answer": "Yes."})
+    for line, needle in ((json.dumps({"answer": "x"}), "'id' must be a string, got missing"),
+                         (json.dumps({"id": qa[1]["id"], "answer": 3}),
+                          "'answer' must be a string, got int 3"),
+                         ("{oops", "not valid JSON"), ("[1, 2]", "expected a JSON object"),
+                         (good, "repeats line 1")):
+        pred.write_text(good + "\n\n" + line + "\n")
+        capsys.readouterr()
+        assert main(["qa", "score", str(tiny_dataset), str(pred)]) == 2
+        err = capsys.readouterr().err
+        assert f"{pred}:3: " in err and needle in err, err
+    with pytest.raises(ValueError, match="answer for .* is float 3.0, not a string"):
+        score(qa, {qa[0]["id"]: 3.0})
+
+
+def test_bad_reference_items_and_keyframes_are_named(qa, tiny_dataset, tmp_path, capsys):
+    ref = tmp_path / "qa.jsonl"
+    closed = next(it for it in qa if it["kind"] == "closed")
+    coord = next(it for it in qa if it["kind"] == "coordinate")
+    cases = (("{oops", "not valid JSON"),
+             (json.dumps({k: v for k, v in qa[1].items() if k != "kind"}),
+              "field 'kind' must be a str, got None"),
+             (json.dumps(dict(closed, type="colour")), "closed type 'colour'"),
+             (json.dumps(dict(coord, label=[1, 2])), "coordinate label must be 3 numbers"),
+             (json.dumps(dict(qa[1], images=["../../etc/x.png"])), "must be relative paths"),
+             (json.dumps(qa[0]), f"id {qa[0]['id']!r} repeats {ref}:1"))
+    for line, needle in cases:
+        ref.write_text(json.dumps(qa[0]) + "\n" + line + "\n")
+        capsys.readouterr()
+        assert main(["qa", "stats", str(ref)]) == 2
+        err = capsys.readouterr().err
+        assert f"{ref}:2: " in err and needle in err, err
+    root = tmp_path / "ds"
+    shutil.copytree(tiny_dataset, root, ignore=shutil.ignore_patterns("chat"))
+    kf = shards_dir(root) / "train_001_s0" / "keyframes.jsonl"
+    kf.chmod(0o644)
+    lines = kf.read_text().splitlines()
+    facts = json.loads(lines[2])
+    escape = dict(facts, images=dict(facts["images"],
+                                     rsu_cam="shards/train_001_s0/images/../../../../secret.png"))
+    for bad, needle in ((json.dumps(escape), "image 'rsu_cam' path"), ("{oops", "not valid JSON"),
+                        (json.dumps({k: v for k, v in facts.items() if k != "plan"}),
+                         "keyframe facts are malformed (KeyError")):
+        kf.write_text("\n".join(lines[:2] + [bad] + lines[3:]) + "\n")
+        capsys.readouterr()
+        assert main(["qa", "build", str(root)]) == 2
+        err = capsys.readouterr().err
+        assert f"{kf}:3: " in err and needle in err, err
+    assert not (root / "chat" / "qa.jsonl").exists()  # nothing half-built

@@ -8,12 +8,11 @@ import shutil
 import numpy as np
 import pytest
 import torch
-from tensordict import TensorDict
 from v2xbench.collectors.dataset.collect import CollectConfig, collect, route_split
 from v2xbench.collectors.dataset.loader import V2XDataset, replay_buffer
 from v2xbench.collectors.dataset.perturb import PerturbConfig, Perturber
 from v2xbench.collectors.dataset.record import REASONS, unpack_bev
-from v2xbench.collectors.dataset.shards import load_manifest, shards_dir, validate
+from v2xbench.collectors.dataset.shards import load_manifest, load_shard, shards_dir, validate
 from v2xbench.envs.v2x_intersection.sensors import BEV_CHANNELS, SensorRig
 
 from tests.dataset_helpers import TINY
@@ -31,7 +30,7 @@ def test_manifest_and_shards(tiny_dataset):
     assert man["complete"] and man["episodes"] == ["train_000_s0", "train_001_s0"]
     assert set(man["shards"]) == set(man["episodes"])
     for sid, s in man["shards"].items():
-        td = TensorDict.load_memmap(shards_dir(tiny_dataset) / sid / "data")
+        td = load_shard(tiny_dataset, sid)
         assert td.batch_size[0] == s["frames"] == 41
         assert torch.equal(td["tick"], torch.arange(41))
         assert s["keyframes"] == 5  # ticks 0, 10, 20, 30, 40
@@ -87,6 +86,7 @@ def test_corrupt_missing_and_unlisted_shards_are_named(tiny_dataset, tmp_path, c
     f = shards_dir(root) / "train_000_s0" / "data" / "ego_speed.memmap"
     raw = bytearray(f.read_bytes())
     raw[5] ^= 0xFF  # one flipped byte, same size
+    f.chmod(0o644)  # finished shard files are read-only
     f.write_bytes(bytes(raw))
     rep = validate(root)
     assert not rep["ok"] and list(rep["corrupt"]) == ["train_000_s0"]
@@ -146,7 +146,7 @@ def test_perturbed_frames_keep_the_expert_label(tmp_path, monkeypatch):
                         sensors=(), env={"num_vehicles": 0, "num_pedestrians": 0})
     monkeypatch.setattr(C, "PerturbConfig", lambda: PerturbConfig(rate_per_s=5.0, min_speed=0.5))
     collect(cfg, tmp_path, progress=False)
-    td = TensorDict.load_memmap(shards_dir(tmp_path) / "train_000_s0" / "data")
+    td = load_shard(tmp_path, "train_000_s0")
     noisy = td["perturbed"]
     assert noisy.any()
     diff = (td["control"] - td["expert_control"]).abs().sum(-1)

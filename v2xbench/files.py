@@ -109,3 +109,23 @@ def remove_stale_tmp(directory: str | Path, older_than_s: float = 0.0) -> list[P
         except FileNotFoundError:
             continue
     return removed
+
+
+def check_output_dir(path: str | Path, what: str = "output directory") -> Path:
+    """``path`` as a ``Path`` when it is a directory or can be made one; checked before a run.
+
+    Raises:
+        ValueError: ``path``, or a folder it would be made in, is a file (the message names it),
+            or the nearest existing folder is not writable.
+    """
+    path = Path(path)
+    for p in (path, *path.parents):
+        if not p.exists():
+            continue
+        if not p.is_dir():
+            where = "is a file" if p == path else f"cannot be created: {p} is a file"
+            raise ValueError(f"{what} {path} {where}, not a directory")
+        if not os.access(p, os.W_OK | os.X_OK):
+            raise ValueError(f"{what} {path}: {p} is not writable")
+        break
+    return path

@@ -10,13 +10,17 @@
   prediction against the set found in the reference answer; precision, recall, F1 per item,
   averaged (an item whose reference has no keywords scores 1 when the prediction has none too).
 
-:func:`score` takes reference items (our schema) and ``{item id: predicted answer text}``.
+:func:`score` takes reference items (our schema) and ``{item id: predicted answer text}``;
+:func:`load_predictions` reads them from a JSONL file of ``{"id", "answer"}`` lines (both
+strings; an error names the file and the line).
 """
 
 from __future__ import annotations
 
+import json
 import math
 import re
+from pathlib import Path
 
 import numpy as np
 
@@ -107,6 +111,41 @@ def f1(pred: set, ref: set) -> float:
     return 2 * p * r / (p + r)
 
 
+def load_predictions(path: str | Path) -> dict[str, str]:
+    """``{id: answer}`` from a JSONL file with one ``{"id": str, "answer": str}`` per line.
+
+    Raises:
+        FileNotFoundError: no such file. ValueError: a line that is not valid JSON, not an
+            object, without a string ``id`` or ``answer``, or repeating an id (file and line
+            named).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"predictions file {path} not found")
+    preds: dict[str, str] = {}
+    lines: dict[str, int] = {}
+    with open(path, encoding="utf-8") as f:
+        for n, line in enumerate(f, 1):
+            if not line.strip():
+                continue
+            where = f"{path}:{n}"
+            try:
+                d = json.loads(line)
+            except ValueError as e:
+                raise ValueError(f"{where}: not valid JSON: {e}") from None
+            if not isinstance(d, dict):
+                raise ValueError(f"{where}: expected a JSON object {{\"id\", \"answer\"}}")
+            for key in ("id", "answer"):
+                if not isinstance(d.get(key), str):
+                    got = "missing" if key not in d else f"{type(d[key]).__name__} {d[key]!r}"
+                    raise ValueError(f"{where}: {key!r} must be a string, got {got}")
+            if d["id"] in lines:
+                raise ValueError(f"{where}: id {d['id']!r} repeats line {lines[d['id']]}")
+            lines[d["id"]] = n
+            preds[d["id"]] = d["answer"]
+    return preds
+
+
 def score(items: list[dict], predictions: dict[str, str]) -> dict:
     """Score ``predictions`` (``{id: answer}``) against reference ``items``.
 
@@ -114,7 +153,14 @@ def score(items: list[dict], predictions: dict[str, str]) -> dict:
         ``{"answered": n, "missing": n, "closed": {"accuracy", "n", "per_type"},
         "coordinate": {"mean_error_m", "median_error_m", "within_0.5m", "n"},
         "descriptive": {"f1", "n", "per_type"}}``; missing predictions score as wrong answers.
+
+    Raises:
+        ValueError: a prediction that is not a string (its id named).
     """
+    for k, v in predictions.items():
+        if not isinstance(v, str):
+            raise ValueError(f"score: the answer for {k!r} is {type(v).__name__} {v!r}, "
+                             "not a string")
     acc: dict[str, list[float]] = {}
     desc: dict[str, list[float]] = {}
     errs: list[float] = []
@@ -147,4 +193,4 @@ def score(items: list[dict], predictions: dict[str, str]) -> dict:
     }
 
 
-__all__ = ["VOCAB", "closed_label", "coordinates", "f1", "score", "slots"]
+__all__ = ["VOCAB", "closed_label", "coordinates", "f1", "load_predictions", "score", "slots"]

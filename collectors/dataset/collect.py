@@ -21,6 +21,8 @@ our routes are longer than the paper's ~500 runs of ~28 s). Measured sizes and t
 from __future__ import annotations
 
 import dataclasses
+import math
+import os
 import shutil
 import time
 import zlib
@@ -31,18 +33,32 @@ from pathlib import Path
 
 import numpy as np
 
+from v2xbench.files import atomic_write_json, check_output_dir, remove_stale_tmp
+from v2xbench.locks import dir_lock
+
 from .. import jobs as J
+from .parent_watch import exit_with_parent
 from .perturb import PerturbConfig, Perturber
-from .record import DEFAULT_SENSORS, SENSORS, RecordConfig, frame_record, nav_command
+from .record import (
+    DEFAULT_SENSORS,
+    SENSORS,
+    RecordConfig,
+    frame_record,
+    nav_command,
+    record_schema,
+)
 from .shards import (
     MANIFEST_FORMAT,
     clear_temp,
     finish_shard,
     finished_shards,
+    load_manifest,
     temp_shard,
-    write_json_atomic,
 )
 
+MAX_SEEDS = 1000
+MAX_CAMERA_SIDE = 2048  # pixels per camera side (7 cameras are stored every tick)
+MAX_WORKERS = 256
 SCALES = {
     "tiny": {"seeds": 1, "max_routes": 3, "max_ticks": 150},
     "default": {"seeds": 1, "max_routes": None, "max_ticks": None},
@@ -82,20 +98,65 @@ class CollectConfig:
     env: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        if not isinstance(self.suite, str) or not self.suite:
+            raise ValueError(f"CollectConfig: suite={self.suite!r} must be a suite name or path")
+        if isinstance(self.sensors, str) or not all(isinstance(x, str) for x in self.sensors):
+            raise ValueError(f"CollectConfig: sensors={self.sensors!r} must be a list of names")
         RecordConfig(tuple(self.sensors), self.max_boxes)  # validates both
-        if not isinstance(self.seeds, int) or self.seeds < 1:
-            raise ValueError(f"CollectConfig: seeds={self.seeds!r} must be a positive int")
-        if self.max_ticks is not None and (not isinstance(self.max_ticks, int) or self.max_ticks < 1):
-            raise ValueError(f"CollectConfig: max_ticks={self.max_ticks!r} must be a positive int or None")
-        if not 0.0 < self.lidar_scale <= 1.0:
-            raise ValueError(f"CollectConfig: lidar_scale={self.lidar_scale!r} must be in (0, 1]")
-        if not 0.0 <= self.val_fraction < 1.0:
-            raise ValueError(f"CollectConfig: val_fraction={self.val_fraction!r} must be in [0, 1)")
-        if len(self.camera_size) != 2 or min(self.camera_size) < 8:
-            raise ValueError(f"CollectConfig: camera_size={self.camera_size!r} must be (w, h) >= 8")
+        _positive_int("seeds", self.seeds, MAX_SEEDS)
+        _positive_int("max_routes", self.max_routes, None, none_ok=True)
+        _positive_int("max_ticks", self.max_ticks, None, none_ok=True)
+        _positive_int("keyframe_every", self.keyframe_every, None)
+        for name, lo_open, hi_open in (("lidar_scale", True, False), ("val_fraction", False, True)):
+            v = getattr(self, name)
+            ok = _is_real(v) and (0.0 < v if lo_open else 0.0 <= v) and (v < 1 if hi_open else v <= 1)
+            if not ok:
+                span = "(0, 1]" if lo_open else "[0, 1)"
+                raise ValueError(f"CollectConfig: {name}={v!r} must be a number in {span}")
+        size = self.camera_size
+        if (isinstance(size, str) or len(size) != 2 or not all(_is_int(v) for v in size)
+                or not all(8 <= v <= MAX_CAMERA_SIDE for v in size)):
+            raise ValueError(f"CollectConfig: camera_size={size!r} must be (width, height), each "
+                             f"an int in [8, {MAX_CAMERA_SIDE}]")
+        if not isinstance(self.perturb, bool):
+            raise ValueError(f"CollectConfig: perturb={self.perturb!r} must be true or false")
+        if not isinstance(self.env, dict):
+            raise ValueError(f"CollectConfig: env={self.env!r} must be a dict of EnvConfig fields")
         bad = {"suite", "route_index", "obs_mode"} & set(self.env)
         if bad:
             raise ValueError(f"CollectConfig: env keys {sorted(bad)} are chosen by the collector")
+        from v2xbench.envs.v2x_intersection.config import make_config
+
+        try:
+            make_config(obs_mode="objects", **self.env)  # up front, not in the first episode
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"CollectConfig: env: {e}") from None
+
+    @classmethod
+    def from_json(cls, d: dict) -> CollectConfig:
+        """The config stored in a manifest (:meth:`to_json`); unknown or bad fields raise
+        ``ValueError`` naming them."""
+        if not isinstance(d, dict):
+            raise ValueError(f"CollectConfig: {type(d).__name__} is not a JSON object")
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise ValueError(f"CollectConfig: unknown fields {unknown}")
+        kw = dict(d)
+        for k in ("sensors", "camera_size"):
+            if isinstance(kw.get(k), list):
+                kw[k] = tuple(kw[k])
+        return cls(**kw)
+
+    def record_schema(self) -> dict[tuple[str, ...], tuple]:
+        """``record.record_schema`` of the frames these settings record (every key, dtype and
+        per-frame shape a shard's memmap holds)."""
+        from v2xbench.envs.v2x_intersection.config import make_config
+
+        ego, rsu = _lidar_specs(self)
+        return record_schema(RecordConfig(tuple(self.sensors), self.max_boxes),
+                             tuple(self.camera_size), make_config(**self.env).route_points,
+                             (ego.max_points, rsu.max_points), _bev_spec().size)
 
     def to_json(self) -> dict:
         """JSON-compatible dict (tuples as lists)."""
@@ -113,6 +174,23 @@ class CollectConfig:
         return cls(**kw)
 
 
+def _is_int(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_real(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _positive_int(name: str, v, most: int | None, none_ok: bool = False) -> None:
+    if v is None and none_ok:
+        return
+    if not _is_int(v) or v < 1 or (most is not None and v > most):
+        span = f"in [1, {most}]" if most is not None else ">= 1"
+        raise ValueError(f"CollectConfig: {name}={v!r} must be an int {span}"
+                         + (" or None" if none_ok else ""))
+
+
 def route_split(route_id: str, suite_split: str, val_fraction: float) -> str:
     """``train`` or ``val`` for a route: val suites are val; train routes are held out by hash."""
     if suite_split in ("val", "test"):
@@ -120,16 +198,28 @@ def route_split(route_id: str, suite_split: str, val_fraction: float) -> str:
     return "val" if (zlib.crc32(route_id.encode()) % 1000) < 1000 * val_fraction else "train"
 
 
-def _rig(cfg: CollectConfig):
-    from v2xbench.envs.v2x_intersection.sensors import BevSpec, SensorConfig, SensorRig
+def _lidar_specs(cfg: CollectConfig):
+    """The ego and the RSU LiDAR specs of ``cfg`` (``lidar_scale``)."""
     from v2xbench.envs.v2x_intersection.sensors.lidar import ego_lidar_spec, rsu_lidar_spec
 
     s = cfg.lidar_scale
+    return (ego_lidar_spec(max(4, round(32 * s)), max(16, round(360 * s))),
+            rsu_lidar_spec(max(4, round(64 * s)), max(16, round(240 * s))))
+
+
+def _bev_spec():
+    from v2xbench.envs.v2x_intersection.sensors import BevSpec
+
+    return BevSpec(privileged=True)  # ground truth: every actor
+
+
+def _rig(cfg: CollectConfig):
+    from v2xbench.envs.v2x_intersection.sensors import SensorConfig, SensorRig
+
+    ego, rsu = _lidar_specs(cfg)
     return SensorRig(SensorConfig(
         camera_size=tuple(cfg.camera_size), rsu_camera_size=tuple(cfg.camera_size),
-        ego_lidar=ego_lidar_spec(max(4, round(32 * s)), max(16, round(360 * s))),
-        rsu_lidar=rsu_lidar_spec(max(4, round(64 * s)), max(16, round(240 * s))),
-        bev=BevSpec(privileged=True) if "bev" in cfg.sensors else None))  # ground truth: every actor
+        ego_lidar=ego, rsu_lidar=rsu, bev=_bev_spec() if "bev" in cfg.sensors else None))
 
 
 def _stack(rows: list[dict]) -> dict:
@@ -267,9 +357,23 @@ def _summary(meta: dict) -> dict:
     return {k: meta.get(k) for k in keys}
 
 
+def _check_run(root: Path, workers, max_episodes) -> None:
+    """Arguments of :func:`collect` that the config does not cover, checked before any work."""
+    if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= MAX_WORKERS:
+        raise ValueError(f"collect: workers={workers!r} must be an int in [1, {MAX_WORKERS}]")
+    if max_episodes is not None and (isinstance(max_episodes, bool) or not isinstance(
+            max_episodes, int) or max_episodes < 1):
+        raise ValueError(f"collect: max_episodes={max_episodes!r} must be an int >= 1 or None")
+    check_output_dir(root, "collect output")
+
+
 def collect(cfg: CollectConfig, root: str | Path, workers: int = 1, progress: bool = True,
             max_episodes: int | None = None) -> dict:
     """Collect (or resume) a data set at ``root``; returns the manifest.
+
+    Holds ``v2xbench.locks.dir_lock`` on ``root`` for the whole run (a second collect into the
+    same folder is refused, naming the holder). Worker processes end when this process dies
+    (:mod:`.parent_watch`).
 
     Args:
         cfg: what to collect. root: data set folder.
@@ -279,34 +383,51 @@ def collect(cfg: CollectConfig, root: str | Path, workers: int = 1, progress: bo
             resume).
 
     Raises:
-        ValueError: ``root`` holds a data set collected with other settings.
+        ValueError: a bad argument, ``root`` is in use by another run (``DirectoryLocked``) or
+            holds a data set collected with other settings.
     """
     from v2xbench.envs.v2x_intersection.route_files import load_suite_cached
 
     root = Path(root)
+    _check_run(root, workers, max_episodes)
     routes = load_suite_cached(cfg.suite)
     jobs = J.make_jobs([r.id for r in routes], cfg.seeds, cfg.max_routes)
-    man_path = root / "manifest.json"
-    if man_path.exists():
-        import json
+    with dir_lock(root, "collect"):
+        return _collect_locked(cfg, root, jobs, workers, progress, max_episodes)
 
-        old = json.loads(man_path.read_text())
+
+def _start_manifest(cfg: CollectConfig, root: Path, jobs: list) -> tuple[dict, dict]:
+    """The manifest at the start of a run (after clearing an interrupted one's leftovers) and
+    the finished shards."""
+    if (root / "manifest.json").exists():
+        old = load_manifest(root)
         if old.get("config") != cfg.to_json():
-            diff = {k: (old.get("config", {}).get(k), v) for k, v in cfg.to_json().items()
-                    if old.get("config", {}).get(k) != v}
+            was = old.get("config") if isinstance(old.get("config"), dict) else {}
+            diff = {k: (was.get(k), v) for k, v in cfg.to_json().items() if was.get(k) != v}
             raise ValueError(f"{root} was collected with other settings (old, new): {diff}; "
                              "use another --out or the same settings")
-        shard_info = old.get("shards", {})
+        shard_info = dict(old.get("shards", {}))
     else:
         shard_info = {}
-    root.mkdir(parents=True, exist_ok=True)
-    clear_temp(root)
+    clear_temp(root)  # safe: the lock says no other collect writes here
+    remove_stale_tmp(root)
     done = finished_shards(root)
     for sid, meta in done.items():
         shard_info.setdefault(sid, _summary(meta))
-    manifest = {"format": MANIFEST_FORMAT, "config": cfg.to_json(), "episodes": [j.job_id for j in jobs],
+    manifest = {"format": MANIFEST_FORMAT, "config": cfg.to_json(),
+                "episodes": [j.job_id for j in jobs],
                 "shards": {k: v for k, v in shard_info.items() if k in done}, "failed": {}}
-    write_json_atomic(manifest, man_path)
+    return manifest, done
+
+
+def _write_manifest(manifest: dict, root: Path) -> None:
+    atomic_write_json(root / "manifest.json", manifest, indent=1, sort_keys=True)
+
+
+def _collect_locked(cfg: CollectConfig, root: Path, jobs: list, workers: int, progress: bool,
+                    max_episodes: int | None) -> dict:
+    manifest, done = _start_manifest(cfg, root, jobs)
+    _write_manifest(manifest, root)
     todo = [j for j in jobs if j.job_id not in done]
     if max_episodes is not None:
         todo = todo[:max_episodes]
@@ -314,21 +435,21 @@ def collect(cfg: CollectConfig, root: str | Path, workers: int = 1, progress: bo
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=len(jobs), initial=len(jobs) - len([j for j in jobs if j.job_id not in done]),
+        bar = tqdm(total=len(jobs), initial=len(done.keys() & {j.job_id for j in jobs}),
                    unit="episode", desc="collect")
 
     def record(meta: dict) -> None:
         manifest["shards"][meta["episode"]] = _summary(meta)
         manifest["failed"].pop(meta["episode"], None)
-        write_json_atomic(manifest, man_path)
+        _write_manifest(manifest, root)
         if bar is not None:
             frames = sum(s["frames"] for s in manifest["shards"].values())
             bar.update(1)
             bar.set_postfix(frames=frames)
 
-    def failed(job: J.Job, e: Exception) -> None:
+    def failed(job: J.Job, e: BaseException) -> None:
         manifest["failed"][job.job_id] = f"{type(e).__name__}: {e}"
-        write_json_atomic(manifest, man_path)
+        _write_manifest(manifest, root)
         if bar is not None:
             bar.update(1)
 
@@ -336,26 +457,27 @@ def collect(cfg: CollectConfig, root: str | Path, workers: int = 1, progress: bo
         for job in todo:
             try:
                 meta = run_episode(cfg, job, root)
-            except Exception as e:  # noqa: BLE001  (an episode's failure is recorded; the rest go on)
+            except Exception as e:  # noqa: BLE001  (a failed episode is recorded; the rest go on)
                 failed(job, e)
                 continue
             record(dict(meta, episode=job.job_id))
     else:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as ex:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn"),
+                                 initializer=exit_with_parent, initargs=(os.getpid(),)) as ex:
             futs = {ex.submit(run_episode, cfg, job, str(root)): job for job in todo}
             for fut in as_completed(futs):
                 try:
                     meta = fut.result()
-                except Exception as e:  # noqa: BLE001
+                except Exception as e:  # noqa: BLE001  (incl. a dead worker: BrokenProcessPool)
                     failed(futs[fut], e)
                     continue
                 record(dict(meta, episode=futs[fut].job_id))
     if bar is not None:
         bar.close()
     manifest["complete"] = all(j.job_id in manifest["shards"] for j in jobs)
-    write_json_atomic(manifest, man_path)
+    _write_manifest(manifest, root)
     return manifest
 
 
-__all__ = ["SCALES", "SENSORS", "CollectConfig", "collect", "route_split",
-           "run_episode"]
+__all__ = ["MAX_CAMERA_SIDE", "MAX_SEEDS", "MAX_WORKERS", "SCALES", "SENSORS", "CollectConfig",
+           "collect", "route_split", "run_episode"]

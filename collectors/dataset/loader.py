@@ -1,6 +1,11 @@
 """Loading a collected data set: a torch ``Dataset`` of frames and a TorchRL ``ReplayBuffer`` view.
 
-Both read the shards' memmaps in place (nothing is copied into memory up front). A frame is a
+Both read the shards' memmaps in place (nothing is copied into memory up front). Shards are
+opened with :func:`.shards.open_shard`: each file is checked against ``shard.json`` and the record
+schema of the data set's settings before it is mapped, nothing is unpickled, and the mapping is
+copy-on-write, so an in-place op on a frame or on :meth:`V2XDataset.shard` never changes the
+files (a data set from someone else is safe to load; ``v2xbench data validate`` also checks the
+CRCs). A frame is a
 ``TensorDict`` with batch size ``[]`` and the keys of :mod:`.record` (``keys`` selects a subset,
 e.g. ``["ego_speed", "expert_waypoints", ("cameras", "cam_front", "rgb")]``), plus ``episode``
 (int64 index into :attr:`V2XDataset.episodes`) and, with ``unpack_bev=True``, ``bev`` (14, S, S).
@@ -20,7 +25,7 @@ import torch
 from torch.utils.data import Dataset
 
 from .record import unpack_bev
-from .shards import load_manifest, read_meta, shards_dir
+from .shards import dataset_schema, load_manifest, load_shard_meta, open_shard, shards_dir
 
 SPLITS = ("train", "val", "test", "all")
 
@@ -35,7 +40,10 @@ class V2XDataset(Dataset):
         unpack_bev: also return ``bev`` unpacked from ``bev_bits``.
 
     Raises:
-        FileNotFoundError: no manifest at ``root``. ValueError: unknown split, or no shard in it.
+        FileNotFoundError: no manifest at ``root``, or a listed shard is missing.
+        ValueError: unknown split, no shard in it, a malformed manifest or ``shard.json``
+            (named); ``ShardDataError`` (a ValueError) when a shard's data is opened and does
+            not match its metadata and the schema.
     """
 
     def __init__(self, root: str | Path, split: str = "train", keys: Sequence | None = None,
@@ -44,12 +52,15 @@ class V2XDataset(Dataset):
             raise ValueError(f"V2XDataset: split={split!r} must be one of {SPLITS}")
         self.root = Path(root)
         man = load_manifest(self.root)
+        self.schema = dataset_schema(self.root, man)
         self.episodes: list[str] = []
         self.meta: list[dict] = []
         for sid in sorted(man.get("shards", {})):
-            meta = read_meta(shards_dir(self.root) / sid)
-            if meta is None:
-                raise FileNotFoundError(f"V2XDataset: shard {sid} of {root} is missing (v2xbench data validate)")
+            folder = shards_dir(self.root) / sid
+            if not folder.is_dir() or folder.is_symlink():
+                raise FileNotFoundError(f"V2XDataset: shard {sid} of {root} is missing "
+                                        "(v2xbench data validate)")
+            meta = load_shard_meta(folder)
             if split == "all" or meta["split"] == split:
                 self.episodes.append(sid)
                 self.meta.append(meta)
@@ -60,6 +71,11 @@ class V2XDataset(Dataset):
         self.keys = [tuple(k) if isinstance(k, (list, tuple)) else k for k in keys] if keys else None
         self.unpack_bev = unpack_bev
         self._tds: dict[int, object] = {}
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        state["_tds"] = {}  # DataLoader workers re-open the mappings instead of copying them
+        return state
 
     def __len__(self) -> int:
         return int(self.offsets[-1])
@@ -74,11 +90,10 @@ class V2XDataset(Dataset):
         return e, int(index - self.offsets[e])
 
     def shard(self, e: int):
-        """The memmap TensorDict of episode ``e`` (opened lazily, once per process)."""
+        """The memmap TensorDict of episode ``e`` (opened and checked lazily, once per process;
+        copy-on-write: in-place ops on it stay in this process)."""
         if e not in self._tds:
-            from tensordict import TensorDict
-
-            td = TensorDict.load_memmap(shards_dir(self.root) / self.episodes[e] / "data")
+            td = open_shard(shards_dir(self.root) / self.episodes[e], self.schema, self.meta[e])
             self._tds[e] = td.select(*self.keys, strict=True) if self.keys else td
         return self._tds[e]
 

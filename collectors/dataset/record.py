@@ -64,6 +64,7 @@ REASONS = ("free", "leader", "red", "yellow", "stop_sign", "yield", "conflict", 
 CHANNEL_FIELDS = ("bytes_sent_total", "messages_sent", "messages_lost", "messages_delivered",
                   "bytes_delivered_total", "messages_dropped_bandwidth", "last_message_bytes", "bps")
 BOX_SETS = ("ego", "rsu", "fused")
+MAX_BOXES = 4096  # rows per box set: bounds the per-frame record size
 LIGHT_RANGE = 40.0  # m: a light farther than this from its stop line does not yet affect the ego
 _LIGHT = EGO_FEATURES.index("light_state")
 _LINE = EGO_FEATURES.index("dist_to_stop_line")
@@ -86,8 +87,64 @@ class RecordConfig:
         bad = set(self.sensors) - set(SENSORS)
         if bad:
             raise ValueError(f"RecordConfig: unknown sensors {sorted(bad)}; known: {SENSORS}")
-        if not isinstance(self.max_boxes, int) or self.max_boxes < 1:
-            raise ValueError(f"RecordConfig: max_boxes={self.max_boxes!r} must be a positive int")
+        m = self.max_boxes
+        if isinstance(m, bool) or not isinstance(m, int) or not 1 <= m <= MAX_BOXES:
+            raise ValueError(f"RecordConfig: max_boxes={m!r} must be an int in [1, {MAX_BOXES}]")
+
+
+def record_schema(config: RecordConfig, camera_size: tuple[int, int], route_points: int,
+                  lidar_points: tuple[int, int], bev_size: int) -> dict[tuple[str, ...], tuple]:
+    """Every leaf of a :func:`frame_record` as ``{key path: (dtype name, per-frame shape)}``.
+
+    This is the whole schema of a shard's memmap (module docstring): a loader accepts these keys,
+    dtypes and shapes and nothing else.
+
+    Args:
+        config: what the record holds (sensors, box rows).
+        camera_size: ``(width, height)`` of the 7 cameras.
+        route_points: ``EnvConfig.route_points`` (rows of ``route``).
+        lidar_points: padded rows of the ego and the RSU LiDAR (``LidarSpec.max_points``).
+        bev_size: BEV raster side (``BevSpec.size``).
+    """
+    from v2xbench.agents.expert.planner import N_WAYPOINTS
+
+    w, h = (int(v) for v in camera_size)
+    m = config.max_boxes
+    cams = len(CAMERAS)
+    schema: dict[tuple[str, ...], tuple] = {
+        ("tick",): ("int64", ()), ("ego_pose",): ("float64", (3,)),
+        ("ego_speed",): ("float32", ()), ("ego_accel",): ("float32", ()),
+        ("control",): ("float32", (3,)), ("expert_control",): ("float32", (3,)),
+        ("perturbed",): ("bool", ()), ("expert_waypoints",): ("float32", (N_WAYPOINTS, 2)),
+        ("expert_speeds",): ("float32", (N_WAYPOINTS,)), ("expert_reason",): ("int64", ()),
+        ("command",): ("int64", ()), ("route",): ("float32", (int(route_points), 3)),
+        ("light_state",): ("int64", ()), ("light_affects_ego",): ("bool", ()),
+        ("stop_line_distance",): ("float32", ()),
+        ("calib", "T_world_ego"): ("float64", (4, 4)), ("calib", "T_world_rsu"): ("float64", (4, 4)),
+        ("calib", "T_ego_rsu"): ("float64", (4, 4)), ("calib", "rsu_unit"): ("int64", ()),
+        ("calib", "cam_intrinsics"): ("float64", (cams, 3, 3)),
+        ("calib", "T_ego_cam"): ("float64", (cams, 4, 4)),
+        ("calib", "T_world_cam"): ("float64", (cams, 4, 4)),
+        ("calib", "T_ego_lidar"): ("float64", (2, 4, 4)),
+        ("channel",): ("float64", (len(CHANNEL_FIELDS),)),
+    }
+    for s in BOX_SETS:
+        schema.update({("gt", s, "boxes"): ("float32", (m, 9)), ("gt", s, "class"): ("int64", (m,)),
+                       ("gt", s, "id"): ("int64", (m,)),
+                       ("gt", s, "lidar_points"): ("int64", (m, 2)),
+                       ("gt", s, "mask"): ("bool", (m,)), ("gt", s, "count"): ("int64", ())})
+    schema[("gt", "fused", "joint")] = ("bool", (m,))
+    kinds = {"rgb": ("uint8", (h, w, 3)), "depth": ("float32", (h, w)),
+             "semantic": ("uint8", (h, w))}
+    for c in CAMERAS:
+        schema.update({("cameras", c, k): v for k, v in kinds.items() if k in config.sensors})
+    if "lidar" in config.sensors:
+        for g, n in zip(("ego", "rsu"), lidar_points):
+            schema[("lidar", g, "points")] = ("float32", (int(n), 6))
+            schema[("lidar", g, "count")] = ("int64", ())
+    if "bev" in config.sensors:
+        schema[("bev_bits",)] = ("uint8", (-(-len(BEV_CHANNELS) // 8), bev_size, bev_size))
+    return schema
 
 
 def unpack_bev(bits: np.ndarray, channels: int = len(BEV_CHANNELS)) -> np.ndarray:
@@ -203,5 +260,6 @@ def frame_record(world, frame: dict, expert, control: np.ndarray, perturbed: boo
     return rec
 
 
-__all__ = ["BOX_SETS", "CAMERAS", "CHANNEL_FIELDS", "DEFAULT_SENSORS", "REASONS", "SENSORS",
-           "RecordConfig", "frame_record", "light_info", "nav_command", "reason_code", "unpack_bev"]
+__all__ = ["BOX_SETS", "CAMERAS", "CHANNEL_FIELDS", "DEFAULT_SENSORS", "MAX_BOXES", "REASONS",
+           "SENSORS", "RecordConfig", "frame_record", "light_info", "nav_command", "reason_code",
+           "record_schema", "unpack_bev"]

@@ -4,19 +4,44 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import time
 
 from v2xbench.cli.common import parse_set
 
+MAX_SHOW_SCALE = 16
+
+
+def _int_in(lo: int, hi: int | None = None):
+    """An argparse ``type``: an int in ``[lo, hi]`` (refused up front, with the bound)."""
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        if v < lo or (hi is not None and v > hi):
+            span = f"in [{lo}, {hi}]" if hi is not None else f">= {lo}"
+            raise argparse.ArgumentTypeError(f"{v} must be {span}")
+        return v
+    return parse
+
+
+def _camera_size(text: str) -> tuple[int, int]:
+    """``--camera-size``: ``WxH`` (e.g. ``128x64``)."""
+    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
+    if not m:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected WxH (width x height in pixels), "
+                                         "e.g. 128x64")
+    return int(m.group(1)), int(m.group(2))
+
 
 def _collect(args: argparse.Namespace) -> int:
     from v2xbench.collectors.dataset.collect import CollectConfig, collect
 
-    size = tuple(int(v) for v in args.camera_size.lower().split("x")) if args.camera_size else None
     sensors = tuple(s for s in args.sensors.split(",") if s) if args.sensors is not None else None
     cfg = CollectConfig.for_scale(args.scale, suite=args.suite, seeds=args.seeds, max_routes=args.max_routes,
-                                  max_ticks=args.max_ticks, sensors=sensors, camera_size=size,
+                                  max_ticks=args.max_ticks, sensors=sensors, camera_size=args.camera_size,
                                   perturb=False if args.no_perturb else None, env=parse_set(args.set) or None,
                                   val_fraction=args.val_fraction, lidar_scale=args.lidar_scale)
     t0 = time.perf_counter()
@@ -28,6 +53,10 @@ def _collect(args: argparse.Namespace) -> int:
         print(f"FAILED {sid}: {err}", file=sys.stderr)
     print(f"{len(man['shards'])}/{len(man['episodes'])} episodes, {frames} frames, {keyframes} keyframes "
           f"in {args.out} ({state}; this run {time.perf_counter() - t0:.0f} s)")
+    if man.get("failed"):
+        print(f"v2xbench: {len(man['failed'])} episodes failed (listed above); run again to retry",
+              file=sys.stderr)
+        return 1
     return 0
 
 
@@ -78,15 +107,10 @@ def _qa_show(args: argparse.Namespace) -> int:
 
 def _qa_score(args: argparse.Namespace) -> int:
     from v2xbench.collectors.chat.export import load_items
-    from v2xbench.collectors.chat.scoring import score
+    from v2xbench.collectors.chat.scoring import load_predictions, score
 
     items = load_items(args.reference)
-    preds = {}
-    with open(args.predictions) as f:
-        for line in f:
-            if line.strip():
-                d = json.loads(line)
-                preds[d["id"]] = d["answer"]
+    preds = load_predictions(args.predictions)
     print(json.dumps(score(items, preds), indent=1))
     return 0
 
@@ -97,19 +121,23 @@ def register(sub) -> None:
                         description="Drive the expert on a suite's routes with recovery noise and record "
                         "every tick (sensors, calibration, 3 GT box sets, expert labels, channel stats) into "
                         "OUT/shards/<route>_s<k>/, plus keyframe facts and images for Chat-V2XBench. Running "
-                        "again on the same OUT resumes.")
+                        "again on the same OUT resumes; one collect at a time per OUT (locked). Exit "
+                        "status 1 when an episode failed, 2 for bad arguments.")
     co.add_argument("--suite", default="train", help="suite name (train, val, test50) or suite JSON path")
     co.add_argument("--out", default="data/v2x")
-    co.add_argument("--workers", type=int, default=1, help="episode worker processes")
+    co.add_argument("--workers", type=_int_in(1), default=1, help="episode worker processes")
     co.add_argument("--scale", default="default", choices=("tiny", "default", "paper"),
                     help="tiny: 3 routes x 150 ticks; default: every route once; paper: 2 seeds per route (~105K frames)")
-    co.add_argument("--seeds", type=int, default=None, help="seed indices per route (overrides the scale)")
-    co.add_argument("--max-routes", type=int, default=None, help="only the first N routes")
-    co.add_argument("--max-ticks", type=int, default=None, help="cap per episode (ticks)")
-    co.add_argument("--max-episodes", type=int, default=None, help="stop after N new episodes (resume later)")
+    co.add_argument("--seeds", type=_int_in(1), default=None,
+                    help="seed indices per route (overrides the scale)")
+    co.add_argument("--max-routes", type=_int_in(1), default=None, help="only the first N routes")
+    co.add_argument("--max-ticks", type=_int_in(1), default=None, help="cap per episode (ticks)")
+    co.add_argument("--max-episodes", type=_int_in(1), default=None,
+                    help="stop after N new episodes (resume later)")
     co.add_argument("--sensors", default=None,
                     help="comma list stored every tick, of rgb,depth,semantic,lidar,bev (default rgb,bev)")
-    co.add_argument("--camera-size", default=None, help="WxH of the 7 cameras (default 128x64)")
+    co.add_argument("--camera-size", type=_camera_size, default=None,
+                    help="WxH of the 7 cameras (default 128x64)")
     co.add_argument("--lidar-scale", type=float, default=None,
                     help="fraction of the default LiDAR channels/azimuths (faster, coarser GT visibility)")
     co.add_argument("--val-fraction", type=float, default=None,
@@ -128,7 +156,7 @@ def register(sub) -> None:
     qas = qa.add_subparsers(dest="qa_command", required=True)
     qb = qas.add_parser("build", help="generate QA pairs (our JSONL + LLaVA JSONL) from a data set")
     qb.add_argument("root", help="data set folder")
-    qb.add_argument("--seed", type=int, default=0, help="paraphrase seed")
+    qb.add_argument("--seed", type=_int_in(0, 2**63 - 1), default=0, help="paraphrase seed")
     qb.add_argument("--out", default=None, help="output folder (default ROOT/chat)")
     qb.set_defaults(func=_qa_build)
     qs = qas.add_parser("stats", help="counts per level, question type and scenario")
@@ -139,7 +167,7 @@ def register(sub) -> None:
     qw.add_argument("root", help="data set folder (after `qa build`)")
     qw.add_argument("--out", default="keyframe.png")
     qw.add_argument("--keyframe", default=None, help="<episode>_t<tick> (default: the most informative)")
-    qw.add_argument("--scale", type=int, default=3, help="image upscaling factor")
+    qw.add_argument("--scale", type=_int_in(1, MAX_SHOW_SCALE), default=3, help="image upscaling factor")
     qw.set_defaults(func=_qa_show)
     qc = qas.add_parser("score", help="score predicted answers (JSONL of {id, answer}) against the reference")
     qc.add_argument("reference", help="data set folder or qa.jsonl")

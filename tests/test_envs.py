@@ -57,7 +57,18 @@ def test_render_rgb_array():
 
 
 def test_pettingzoo_parallel_api():
-    parallel_api_test(parallel_env(**SMALL), num_cycles=60)
+    from v2xbench.envs.v2x_intersection.parallel_env import V2XParallelEnv
+
+    class Probed(V2XParallelEnv):
+        """PettingZoo's parallel_api_test resets once with ``options={"options": 1}`` to see that
+        ``reset`` takes options; the env refuses unknown option keys, so that probe is dropped."""
+
+        def reset(self, seed=None, options=None):
+            return super().reset(seed, None if options == {"options": 1} else options)
+
+    parallel_api_test(Probed(**SMALL), num_cycles=60)
+    with pytest.raises(ValueError, match="unknown option 'options'"):
+        parallel_env(**SMALL).reset(seed=0, options={"options": 1})
 
 
 def test_pettingzoo_spaces_are_cached_objects():

@@ -36,8 +36,11 @@ from .episode import EpisodeTracker, v2x_bps
 from .jit import HAVE_JIT
 from .jit_batch import PerceiveBatch, TrafficBatch
 from .observations import ego_action_space, ego_observation, ego_space, fill_objects_observation
+from .validation import Int, check_options
 from .world import TICK_STAGES, StepError, World
 
+#: worlds in one batch (each holds its own actor table, sensors and observation rows)
+NUM_WORLDS_RULE = Int(1, 1024, "worlds")
 _LOW = np.array([0.0, -1.0, 0.0])
 _HIGH = np.array([1.0, 1.0, 1.0])
 
@@ -90,8 +93,7 @@ class WorldBatch:
     """
 
     def __init__(self, num_worlds: int, config=None, with_infos: bool = True, **kwargs: Any) -> None:
-        if not isinstance(num_worlds, int) or isinstance(num_worlds, bool) or num_worlds < 1:
-            raise ValueError(f"num_worlds={num_worlds!r} must be a positive int")
+        NUM_WORLDS_RULE.check(num_worlds, "num_worlds")
         self.config = make_config(config, **kwargs)
         self.n = num_worlds
         self.worlds = [World(self.config) for _ in range(num_worlds)]
@@ -245,9 +247,13 @@ class V2XVectorEnv(VectorEnv):
             if len(seed) != n:
                 raise ValueError(f"reset: {len(seed)} seeds for {n} worlds")
             seeds = [int(s) if s is not None else int(self._seed_rng.integers(2**31)) for s in seed]
+        options = check_options(options, ("reset_mask",), "V2XVectorEnv.reset")
         mask = None
-        if options is not None and "reset_mask" in options:
-            mask = np.asarray(options["reset_mask"], bool)
+        if "reset_mask" in options:
+            mask = np.asarray(options["reset_mask"])
+            if mask.shape != (n,) or mask.dtype != bool:
+                raise ValueError(f"V2XVectorEnv.reset: options['reset_mask'] must be a bool "
+                                 f"array of shape ({n},), got {mask.dtype} {mask.shape}")
         self.batch.reset(seeds, mask)
         self._autoreset[:] = False if mask is None else self._autoreset & ~mask
         return self.batch.copy_obs(), self._infos()

@@ -4,16 +4,26 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from .validation import Bool, Check, Choice, Float, Int, OrNone, Rule, Text
+from .wire import NUM_OBJECT_FIELDS
+
 OBS_MODES = ("objects", "sensors", "bev")
 RSU_POLICIES = ("none", "share_objects")
+ENCODINGS = ("float16", "float32")
+MAX_ACTORS_PER_KIND = 500  # num_vehicles, num_parked, ... (a town fits fewer: a warning says so)
 
 
 @dataclass(frozen=True)
 class EnvConfig:
     """All knobs of a V2XIntersection world. Build with :func:`make_config` (validates keys).
+
+    Every field is checked on construction by its rule in :data:`FIELD_RULES` (type and bounds:
+    ``max_objects=10**9`` is refused naming the bound), then :data:`COMBINATION_CHECKS`
+    (``route_index`` needs a ``suite`` ...). A new field needs a rule there.
 
     Attributes:
         town: named town (``town.NAMED_TOWNS``); with ``scenario`` and no explicit town, the
@@ -77,56 +87,95 @@ class EnvConfig:
     dt: float = 0.1
 
     def __post_init__(self) -> None:
-        from .town import NAMED_TOWNS
+        values = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        for name, value in values.items():
+            rule = FIELD_RULES.get(name)
+            if rule is None:
+                raise TypeError(f"config: field {name!r} has no rule in config.FIELD_RULES "
+                                "(add one)")
+            rule.check(value, f"config: {name}")
+        for check in COMBINATION_CHECKS:
+            check(self)
 
-        def bad(name: str, why: str) -> None:
-            raise ValueError(f"config: {name}={getattr(self, name)!r} {why}")
 
-        if self.town not in NAMED_TOWNS:
-            bad("town", f"is not a known town ({', '.join(NAMED_TOWNS)})")
-        if self.scenario is not None:
-            from .scenarios import get_scenario
+def _known_town(name: Any) -> None:
+    from .town import NAMED_TOWNS
 
-            try:
-                get_scenario(self.scenario)
-            except ValueError as e:
-                raise ValueError(f"config: scenario: {e}") from None
-        if self.seed is not None and (not isinstance(self.seed, int) or isinstance(self.seed, bool) or self.seed < 0):
-            bad("seed", "must be an int >= 0 or None")
-        if self.route_index is not None and (not isinstance(self.route_index, int) or self.route_index < 0):
-            bad("route_index", "must be an int >= 0 or None")
-        for name in ("num_vehicles", "num_parked", "num_pedestrians", "num_bicycles"):
-            v = getattr(self, name)
-            if not isinstance(v, int) or isinstance(v, bool) or not 0 <= v <= 500:
-                bad(name, "must be an int in [0, 500]")
-        for name in ("max_objects", "route_points", "route_step", "rsu_slots", "max_payload_floats", "render_size"):
-            v = getattr(self, name)
-            if not isinstance(v, int) or isinstance(v, bool) or v < 1:
-                bad(name, "must be a positive int")
-        for name in ("route_length", "ego_range", "rsu_range"):
-            v = getattr(self, name)
-            if not isinstance(v, (int, float)) or not v > 0:
-                bad(name, "must be a positive number")
-        for name in ("large_vehicle_fraction", "jaywalk_prob", "loss_prob"):
-            v = getattr(self, name)
-            if not isinstance(v, (int, float)) or not 0.0 <= v <= 1.0:
-                bad(name, "must be a probability in [0, 1]")
-        if self.obs_mode not in OBS_MODES:
-            bad("obs_mode", f"must be one of {OBS_MODES}")
-        if self.rsu_policy not in RSU_POLICIES:
-            bad("rsu_policy", f"must be one of {RSU_POLICIES}")
-        if not isinstance(self.latency_ticks, int) or self.latency_ticks < 1:
-            bad("latency_ticks", "must be an int >= 1 (a message made from the RSU's observation at "
-                "tick t reaches the ego's observation at tick t + latency_ticks)")
-        bw = self.bandwidth_bytes_per_s
-        if bw is not None and (not isinstance(bw, (int, float)) or not 0 < bw < float("inf")):
-            bad("bandwidth_bytes_per_s", "must be a positive finite number or None")
-        if self.encoding not in ("float16", "float32"):
-            bad("encoding", "must be 'float16' or 'float32'")
-        if self.max_steps is not None and (not isinstance(self.max_steps, int) or self.max_steps < 1):
-            bad("max_steps", "must be a positive int or None")
-        if self.dt != 0.1:
-            bad("dt", "is fixed at 0.1 s (10 Hz)")
+    if name not in NAMED_TOWNS:
+        raise ValueError(f"{name!r} is not a known town ({', '.join(NAMED_TOWNS)})")
+
+
+def _known_scenario(name: Any) -> None:
+    from .scenarios import get_scenario
+
+    if not isinstance(name, str):
+        raise ValueError(f"expected a scenario name, got {type(name).__name__} {name!r}")
+    get_scenario(name)
+
+
+_COUNT = Int(0, MAX_ACTORS_PER_KIND)
+_PROB = Float(0.0, 1.0, why="a probability")
+
+#: one rule per field: type and bounds (every value that sizes an allocation has an upper bound)
+FIELD_RULES: dict[str, Rule] = {
+    "town": Check(_known_town, "a named town"),
+    "scenario": OrNone(Check(_known_scenario, "a registered scenario type")),
+    "suite": OrNone(Text(4096, what="a suite name or a path to a suite JSON")),
+    "route_index": OrNone(Int(0, 100_000)),
+    "seed": OrNone(Int(0, 2**63 - 1)),
+    "route_length": Float(10.0, 5000.0, "m"),
+    "num_vehicles": _COUNT,
+    "num_parked": _COUNT,
+    "num_pedestrians": _COUNT,
+    "num_bicycles": _COUNT,
+    "large_vehicle_fraction": _PROB,
+    "jaywalk_prob": _PROB,
+    "obs_mode": Choice(OBS_MODES),
+    "max_objects": Int(1, 256, "object slots"),
+    "route_points": Int(1, 200, "points"),
+    "route_step": Int(1, 50, "m"),
+    "ego_range": Float(1.0, 500.0, "m"),
+    "rsu_range": Float(1.0, 500.0, "m"),
+    "rsu_policy": Choice(RSU_POLICIES),
+    "rsu_slots": Int(1, 16, "RSU agents"),
+    "latency_ticks": Int(1, 100, "ticks", why="a message made from the RSU's observation at tick t "
+                         "reaches the ego's observation at tick t + latency_ticks"),
+    "loss_prob": _PROB,
+    "bandwidth_bytes_per_s": OrNone(Float(0.0, 1e12, "bytes/s", lo_open=True)),
+    "max_payload_floats": Int(NUM_OBJECT_FIELDS, 65_536, "floats", why="a message must carry "
+                              f"at least one object of {NUM_OBJECT_FIELDS} floats"),
+    "encoding": Choice(ENCODINGS),
+    "max_steps": OrNone(Int(1, 100_000, "ticks")),
+    "terminate_on_collision": Bool(),
+    "render_size": Int(16, 4096, "pixels"),
+    "dt": Choice((0.1,), why="the tick is fixed at 0.1 s (10 Hz)"),
+}
+
+
+def _suite_and_index(cfg: EnvConfig) -> None:
+    """``route_index`` needs a ``suite`` and must index one of its routes; a suite replaces the
+    ``scenario`` (so both together are a mistake). Loads (and so validates) the suite."""
+    if cfg.route_index is not None and cfg.suite is None:
+        raise ValueError(f"config: route_index={cfg.route_index} needs a suite (route_index picks "
+                         "one of the suite's routes)")
+    if cfg.suite is not None and cfg.scenario is not None:
+        raise ValueError(f"config: scenario={cfg.scenario!r} and suite={cfg.suite!r} exclude each "
+                         "other (the suite's routes bring their own scenarios)")
+    if cfg.suite is None:
+        return
+    from .route_files import load_suite_cached
+
+    try:
+        n = len(load_suite_cached(cfg.suite))
+    except ValueError as e:
+        raise ValueError(f"config: suite: {e}") from None
+    if cfg.route_index is not None and cfg.route_index >= n:
+        raise ValueError(f"config: route_index: {cfg.route_index} is outside [0, {n - 1}] "
+                         f"(suite {cfg.suite!r} has {n} routes)")
+
+
+#: checks of field combinations, run after the per-field rules
+COMBINATION_CHECKS: list[Callable[[EnvConfig], None]] = [_suite_and_index]
 
 
 CONFIG_FIELDS = tuple(f.name for f in dataclasses.fields(EnvConfig))
@@ -144,7 +193,7 @@ def make_config(config: EnvConfig | None = None, **kwargs: Any) -> EnvConfig:
             hint = f"; did you mean {close[0]!r}?" if close else ""
             raise ValueError(f"config: unknown key {key!r}{hint}")
     base = config or EnvConfig()
-    if kwargs.get("scenario") is not None and "town" not in kwargs:
+    if isinstance(kwargs.get("scenario"), str) and "town" not in kwargs:
         from .scenarios import get_scenario
 
         try:

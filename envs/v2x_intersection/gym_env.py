@@ -7,6 +7,8 @@
 - Action: ``Box(3)`` = throttle in [0, 1], steer in [-1, 1], brake in [0, 1]. Finite values out of
   range are clipped; wrong shape, NaN or inf raise ``ValueError``.
 - RSU: ``config.rsu_policy`` = ``"share_objects"`` (send the objects it sees) or ``"none"``.
+- Reset options: ``spec`` (a route file's ``RouteSpec``), or ``route`` and ``scenarios``; any
+  other key raises ``ValueError``.
 - Reward, termination and info: :mod:`.episode`. ``render_mode="rgb_array"``: top-down view.
 
 Version history: v0 - first release.
@@ -22,7 +24,11 @@ import numpy as np
 from .config import make_config
 from .episode import EpisodeTracker
 from .observations import ego_action_space, ego_observation, ego_space, validate_control
+from .validation import check_options
 from .world import StepError, World
+
+#: the keys ``reset(options=...)`` takes: ``World.reset``'s episode arguments
+RESET_OPTIONS = ("spec", "route", "scenarios")
 
 
 class V2XIntersectionEnv(gym.Env):
@@ -41,12 +47,14 @@ class V2XIntersectionEnv(gym.Env):
         self._tracker: EpisodeTracker | None = None
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Start an episode. ``options``: :data:`RESET_OPTIONS` (``World.reset``'s episode: a
+        ``spec`` route file, or ``route`` and ``scenarios``); another key raises ``ValueError``."""
+        options = check_options(options, RESET_OPTIONS)
         if seed is None and self._tracker is None:
             seed = self.config.seed
         super().reset(seed=seed)
         if seed is None:
             seed = int(self.np_random.integers(2**31))
-        options = options or {}
         self.world.reset(seed=seed, route=options.get("route"), scenarios=options.get("scenarios"),
                          spec=options.get("spec"))
         self._tracker = EpisodeTracker(self.world)

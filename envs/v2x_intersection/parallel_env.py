@@ -24,6 +24,7 @@ from pettingzoo import ParallelEnv
 
 from .config import make_config
 from .episode import EpisodeTracker
+from .gym_env import RESET_OPTIONS
 from .observations import (
     ego_action_space,
     ego_observation,
@@ -33,6 +34,7 @@ from .observations import (
     rsu_space,
     validate_control,
 )
+from .validation import check_options
 from .world import StepError, World
 
 
@@ -73,9 +75,10 @@ class V2XParallelEnv(ParallelEnv):
         return obs
 
     def reset(self, seed: int | None = None, options: dict | None = None):
+        """Start an episode; ``options`` as the Gymnasium env's (``gym_env.RESET_OPTIONS``)."""
+        options = check_options(options, RESET_OPTIONS)
         if seed is None and self._tracker is None:
             seed = self.config.seed
-        options = options or {}
         self.world.reset(seed=seed, route=options.get("route"), scenarios=options.get("scenarios"),
                          spec=options.get("spec"))
         self._tracker = EpisodeTracker(self.world)

@@ -22,6 +22,7 @@ from .town.model import (
     PARKING,
     Town,
 )
+from .validation import ShortfallWarning, warn_once
 
 ROUTE_STEP = 1.0  # m between route points
 LANE_CHANGE_COST = 30.0  # m-equivalent penalty in the planner
@@ -239,7 +240,8 @@ def _lane_chunk(town: Town, ln, s: np.ndarray, a: float, b: float) -> tuple[np.n
 
 def random_route(town: Town, rng: np.random.Generator, min_length: float = 300.0,
                  lane_change_prob: float = 0.1, tries: int = 200) -> Route:
-    """A random drive of at least ``min_length`` m starting at a random driving lane."""
+    """A random drive of at least ``min_length`` m starting at a random driving lane (the longest
+    of ``tries`` draws, with a :class:`~.validation.ShortfallWarning`, where none is that long)."""
     store = town.cache("random_route")
     if not store:  # lane lengths and start lanes depend on the town only
         store["length"] = [ln.length for ln in town.lanes]
@@ -266,6 +268,12 @@ def random_route(town: Town, rng: np.random.Generator, min_length: float = 300.0
             best, best_len = lanes, total
         if total >= min_length:
             break
+    if best_len < min_length:
+        warn_once(("route_length", town.name, float(min_length)),
+                  f"route_length={min_length:g} m asked, but the longest random route found in "
+                  f"{town.name} in {tries} tries is {best_len:.0f} m (its roads end sooner); this "
+                  f"episode drives {best_len:.0f} m (warned once per town and value)",
+                  ShortfallWarning, stacklevel=3)
     return route_from_lanes(town, best)
 
 

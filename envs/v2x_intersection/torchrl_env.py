@@ -4,7 +4,9 @@ Specs (all float32 unless noted, leading dim ``N``): observation keys as
 ``observations.ego_space`` (``ego``, ``route``, ``objects``, ``v2x_objects``, ``v2x_info``) plus
 ``route_completion (1,)`` and ``v2x_bps (1,)``; ``action (3,)`` bounded (throttle, steer, brake);
 ``reward (1,)``; ``done``/``terminated``/``truncated (1,)`` bool. The RSU runs the built-in
-``config.rsu_policy``. Partial resets follow TorchRL's ``"_reset"`` mask. Seeding: ``set_seed``
+``config.rsu_policy``. Partial resets follow TorchRL's ``"_reset"`` mask; as in Gymnasium, stepping
+a world whose episode ended without resetting it raises ``StepError``, and ``reset`` refuses
+arguments and options it does not take. Seeding: ``set_seed``
 seeds a generator from which every world's reset seeds are drawn, so a run is reproducible.
 
 The worlds live in one :class:`~.batch.WorldBatch`: actions are validated as one ``(N, 3)``
@@ -23,9 +25,14 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from .batch import WorldBatch
+from .batch import NUM_WORLDS_RULE, WorldBatch
 from .config import make_config
 from .observations import ego_space
+from .validation import check_options
+from .world import StepError
+
+#: the keys ``reset(options=...)`` takes (none yet: every world draws its episode from its seed)
+RESET_OPTIONS: tuple[str, ...] = ()
 
 _EXTRA = ("route_completion", "v2x_bps")
 
@@ -52,8 +59,7 @@ class V2XTorchEnv(EnvBase):
     batch_locked = True
 
     def __init__(self, num_worlds: int = 1, device: str | torch.device = "cpu", **config: Any) -> None:
-        if not isinstance(num_worlds, int) or num_worlds < 1:
-            raise ValueError(f"num_worlds={num_worlds!r} must be a positive int")
+        NUM_WORLDS_RULE.check(num_worlds, "num_worlds")
         super().__init__(batch_size=torch.Size([num_worlds]), device=device)
         self.config = make_config(**config)
         self.batch = WorldBatch(num_worlds, self.config, with_infos=False)
@@ -81,6 +87,12 @@ class V2XTorchEnv(EnvBase):
         return _tensors({**b.obs, **{k: getattr(b, k)[:, None] for k in _EXTRA}}, self.device)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        options = kwargs.pop("options", None)
+        if kwargs:
+            names = ", ".join(map(repr, sorted(kwargs)))
+            raise ValueError(f"V2XTorchEnv.reset: unknown argument(s) {names} (it takes a "
+                             "tensordict with a '_reset' mask; seed with set_seed())")
+        check_options(options, RESET_OPTIONS, "V2XTorchEnv.reset")
         n = self.batch_size[0]
         mask = np.ones(n, bool)
         if tensordict is not None and "_reset" in tensordict.keys():
@@ -97,8 +109,12 @@ class V2XTorchEnv(EnvBase):
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         n = self.batch_size[0]
-        actions = tensordict.get("action").detach().cpu().numpy()
         b = self.batch
+        ended = [i for i, tr in enumerate(b.trackers) if tr is not None and tr.done]
+        if ended:
+            raise StepError(f"world {ended[0]}: step() called after the episode ended; reset it "
+                            "first (env.reset(), or a '_reset' mask as step_and_maybe_reset does)")
+        actions = tensordict.get("action").detach().cpu().numpy()
         b.step(actions)  # checked and clipped there
         out = self._outputs()
         t = lambda a: torch.as_tensor(a, device=self.device)  # noqa: E731

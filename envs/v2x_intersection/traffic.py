@@ -22,6 +22,7 @@ from .jit_traffic import (
 )
 from .signals import RED, YELLOW
 from .town.model import PRIORITY, STOP, Town
+from .validation import ShortfallWarning, warn_once
 
 LOOKAHEAD = 50.0  # m, leader search distance
 STOP_LINE_SETBACK = 4.5  # m, stop line before the lane end (crosswalk + margin)
@@ -437,3 +438,29 @@ def spawn_parked(t: ActorTable, town: Town, rng: np.random.Generator, row: int, 
         row += 1
         placed += 1
     return row
+
+
+# ---------------------------------------------------------------------------- spawn shortfall
+#: why fewer actors than asked can be placed, per config field
+SHORTFALL_REASONS = {
+    "num_vehicles": "no free lane spot is left clear of other actors and away from the ego",
+    "num_parked": "every parking slot is taken",
+    "num_pedestrians": "the town has no sidewalks",
+    "num_bicycles": "no free lane spot is left clear of other actors and away from the ego",
+}
+
+
+def warn_spawn_shortfall(town: Town, asked: dict[str, int], placed: dict[str, int]) -> None:
+    """Warn, once per process for each town, field and asked count, where ``placed[field]`` (the
+    actors the reset placed) is below ``asked[field]`` (the config's ``num_*``)."""
+    for field, n in asked.items():
+        got = int(placed[field])
+        if got >= n:
+            continue
+        why = SHORTFALL_REASONS[field]
+        if field == "num_parked" and len(town.parking) == 0:
+            why = "the town has no parking slots"
+        warn_once(("spawn", town.name, field, int(n)),
+                  f"config: {field}={n} but only {got} fit in {town.name} ({why}); this episode "
+                  f"runs with {got} (warned once per town and value)",
+                  ShortfallWarning, stacklevel=4)

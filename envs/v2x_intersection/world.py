@@ -67,6 +67,7 @@ from .traffic import (
     respawn_followers,
     spawn_parked,
     step_followers,
+    warn_spawn_shortfall,
 )
 from .visibility import VISIBILITY_SAMPLING, VISIBLE_THRESHOLD, visible_fraction
 from .wire import check_header, max_objects, pack_objects, pack_rows
@@ -217,11 +218,13 @@ class World:
         t.lane[0] = self.route.lane_ids[0]
         self.table = t
         self._traffic_args: tuple | None = None  # (rng, table, kernel arguments), built by move_traffic
-        row = 1
-        row = self._spawn_drivers(row, cfg.num_vehicles)
-        row = self._spawn_parked(row, cfg.num_parked)
-        row = self._spawn_walkers(row, cfg.num_pedestrians)
-        row = self._spawn_riders(row, cfg.num_bicycles)
+        asked = {"num_vehicles": cfg.num_vehicles, "num_parked": cfg.num_parked,
+                 "num_pedestrians": cfg.num_pedestrians, "num_bicycles": cfg.num_bicycles}
+        ends = [1]
+        for spawn, count in zip((self._spawn_drivers, self._spawn_parked, self._spawn_walkers,
+                                 self._spawn_riders), asked.values()):
+            ends.append(spawn(ends[-1], count))
+        warn_spawn_shortfall(self.town, asked, dict(zip(asked, np.diff(ends))))
         t.color[:] = self.rng.integers(0, 8, size=n)
         self.monitor = EventMonitor(self.town, self.route, cfg.dt)
         row = n_base

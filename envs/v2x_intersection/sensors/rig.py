@@ -59,6 +59,7 @@ from .lidar import LidarSpec, blank_lidar, capture_lidar, ego_lidar_spec, rsu_li
 from .scene import Scene, build_scene
 from .semantics import NUM_SEMANTIC
 
+MAX_CAMERA_SIDE = 4096  # pixels: a camera's width and height (each sizes its image buffers)
 _EGO = np.array([0])  # the ego's own box: ego sensors look through it
 
 
@@ -99,8 +100,12 @@ class SensorConfig:
             )
         for name in ("camera_size", "rsu_camera_size"):
             v = getattr(self, name)
-            if v is not None and (len(v) != 2 or min(v) < 2):
-                raise ValueError(f"SensorConfig: {name}={v!r} must be (width, height) >= 2")
+            ok = isinstance(v, (tuple, list)) and len(v) == 2 and all(
+                isinstance(x, (int, np.integer)) and not isinstance(x, bool)
+                and 2 <= x <= MAX_CAMERA_SIDE for x in v)
+            if v is not None and not ok:
+                raise ValueError(f"SensorConfig: {name}={v!r} must be (width, height), "
+                                 f"ints in [2, {MAX_CAMERA_SIDE}] pixels")
 
 
 class SensorRig:

@@ -1,0 +1,14 @@
+"""AURORA (seed paper, section 4): dual-view camera perception, trained from scratch.
+
+Part 1 (issue #32) holds the two perception branches and their training:
+
+- :mod:`.config`: :class:`~.config.AuroraConfig` with the ``tiny``, ``default`` and ``paper``
+  scales and the per-stage training hyper-parameters (:class:`~.config.StageHParams`).
+- :mod:`.vit`, :mod:`.position`: the ViT encoder and the PETR-style depth-aware 3D position
+  embedding of its patches.
+- :mod:`.det_decoder`, :mod:`.map_decoder`: DETR-style detection (+ traffic-light head) and
+  MapTR-style vectorized map decoders.
+- :mod:`.branch`: :class:`~.branch.PerceptionBranch`, one per view (``"ego"`` / ``"rsu"``).
+- :mod:`.matching`, :mod:`.losses`: Hungarian matching and the set-prediction criterion.
+- :mod:`.trainer`: the training loop every stage and baseline reuses.
+"""

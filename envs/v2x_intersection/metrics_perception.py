@@ -227,8 +227,13 @@ def _match(pred: DetBoxes, gt: DetBoxes, th: float) -> tuple[np.ndarray, np.ndar
     order = np.argsort(-pred.score, kind="stable")
     taken = np.zeros(len(gt.frame), bool)
     match = np.full(len(order), -1)
+    by_gt = np.argsort(gt.frame, kind="stable")  # gt indices grouped by frame, ascending within
+    frames, first = np.unique(gt.frame[by_gt], return_index=True)
+    per_frame = dict(zip(frames.tolist(), np.split(by_gt, first[1:])))
+    none = np.zeros(0, np.int64)
     for j, i in enumerate(order):
-        cand = np.flatnonzero((gt.frame == pred.frame[i]) & ~taken)
+        cand = per_frame.get(int(pred.frame[i]), none)
+        cand = cand[~taken[cand]]
         if len(cand):
             d = np.linalg.norm(gt.center[cand] - pred.center[i], axis=1)
             k = int(np.argmin(d))

@@ -16,6 +16,7 @@ Commands:
     data        validate a collected data set (missing / corrupt shards)
     qa          build Chat-V2XBench from a data set, print its statistics, score answers
     warmup      compile the numba kernels ahead of time (first use in a fresh environment)
+    aurora      AURORA perception: train the ego / roadside branches, evaluate them (mAP, NDS)
 """
 
 from __future__ import annotations
@@ -23,10 +24,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-from v2xbench.cli import bench, data, drive, evaluation, warmup
+from v2xbench.cli import aurora, bench, data, drive, evaluation, warmup
 
 #: Sub-command modules, each with ``register(subparsers)``, in help order.
-COMMAND_MODULES = (drive, evaluation, bench, data, warmup)
+COMMAND_MODULES = (drive, evaluation, bench, data, warmup, aurora)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -39,6 +39,10 @@ def register(sub) -> None:
                    "Interleaved runs of a git revision (in a temporary worktree) and this "
                    "checkout, CPU time per tick (benchmarks/ab.py); prints both series and the median "
                    "ratio.")
+    _add_benchmark(sub, "bench-model", "model_speed", "AURORA training samples/s and inference ms per branch",
+                   "Time AURORA's perception branches at the tiny and default scales: training "
+                   "samples/s per stage and inference ms per frame (benchmarks/model_speed.py); "
+                   "--data also times sample loading. Writes OUT/model_speed.json and .md.")
     _add_benchmark(sub, "coverage", "rsu_coverage", "how well the route's roadside units see the V2X hazards",
                    "Drive every V2X-type scenario instance of a suite and measure how long each hazard "
                    "is hidden from the ego and seen by the active roadside unit "

@@ -15,8 +15,11 @@ so an isolated deterministic agent drives exactly as it does in-process.
 
 An exception of the agent comes back as an :class:`AgentProcessError` naming the agent's
 exception, with its traceback; the evaluation records it as a failed route, like an in-process
-exception. An agent that does not answer within ``timeout_s`` or whose process dies is killed and
-started afresh at the next route.
+exception. So does a ``SystemExit`` or ``KeyboardInterrupt`` the agent raises (the process goes
+on). An agent that does not answer within ``timeout_s`` or whose process dies is killed and
+started afresh at the next route. The agent process ends itself within a second when the process
+that started it is gone (``eval_workers.exit_with_parent``), so a killed evaluation worker leaves
+no agent process behind, even one stuck in ``act``.
 """
 
 from __future__ import annotations
@@ -114,7 +117,7 @@ def serve(conn: Connection) -> None:
                 answer({"ok": True, "output": _encode_output(agent.act(arg))})
             else:
                 raise ValueError(f"unknown command {cmd!r}")
-        except Exception as e:  # noqa: BLE001  (the route fails; the process goes on)
+        except BaseException as e:  # noqa: BLE001  (SystemExit too: the route fails, we go on)
             answer(_error(e))
 
 
@@ -251,6 +254,9 @@ def _main(argv: list[str]) -> int:
         print("usage: python -m v2xbench.collectors.agent_process FD (started by IsolatedAgent)",
               file=sys.stderr)
         return 2
+    from v2xbench.collectors.eval_workers import exit_with_parent
+
+    exit_with_parent()
     conn = Connection(int(argv[0]))
     try:
         serve(conn)

@@ -1,11 +1,12 @@
 """``EvalEnv``: one world that drives the jobs of an evaluation queue, as a TorchRL ``EnvBase``.
 
-Built from picklable arguments only (so ``MultiSyncCollector`` can create it in spawned workers
-from a ``functools.partial``). At every reset it claims the next job of the queue that has
-neither a result nor a claim (``jobs.try_claim``), resets the world with the job's route and seed
-and starts logging; when the route ends it writes the job's result JSON. When no job is left it
-idles cheaply: reset returns a zero observation with ``job = -1`` and step returns ``done=True``
-without simulating, until the harness stops the collector.
+Built from picklable arguments only (so a worker process can create it from a
+``functools.partial``; ``eval_workers.py`` runs one per worker under a ``Collector``). At every
+reset it claims the next job of the queue that has neither a result nor a claim
+(``jobs.try_claim``), resets the world with the job's route and seed and starts logging; when the
+route ends it writes the job's result JSON. When no job is left it idles cheaply: reset returns a
+zero observation with ``job = -1`` and step returns ``done=True`` without simulating, until its
+worker stops the collector.
 
 Two ways to drive:
 
@@ -31,8 +32,11 @@ or ``cameras`` + ``lidar``, or ``bev``; the mode defaults to the agent's ``obs_m
 
 Failures: an exception of the agent (``reset``, ``bind`` or ``act``), of the world, or an invalid
 policy action (NaN) ends the route as failed (``ENDED_ERROR``, DS 0, message and traceback in the
-result) and the queue goes on. A reset while a job runs restarts that job from its seed, so a
-collector's extra resets never lose or change a job.
+result) and the queue goes on. So does a ``SystemExit`` or ``KeyboardInterrupt`` the agent raises
+(recorded as :class:`AgentAborted`). A reset while a job runs restarts that job from its seed, so
+a collector's extra resets never lose or change a job. What cannot be caught here (an agent that
+never returns, ``os._exit``, a crash of the interpreter) is caught by the process that supervises
+the env's worker (``eval_workers.py``).
 """
 
 from __future__ import annotations
@@ -57,6 +61,24 @@ from v2xbench.envs.v2x_intersection.world import World
 
 from . import jobs as J
 from .route_log import RouteLog, build_result, ended_by_code
+
+
+class AgentAborted(RuntimeError):
+    """The agent raised a ``BaseException`` that is not an ``Exception`` (``SystemExit``,
+    ``KeyboardInterrupt``): its route fails like on any other exception of the agent."""
+
+
+def call_agent(fn: Callable, *args: Any) -> Any:
+    """``fn(*args)`` for a method of the agent; a ``SystemExit`` or ``KeyboardInterrupt`` (or any
+    other non-``Exception``) it raises comes out as :class:`AgentAborted`, so it fails the route,
+    not the evaluation."""
+    try:
+        return fn(*args)
+    except Exception:
+        raise
+    except BaseException as e:  # noqa: BLE001  (the agent's, see docstring)
+        detail = f": {e}" if str(e) else ""
+        raise AgentAborted(f"the agent raised {type(e).__name__}{detail}") from e
 
 
 def agent_label(agent: Any) -> tuple[str, str]:
@@ -238,9 +260,10 @@ class EvalEnv(EnvBase):
         self._log = RouteLog(self.world, self.video_every, self.video_size)
         obs = self._observe()
         if self.agent is not None:
-            self.agent.reset(route_info(self.world, spec.town, J.job_seed(spec.seed, job.seed_index)))
+            info = route_info(self.world, spec.town, J.job_seed(spec.seed, job.seed_index))
+            call_agent(self.agent.reset, info)
             if self.privileged:
-                self.agent.bind(self.world)
+                call_agent(self.agent.bind, self.world)
             obs["agent_action"] = self._act(obs)
         self._obs = obs
 
@@ -248,7 +271,8 @@ class EvalEnv(EnvBase):
         from v2xbench.agents.interface import to_control
 
         view = {k: v for k, v in obs.items() if k not in ("agent_action", "job")}
-        return validate_control(to_control(self.agent.act(view), view), "agent output").astype(np.float32)
+        out = call_agent(self.agent.act, view)
+        return validate_control(to_control(out, view), "agent output").astype(np.float32)
 
     def _finish(self, ended_by: int, error: BaseException | None = None) -> None:
         """Write the running job's result and go idle."""
@@ -268,6 +292,14 @@ class EvalEnv(EnvBase):
             config=self.overrides)
         J.write_json_atomic(res, J.result_path(self.out, job.job_id))
         self._job, self._job_index, self._log, self._tracker = None, -1, None, None
+
+    def fail_running_job(self, error: BaseException) -> bool:
+        """Record the running job (if any) as failed with ``error``, an exception that escaped the
+        env (of the collector's policy, say); returns whether a job was running."""
+        if self._job is None:
+            return False
+        self._finish(0, error=error)
+        return True
 
     def _next_job(self) -> None:
         """Claim and start the next free job; failed starts are recorded; idle when none is left."""

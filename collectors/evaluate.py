@@ -4,25 +4,36 @@
 
     from v2xbench.collectors.evaluate import evaluate
 
-    if __name__ == "__main__":          # needed with workers > 1 (spawned worker processes)
+    if __name__ == "__main__":          # needed: the routes run in worker processes
         summary = evaluate("route_follower", suite="test50", seeds=3, workers=2, out="results/rf")
 
 or ``v2xbench eval --agent route_follower --suite test50 --seeds 3 --workers 2 --out results/rf``.
 
 The jobs are the suite's routes x ``seeds`` seed indices (``jobs.py``: job ``{route_id}_s{k}``,
-world seed ``route seed + 1000 k``). Each collector worker holds one :class:`~.eval_env.EvalEnv`
-that claims jobs from the shared queue in ``<out>/claims`` and writes ``<out>/routes/<job>.json``;
-``workers == 1`` runs a ``torchrl.collectors.Collector`` in this process, more run a
-``MultiSyncCollector`` (spawned processes). The harness iterates the collector's batches, counts
-result files for the progress bar and stops when every job has a result, then writes
-``<out>/summary.json`` and ``<out>/summary.md`` (:func:`summarize`). Running again on the same
-``out`` resumes: finished jobs are skipped, claims left by an interrupted run are cleared.
+world seed ``route seed + 1000 k``). ``workers`` worker processes each run a
+``torchrl.collectors.Collector`` over one :class:`~.eval_env.EvalEnv` that claims jobs from the
+shared queue in ``<out>/claims`` and writes ``<out>/routes/<job>.json``. The harness supervises
+them (``eval_workers.py``): a job that runs longer than ``route_timeout`` seconds of wall clock,
+or whose worker dies (``os._exit`` in the agent, a crash), is recorded as that job's failure
+(result ``failure = "timeout"`` / ``"error"``, ``ended_by = "error"``, DS 0) and a new worker
+takes the remaining jobs. When every job has a result it writes ``<out>/summary.json`` and
+``<out>/summary.md`` (:func:`summarize`).
+
+The run holds ``v2xbench.locks.dir_lock(out)`` from start to end: a second evaluation on the same
+``out`` is refused (``DirectoryLocked`` names the holder). Running again on the same ``out``
+resumes: finished jobs are skipped; claims and temporary files left by an interrupted run are
+removed, and a result file that does not read back (empty, truncated) is removed with a warning
+naming it, so its job runs again.
 
 ``agent`` is a registered agent name, ``path/to/file.py:ClassName``, a picklable zero-argument
 factory, or a TorchRL policy (a ``TensorDictModule`` reading the observation keys of
-:class:`~.eval_env.EvalEnv` and writing ``action``; it must be picklable for ``workers > 1``).
+:class:`~.eval_env.EvalEnv` and writing ``action``); factories and policies must be picklable
+(they are sent to the worker processes).
 
-Trust: only the built-in expert and oracles are privileged (``interface.PRIVILEGED_AGENTS``;
+Trust: ``path/to/file.py:ClassName`` executes that file: in this process (the agent is built
+once to fail early) and in every worker, or only in the agent's own process with
+``isolate_agent`` (docs/evaluation.md, "Trust"). Only the built-in expert and oracles are
+privileged (``interface.PRIVILEGED_AGENTS``;
 results and summary record the harness's decision, not the agent's claim). With
 ``isolate_agent=True`` (``--isolate-agent``) a protocol agent runs in a process of its own and
 sees only ``route_info`` and its observations (``agent_process.py``); privileged agents and
@@ -48,15 +59,19 @@ from typing import Any
 
 import numpy as np
 import torch
-from v2xbench.envs.v2x_intersection.metrics import ENDED_BY_NAMES, aggregate
+from v2xbench.envs.v2x_intersection.metrics import ENDED_BY_NAMES, ENDED_ERROR, aggregate
 from v2xbench.envs.v2x_intersection.route_files import load_suite_cached
 from v2xbench.envs.v2x_intersection.scenarios import get_scenario
 
+from v2xbench.files import atomic_write_text, check_output_dir, remove_stale_tmp
+from v2xbench.locks import dir_lock
+
 from . import jobs as J
 from .eval_env import agent_label, copy_policy, instantiate_agent, make_env_factory
+from .eval_workers import DEFAULT_ROUTE_TIMEOUT_S, check_route_timeout, run_jobs
+from .route_log import FAILURE_KINDS, build_result
 
-FRAMES_PER_WORKER = 64  # collector frames per worker and batch (the harness checks progress per batch)
-SHUTDOWN_TIMEOUT_S = 3.0  # s for the workers to exit after the last result (then terminated)
+FRAMES_PER_WORKER = 64  # collector frames per worker between two looks for more work
 
 
 def _is_policy(agent: Any) -> bool:
@@ -72,7 +87,13 @@ def _check_manifest(out: Path, manifest: dict) -> None:
     """Refuse to mix results of another agent, suite or config in one directory."""
     path = out / "run.json"
     if path.is_file():
-        old = json.loads(path.read_text())
+        try:
+            old = json.loads(path.read_text())
+            if not isinstance(old, dict):
+                raise ValueError(f"a JSON {type(old).__name__}, not an object")
+        except ValueError as e:
+            raise ValueError(f"{path} is unreadable ({e}); it says what this directory holds, so "
+                             "fix or delete it (or use another --out)") from None
         old.setdefault("agent_process", "in_process")  # directories written before isolation existed
         for key in ("agent", "suite_key", "config_overrides", "agent_process"):
             if old.get(key) != manifest[key]:
@@ -81,43 +102,47 @@ def _check_manifest(out: Path, manifest: dict) -> None:
     J.write_json_atomic(manifest, path)
 
 
-def _make_collector(env_fn: Callable, policy, workers: int, frames_per_batch: int):
-    from torchrl.collectors import Collector, MultiSyncCollector
-
-    if workers == 1:
-        return Collector(env_fn, policy, frames_per_batch=frames_per_batch, total_frames=-1,
-                         auto_register_policy_transforms=False)
-    return MultiSyncCollector([env_fn] * workers, policy, frames_per_batch=frames_per_batch * workers,
-                              total_frames=-1, num_threads=1, num_sub_threads=1, cat_results="stack",
-                              auto_register_policy_transforms=False)
+def _clean(out: Path) -> None:
+    """Remove the temporary files that killed writers left in ``out`` and its result folders."""
+    for d in (out, J.routes_dir(out), out / "videos"):
+        remove_stale_tmp(d)
 
 
 def evaluate(agent: Any = "route_follower", suite: str = "test50", seeds: int = 1, workers: int = 1,
              out: str | Path = "results/eval", video: bool = False, max_routes: int | None = None,
              config: Mapping[str, Any] | None = None, *, agent_name: str | None = None,
              frames_per_batch: int = FRAMES_PER_WORKER, progress: bool = True,
-             n_boot: int = 2000, isolate_agent: bool = False) -> dict:
+             n_boot: int = 2000, isolate_agent: bool = False,
+             route_timeout: float = DEFAULT_ROUTE_TIMEOUT_S) -> dict:
     """Evaluate ``agent`` on ``suite`` and return the summary (see module docstring).
 
     Args:
         agent: registered name, ``path.py:Class``, picklable factory, or TorchRL policy module.
         suite: suite name (``test50``, ``val``, ``train``) or path to a suite JSON.
-        seeds: seed indices per route. workers: collector worker processes (1: in-process).
-        out: output directory (created; resumed when it holds results of the same run).
+        seeds: seed indices per route. workers: worker processes running jobs at a time.
+        out: output directory (created; resumed when it holds results of the same run; locked
+            while the run lasts).
         video: a top-down GIF per route in ``<out>/videos``.
         max_routes: only the first ``max_routes`` routes of the suite.
         config: ``EnvConfig`` overrides (e.g. ``{"num_vehicles": 10}``).
         agent_name: display name (default: from the spec, factory or module class).
         frames_per_batch: frames per worker between two progress checks.
         isolate_agent: run the agent in a separate process from the simulator (module docstring).
+        route_timeout: wall-clock limit of one job in seconds (a job that overruns fails).
 
     Returns:
         The summary dict also written to ``<out>/summary.json``.
+
+    Raises:
+        ValueError: a bad argument, agent or suite, ``out`` is a file or another run holds it
+            (``v2xbench.locks.DirectoryLocked``), results of another run are in ``out``.
+        RuntimeError: the workers cannot start (their output says why).
     """
     torch.set_num_threads(1)
-    if not isinstance(workers, int) or workers < 1:
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"workers={workers!r} must be a positive int")
-    out = Path(out)
+    route_timeout = check_route_timeout(route_timeout)
+    out = check_output_dir(out, "evaluation output directory")
     routes = load_suite_cached(str(suite))
     jobs = J.make_jobs([r.id for r in routes], seeds, max_routes)
     policy_mode = _is_policy(agent)
@@ -136,72 +161,78 @@ def evaluate(agent: Any = "route_follower", suite: str = "test50", seeds: int = 
         if isolate_agent and privileged:
             raise ValueError(f"agent {spec!r} is privileged (it reads the simulator) and cannot run "
                              "isolated; evaluate it without --isolate-agent")
-    if not policy_mode and not isinstance(agent, str) and (workers > 1 or isolate_agent):
+    if not isinstance(agent, str):  # workers get the agent or policy pickled
         import pickle
 
         try:
             pickle.dumps(agent)
         except Exception as e:  # noqa: BLE001
-            raise ValueError(f"agent factory {agent!r} is not picklable ({e}); workers > 1 and "
-                             "--isolate-agent need a top-level class or function, or a spec string") from None
-    if not policy_mode and workers > 1:  # a bad agent fails here, not in every worker process
-        probe = instantiate_agent(agent, isolate_agent)
+            what = "policy" if policy_mode else "agent factory"
+            raise ValueError(f"{what} {agent!r} is not picklable ({e}); the worker processes need a "
+                             "top-level class or function, or a spec string") from None
+    if not policy_mode:  # a bad agent fails here, not in every worker process
+        try:
+            probe = instantiate_agent(agent, isolate_agent)
+        except SystemExit as e:
+            raise ValueError(f"agent {spec!r} raised SystemExit({e}) while being built") from None
         if isolate_agent:
             probe.close()
     cfg = json.loads(json.dumps(J.to_json_safe(dict(config or {}))))  # as it reads back from run.json
     manifest = {"agent": spec, "agent_name": name, "suite": str(suite), "suite_key": _suite_key(str(suite)),
                 "config_overrides": cfg, "policy": policy_mode, "privileged": privileged,
                 "agent_process": "isolated" if isolate_agent else "in_process"}
-    out.mkdir(parents=True, exist_ok=True)
-    _check_manifest(out, manifest)
-    J.clear_stale_claims(out)
-    t0 = time.perf_counter()
-    before = {j.job_id for j in jobs if J.has_result(out, j.job_id)}
-    done0 = len(before)
-    if done0 < len(jobs):
-        env_fn = make_env_factory(suite=str(suite), out=str(out), agent=None if policy_mode else agent,
-                                  jobs=jobs, video=video, config=cfg, agent_name=name,
-                                  isolate=isolate_agent)
-        policy = agent if policy_mode else copy_policy()
-        _run(env_fn, policy, workers, frames_per_batch, out, jobs, done0, progress, name)
-    wall = time.perf_counter() - t0
-    new = [r for r in J.read_results(out, jobs) if r["job_id"] not in before]
-    ran, ticks = len(new), sum(int(r["ticks"]) for r in new)
-    summary = summarize(out, jobs, n_boot=n_boot)
-    summary["run"] = {"workers": workers, "wall_seconds": round(wall, 2), "jobs_run": ran,
-                      "routes_per_minute": round(60.0 * ran / wall, 2) if ran and wall > 0 else None,
-                      "sim_ticks": ticks, "ticks_per_second": round(ticks / wall, 1) if wall > 0 else None,
-                      "video": bool(video)}
-    write_summary(out, summary)
+    with dir_lock(out, "evaluation"):
+        _check_manifest(out, manifest)
+        _clean(out)
+        J.discard_unreadable_results(out, jobs)
+        J.clear_stale_claims(out)
+        t0 = time.perf_counter()
+        before = {j.job_id for j in jobs if J.has_result(out, j.job_id)}
+        stats = {"workers_started": 0, "timeouts": 0, "workers_died": 0}
+        if len(before) < len(jobs):
+            env_fn = make_env_factory(suite=str(suite), out=str(out), agent=None if policy_mode else agent,
+                                      jobs=jobs, video=video, config=cfg, agent_name=name,
+                                      isolate=isolate_agent)
+            policy = agent if policy_mode else copy_policy()
+            record = _failure_recorder(out, manifest, routes)
+            stats = _run(env_fn, policy, workers, frames_per_batch, out, jobs, progress, name,
+                         route_timeout, record)
+            _clean(out)
+        wall = time.perf_counter() - t0
+        new = [r for r in J.read_results(out, jobs) if r["job_id"] not in before]
+        ran, ticks = len(new), sum(int(r["ticks"]) for r in new)
+        summary = summarize(out, jobs, n_boot=n_boot)
+        summary["run"] = {"workers": workers, "wall_seconds": round(wall, 2), "jobs_run": ran,
+                          "routes_per_minute": round(60.0 * ran / wall, 2) if ran and wall > 0 else None,
+                          "sim_ticks": ticks, "ticks_per_second": round(ticks / wall, 1) if wall > 0 else None,
+                          "video": bool(video), "route_timeout_s": route_timeout, **stats}
+        write_summary(out, summary)
     return summary
 
 
-def _run(env_fn, policy, workers: int, fpb: int, out: Path, jobs: list, done0: int,
-         progress: bool, name: str) -> None:
-    """Iterate the collector until every job has a result."""
-    from tqdm import tqdm
+def _failure_recorder(out: Path, manifest: dict, routes) -> Callable:
+    """``record(job, kind, error, wall_s)``: write the result of a job its worker did not finish."""
 
-    collector = _make_collector(env_fn, policy, workers, fpb)
-    idle_batches, finished = 0, False
-    try:
-        with tqdm(total=len(jobs), initial=done0, desc=f"eval {name}", unit="route",
-                  disable=not progress) as bar:
-            for batch in collector:
-                done = J.count_results(out, jobs)
-                bar.update(done - bar.n)
-                if done >= len(jobs):
-                    finished = True
-                    break
-                # every worker idle for two batches while results are missing: the missing jobs'
-                # claims were lost (no worker runs them); free them so idle workers take them
-                idle = bool((batch["job"] < 0).all() and (batch["next", "job"] < 0).all())
-                idle_batches = idle_batches + 1 if idle else 0
-                if idle_batches >= 2:
-                    J.clear_stale_claims(out, jobs)
-                    idle_batches = 0
-    finally:
-        # once every result is on disk (written atomically) the workers may be terminated quickly
-        collector.shutdown(timeout=SHUTDOWN_TIMEOUT_S if finished else None)
+    def record(job: J.Job, kind: str, error: BaseException, wall_s: float) -> None:
+        spec = routes[job.route_index]
+        res = build_result(job=job, spec=spec, seed=J.job_seed(spec.seed, job.seed_index),
+                           suite=manifest["suite"], agent=manifest["agent"],
+                           agent_name=manifest["agent_name"], privileged=manifest["privileged"],
+                           agent_process=manifest["agent_process"], log=None, ended_by=ENDED_ERROR,
+                           wall_s=wall_s, error=error, config=manifest["config_overrides"],
+                           failure=kind)
+        J.write_json_atomic(res, J.result_path(out, job.job_id))
+
+    return record
+
+
+def _run(env_fn: Callable, policy, workers: int, fpb: int, out: Path, jobs: list, progress: bool,
+         name: str, route_timeout: float, record_failure: Callable) -> dict:
+    """Run the jobs in supervised workers until every job has a result (``eval_workers.py``);
+    ``record_failure`` writes the result of a job whose worker timed out or died."""
+    return run_jobs(env_fn, policy, workers=workers, out=out, jobs=jobs,
+                    record_failure=record_failure, route_timeout=route_timeout,
+                    frames_per_batch=fpb, progress=progress, desc=f"eval {name}")
 
 
 # ------------------------------------------------------------------------------------ summary
@@ -225,6 +256,9 @@ def summarize(out: str | Path, jobs: list[J.Job], n_boot: int = 2000) -> dict:
     n_v2x = len({j.route_index for j in v2x_jobs})
     v2x = aggregate(metric_dicts(v2x_jobs), n_v2x, seeds, n_boot=n_boot) if n_v2x else {}
     ended = Counter(results[j.job_id]["ended_by"] for j in jobs if j.job_id in results)
+    failures = [{"job_id": r["job_id"], "failure": _failure_kind(r), "error": r["error"]}
+                for r in results.values() if _failure_kind(r)]
+    failed = Counter(f["failure"] for f in failures)
     first = next(iter(results.values()), {})
     return {
         "agent": manifest["agent"], "agent_name": manifest["agent_name"], "suite": manifest["suite"],
@@ -234,8 +268,14 @@ def summarize(out: str | Path, jobs: list[J.Job], n_boot: int = 2000) -> dict:
         "metrics": overall, "v2x": v2x, "n_v2x_routes": n_v2x,
         "per_scenario": per_scenario(routes, jobs, results),
         "ended_by": {k: ended.get(k, 0) for k in ENDED_BY_NAMES},
-        "failures": [{"job_id": r["job_id"], "error": r["error"]} for r in results.values() if r.get("error")],
+        "failed": {k: failed.get(k, 0) for k in FAILURE_KINDS}, "failures": failures,
     }
+
+
+def _failure_kind(result: dict) -> str | None:
+    """``"error"`` / ``"timeout"`` for a failed route, ``None`` otherwise (results written before
+    the ``failure`` key existed: from ``error``)."""
+    return result.get("failure") or ("error" if result.get("error") else None)
 
 
 def per_scenario(routes, jobs: list[J.Job], results: dict[str, dict]) -> dict[str, dict]:
@@ -301,7 +341,8 @@ def summary_markdown(s: dict) -> str:
                      f"{_f(r['collision_rate'])} | {_f(r['timeout_rate'])} | {_f(r['mean_ds'])} |")
     lines += ["", "Routes ended by: " + ", ".join(f"{k} {n}" for k, n in s["ended_by"].items() if n)]
     if s.get("failures"):
-        lines += ["", "Failed runs:", *[f"- `{f['job_id']}`: {f['error']}" for f in s["failures"]]]
+        lines += ["", "Failed runs:", *[f"- `{f['job_id']}` ({f.get('failure') or 'error'}): {f['error']}"
+                                         for f in s["failures"]]]
     if s.get("run"):
         r = s["run"]
         lines += ["", f"Run: {r['jobs_run']} runs ({r.get('sim_ticks', 0)} ticks) in {r['wall_seconds']} s on "
@@ -314,4 +355,4 @@ def write_summary(out: str | Path, summary: dict) -> None:
     """Write ``summary.json`` and ``summary.md`` into ``out``."""
     out = Path(out)
     J.write_json_atomic(summary, out / "summary.json")
-    (out / "summary.md").write_text(summary_markdown(summary))
+    atomic_write_text(out / "summary.md", summary_markdown(summary))

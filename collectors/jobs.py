@@ -5,15 +5,20 @@ A *job* is one route of a suite driven with one seed index ``k``; its id is
 directory holds::
 
     <out>/run.json                 what was evaluated (agent, suite, config overrides)
-    <out>/routes/<job_id>.json     one result per job, written atomically (tmp file + rename)
-    <out>/claims/<job_id>          created with O_CREAT | O_EXCL by the worker that runs the job
+    <out>/routes/<job_id>.json     one result per job, written atomically (``v2xbench.files``)
+    <out>/claims/<job_id>          created with O_CREAT | O_EXCL by the worker that runs the job;
+                                   holds the worker's pid, its mtime is when the job started
     <out>/videos/<job_id>.gif      top-down video (``--video``)
     <out>/summary.json, summary.md
+    <out>/.v2xbench.lock           held by the running ``eval`` (``v2xbench.locks.dir_lock``)
 
 Several workers share one queue: a worker takes the first job that has neither a result nor a
 claim and claims it atomically (:func:`try_claim`), so no job runs twice. A claim without a
 result is stale when no worker runs it (an interrupted run): the harness removes those at start
 (:func:`clear_stale_claims`), and jobs whose result exists are skipped, which makes runs resumable.
+A result file that does not read back as a result of its job (empty, truncated, edited) counts as
+missing: :func:`discard_unreadable_results` removes it with a warning naming it, and the job runs
+again.
 """
 
 from __future__ import annotations
@@ -21,9 +26,12 @@ from __future__ import annotations
 import json
 import math
 import os
+import warnings
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
+
+from v2xbench.files import atomic_write_json
 
 SEED_STRIDE = 1000  # world seed = route seed + SEED_STRIDE * seed index
 
@@ -129,6 +137,55 @@ def clear_stale_claims(out: str | Path, jobs: Iterable[Job] | None = None) -> li
     return removed
 
 
+def claim_pids(out: str | Path) -> set[int]:
+    """Process ids written in the claim files of ``out``: every worker that claimed a job."""
+    d = claims_dir(out)
+    pids = set()
+    for p in d.iterdir() if d.is_dir() else ():
+        try:
+            text = p.read_text().strip()
+        except FileNotFoundError:
+            continue
+        if text.isdigit():
+            pids.add(int(text))
+    return pids
+
+
+class Claim(NamedTuple):
+    """A claimed job without a result: who runs it and since when.
+
+    Attributes:
+        job_id: the claimed job.
+        pid: process id of the worker that claimed it (``None`` while the claim is being written).
+        since: when it was claimed (the claim file's mtime, ``time.time()`` clock), s.
+    """
+
+    job_id: str
+    pid: int | None
+    since: float
+
+
+def open_claims(out: str | Path, jobs: Iterable[Job]) -> dict[str, Claim]:
+    """The claims of ``jobs`` that have no result yet (the jobs being run), by job id."""
+    d = claims_dir(out)
+    if not d.is_dir():
+        return {}
+    wanted = {j.job_id for j in jobs}
+    names = {p.name for p in os.scandir(routes_dir(out))} if routes_dir(out).is_dir() else set()
+    claims = {}
+    for entry in os.scandir(d):
+        jid = entry.name
+        if jid not in wanted or f"{jid}.json" in names:
+            continue
+        try:
+            since = entry.stat().st_mtime
+            text = Path(entry.path).read_text().strip()
+        except FileNotFoundError:  # released in the meantime
+            continue
+        claims[jid] = Claim(jid, int(text) if text.isdigit() else None, since)
+    return claims
+
+
 # ------------------------------------------------------------------------------------ JSON
 
 
@@ -146,22 +203,70 @@ def to_json_safe(obj: Any) -> Any:
 
 
 def write_json_atomic(obj: Any, path: str | Path) -> Path:
-    """Write ``obj`` as standard JSON (NaN -> null) to ``path`` via a temporary file + rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(to_json_safe(obj), indent=1, allow_nan=False))
-    os.replace(tmp, path)
-    return path
+    """Write ``obj`` as standard JSON (NaN -> null) to ``path`` atomically (fsynced temporary file
+    renamed over it: ``v2xbench.files.atomic_write_json``)."""
+    return atomic_write_json(path, to_json_safe(obj), indent=1, allow_nan=False)
+
+
+#: Keys every result file has (``route_log.build_result``); a file without them is unreadable.
+RESULT_KEYS = ("job_id", "ended_by", "metrics", "scenarios", "ticks")
+
+
+def _load_result(path: Path, jid: str) -> dict:
+    """The result dict stored in ``path`` for job ``jid``; ``ValueError`` naming the file if it
+    is not one (empty, truncated, not JSON, another job's, keys missing)."""
+    try:
+        text = path.read_text()
+        d = json.loads(text)
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        what = "is empty" if not path.stat().st_size else f"is not valid JSON ({e})"
+        raise ValueError(f"result file {path} {what}") from None
+    if not isinstance(d, dict):
+        raise ValueError(f"result file {path} holds a JSON {type(d).__name__}, not a result object")
+    missing = [k for k in RESULT_KEYS if k not in d]
+    if missing:
+        raise ValueError(f"result file {path} lacks {', '.join(missing)} (truncated or edited?)")
+    if d["job_id"] != jid:
+        raise ValueError(f"result file {path} holds job {d['job_id']!r}, not {jid!r}")
+    if not isinstance(d["metrics"], dict):
+        raise ValueError(f"result file {path}: 'metrics' is not an object")
+    return d
 
 
 def read_result(out: str | Path, jid: str) -> dict:
-    """The result dict of job ``jid`` (metric ``None`` values read back as NaN)."""
-    d = json.loads(result_path(out, jid).read_text())
-    d["metrics"] = {k: (float("nan") if v is None else v) for k, v in d.get("metrics", {}).items()}
+    """The result dict of job ``jid`` (metric ``None`` values read back as NaN).
+
+    Raises:
+        ValueError: the file is not a result of ``jid`` (the message names it).
+    """
+    d = _load_result(result_path(out, jid), jid)
+    d["metrics"] = {k: (float("nan") if v is None else v) for k, v in d["metrics"].items()}
     return d
 
 
 def read_results(out: str | Path, jobs: Iterable[Job]) -> list[dict]:
     """Results of the ``jobs`` that have one, in job order."""
     return [read_result(out, j.job_id) for j in jobs if has_result(out, j.job_id)]
+
+
+class UnreadableResultWarning(UserWarning):
+    """A result file could not be read back; its job is run again."""
+
+
+def discard_unreadable_results(out: str | Path, jobs: Iterable[Job]) -> list[Path]:
+    """Remove the result files of ``jobs`` that do not read back (:func:`read_result`), each with
+    an :class:`UnreadableResultWarning` naming it, so their jobs count as missing and run again.
+    Returns the removed paths."""
+    removed = []
+    for j in jobs:
+        path = result_path(out, j.job_id)
+        if not path.is_file():
+            continue
+        try:
+            _load_result(path, j.job_id)
+        except (ValueError, OSError) as e:
+            warnings.warn(f"{e}; treating job {j.job_id} as missing and running it again",
+                          UnreadableResultWarning, stacklevel=2)
+            path.unlink(missing_ok=True)
+            removed.append(path)
+    return removed

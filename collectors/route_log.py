@@ -34,6 +34,11 @@ from v2xbench.envs.v2x_intersection.metrics import (
 from v2xbench.envs.v2x_intersection.scenarios import get_scenario
 
 COLLISION_CODES = (inf.COLLISION_PEDESTRIAN, inf.COLLISION_VEHICLE, inf.COLLISION_STATIC)
+#: How a failed route failed (result key ``failure``; ``ended_by`` is ``"error"`` for both, DS 0):
+#: ``"error"``: the agent, the world or the worker process raised or died; ``"timeout"``: the job
+#: overran the harness's wall-clock limit (``--route-timeout``) and its worker was killed.
+#: (``ended_by = "timeout"`` is another thing: the route's simulated time budget ran out.)
+FAILURE_KINDS = ("error", "timeout")
 
 
 def ended_by_code(world, terminated: bool, truncated: bool) -> int:
@@ -160,16 +165,23 @@ def build_result(*, job, spec, seed: int, suite: str, agent: str, agent_name: st
                  privileged: bool, log: RouteLog | None, ended_by: int, wall_s: float,
                  agent_process: str = "in_process",
                  error: BaseException | None = None, video: str | None = None,
-                 config: dict | None = None) -> dict:
+                 config: dict | None = None, failure: str | None = None) -> dict:
     """The JSON-ready result of one job (see ``jobs.py`` for where it is written).
 
     ``privileged`` is the harness's decision (``interface.granted_privilege``) and
     ``agent_process`` how the agent ran: ``"in_process"`` or ``"isolated"`` (its own process).
     A route that ended with ``error`` is recorded with ``ended_by = ENDED_ERROR`` and a driving
     score of 0 (the suite's DS counts it as 0 too); the RC reached before the error is kept.
+    ``failure`` says how it failed (:data:`FAILURE_KINDS`; default ``"error"`` when there is an
+    ``error``, ``None`` for a route that ran to its end).
     """
+    if failure is not None and failure not in FAILURE_KINDS:
+        raise ValueError(f"failure={failure!r} must be one of {FAILURE_KINDS}")
+    if failure is not None and error is None:
+        raise ValueError("a failed route needs its error")
     if error is not None:
         ended_by = ENDED_ERROR
+        failure = failure or "error"
     rec = log.record(ended_by, spec.id, seed) if log is not None else empty_record(spec, seed, ended_by)
     metrics = compute_metrics(rec)
     if ended_by == ENDED_ERROR:
@@ -187,6 +199,7 @@ def build_result(*, job, spec, seed: int, suite: str, agent: str, agent_name: st
         "ended_by": ENDED_BY_NAMES[ended_by], "ticks": len(rec.ego_speed),
         "metrics": metrics, "record": rec.to_dict(), "wall_seconds": round(float(wall_s), 3),
         "time_budget_ticks": time_budget_steps(log.world) if log is not None else None,
+        "failure": failure,
         "error": None if error is None else f"{type(error).__name__}: {error}",
         "traceback": None if error is None else "".join(
             traceback.format_exception(type(error), error, error.__traceback__)),

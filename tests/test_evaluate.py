@@ -227,7 +227,8 @@ def test_claims_are_exclusive_and_stale_ones_cleared(tmp_path):
     assert J.job_seed(7, 2) == 2007
     assert J.try_claim(tmp_path, "a_s0") and not J.try_claim(tmp_path, "a_s0")
     assert J.try_claim(tmp_path, "b_s0")
-    J.write_json_atomic({"metrics": {"x": float("nan")}}, J.result_path(tmp_path, "b_s0"))
+    J.write_json_atomic({"job_id": "b_s0", "ended_by": "completed", "metrics": {"x": float("nan")},
+                         "scenarios": [], "ticks": 0}, J.result_path(tmp_path, "b_s0"))
     assert np.isnan(J.read_result(tmp_path, "b_s0")["metrics"]["x"])  # NaN stored as null
     assert J.clear_stale_claims(tmp_path) == ["a_s0"]
     assert J.count_results(tmp_path, jobs) == 1
@@ -251,14 +252,17 @@ def test_leaderboard_from_two_runs(rf_run, flaky_run, tmp_path, capsys):
 
 def test_lost_claim_is_recovered_when_all_workers_idle(suite, tmp_path):
     from v2xbench.collectors.eval_env import copy_policy, make_env_factory
-    from v2xbench.collectors.evaluate import _run
+    from v2xbench.collectors.eval_workers import run_jobs
 
     out = tmp_path / "lost"
     jobs = J.make_jobs(["tiny_0", "tiny_1"], seeds=1)
     assert J.try_claim(out, "tiny_0_s0")  # a claim no worker will ever finish
     env_fn = make_env_factory(suite=suite, out=str(out), agent="route_follower", jobs=jobs, config=CFG)
-    _run(env_fn, copy_policy(), 1, 32, out, jobs, 0, False, "rf")  # returns once both have results
-    assert J.count_results(out, jobs) == 2
+    failures = []
+    stats = run_jobs(env_fn, copy_policy(), workers=1, out=out, jobs=jobs, frames_per_batch=32,
+                     record_failure=lambda *a: failures.append(a))  # returns once both have results
+    assert J.count_results(out, jobs) == 2 and not failures
+    assert stats["workers_started"] == 2  # the second took the claim freed when the first was done
 
 
 def test_tensordict_policy_agent_drives_through_the_interface():

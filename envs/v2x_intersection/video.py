@@ -1,14 +1,15 @@
-"""Animated GIF / MP4 writing for rendered frames (atomic: temporary file, then rename)."""
+"""Animated GIF / MP4 writing for rendered frames (atomic: ``v2xbench.files.atomic_write``)."""
 
 from __future__ import annotations
 
 import importlib.util
-import os
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 from PIL import Image
+
+from v2xbench.files import atomic_write, atomic_write_bytes
 
 
 def _have_ffmpeg() -> bool:
@@ -18,8 +19,8 @@ def _have_ffmpeg() -> bool:
 def save_video(frames: Sequence[np.ndarray], path: str | Path, fps: int = 10) -> Path:
     """Write frames to an animated GIF (or MP4 when imageio-ffmpeg is installed), atomically.
 
-    The file is written next to ``path`` under a temporary name and renamed into place, so a
-    reader never sees a half-written video.
+    The file is written next to ``path`` under a temporary name, fsynced and renamed into place
+    (``v2xbench.files.atomic_write``), so a reader never sees a half-written video.
 
     Args:
         frames: ``(H, W, 3)`` uint8 RGB frames, all the same shape (e.g. from
@@ -55,13 +56,11 @@ def save_video(frames: Sequence[np.ndarray], path: str | Path, fps: int = 10) ->
             f"save_video: writing {path.name!r} needs an ffmpeg backend (pip install "
             "imageio-ffmpeg), which is not installed; save as .gif instead"
         )
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{suffix}")
-    try:
-        if suffix == ".gif":
-            images = [Image.fromarray(np.asarray(f)) for f in frames]
+    if suffix == ".gif":
+        images = [Image.fromarray(np.asarray(f)) for f in frames]
+        with atomic_write(path, "wb") as fh:
             images[0].save(
-                tmp,
+                fh,
                 format="GIF",
                 save_all=True,
                 append_images=images[1:],
@@ -70,16 +69,18 @@ def save_video(frames: Sequence[np.ndarray], path: str | Path, fps: int = 10) ->
                 optimize=False,
                 disposal=1,
             )
-        else:
-            import imageio.v2 as imageio
+    else:  # ffmpeg writes a named .mp4 file: encode in a scratch folder, then write atomically
+        import tempfile
 
+        import imageio.v2 as imageio
+
+        with tempfile.TemporaryDirectory(prefix="v2xbench-video-") as scratch:
+            scratch_path = Path(scratch) / "video.mp4"
             imageio.mimwrite(
-                tmp, [np.asarray(f) for f in frames], fps=fps, format="FFMPEG", macro_block_size=1
+                scratch_path, [np.asarray(f) for f in frames], fps=fps, format="FFMPEG",
+                macro_block_size=1
             )
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+            atomic_write_bytes(path, scratch_path.read_bytes())
     return path
 
 

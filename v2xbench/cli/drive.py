@@ -8,7 +8,29 @@ import time
 from pathlib import Path
 
 
+def check_drive_args(args: argparse.Namespace) -> Path:
+    """Check ``drive``'s options before anything is built or driven; returns the output folder.
+
+    Raises:
+        ValueError: an option out of range, or ``--out`` cannot be a folder (message names it).
+    """
+    from v2xbench.files import check_output_dir
+
+    if args.frame_every < 1:
+        raise ValueError(f"--frame-every {args.frame_every} must be >= 1 (one frame every N ticks)")
+    if args.sensors_every < 0:
+        raise ValueError(f"--sensors-every {args.sensors_every} must be >= 0 (0: no sensor video)")
+    if not 0 <= args.seed < 2**32:
+        raise ValueError(f"--seed {args.seed} must be in [0, 2**32)")
+    if args.size < 1:
+        raise ValueError(f"--size {args.size} must be a positive number of pixels")
+    if not 0 < args.route_length < float("inf"):
+        raise ValueError(f"--route-length {args.route_length} must be a positive number of metres")
+    return check_output_dir(args.out, "--out")
+
+
 def _drive(args: argparse.Namespace) -> int:
+    out = check_drive_args(args)
     import numpy as np
     from PIL import Image
     from tqdm import tqdm
@@ -18,6 +40,7 @@ def _drive(args: argparse.Namespace) -> int:
     from v2xbench.envs.v2x_intersection.infractions import EVENT_NAMES
     from v2xbench.envs.v2x_intersection.render import save_video
     from v2xbench.envs.v2x_intersection.sensors import SensorRig, mosaic
+    from v2xbench.files import atomic_write, atomic_write_json
 
     env = V2XIntersectionEnv(render_mode="rgb_array", town=args.town, route_length=args.route_length,
                              render_size=args.size)
@@ -43,13 +66,13 @@ def _drive(args: argparse.Namespace) -> int:
             if terminated or truncated:
                 break
     wall = time.perf_counter() - t0
-    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     video = save_video(frames, out / "drive.gif", fps=max(1, 10 // args.frame_every))
     sensors_video = None
     if mosaics:
         sensors_video = save_video(mosaics, out / "sensors.gif", fps=max(1, 10 // args.sensors_every))
-        Image.fromarray(mosaics[len(mosaics) // 2]).save(out / "sensors.png")
+        with atomic_write(out / "sensors.png", "wb") as f:
+            Image.fromarray(mosaics[len(mosaics) // 2]).save(f, format="PNG")
     summary = {
         "town": args.town, "seed": args.seed, "ticks": ticks, "sim_seconds": round(ticks * 0.1, 1),
         "route_length_m": round(info["route_length"], 1),
@@ -61,7 +84,7 @@ def _drive(args: argparse.Namespace) -> int:
         "wall_seconds": round(wall, 2), "video": str(video),
         "sensors_video": None if sensors_video is None else str(sensors_video),
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    atomic_write_json(out / "summary.json", summary, indent=2)
     print(json.dumps(summary, indent=2))
     return 0
 

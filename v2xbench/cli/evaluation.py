@@ -7,17 +7,26 @@ import sys
 from pathlib import Path
 
 from v2xbench.cli.common import parse_set
+from v2xbench.collectors.eval_workers import DEFAULT_ROUTE_TIMEOUT_S
 
 
 def _eval(args: argparse.Namespace) -> int:
+    """Run the evaluation; exit 1 when any route failed (error or wall-clock timeout)."""
     from v2xbench.collectors.evaluate import evaluate, summary_markdown
 
     summary = evaluate(args.agent, suite=args.suite, seeds=args.seeds, workers=args.workers, out=args.out,
                        video=args.video, max_routes=args.max_routes, config=parse_set(args.set),
                        agent_name=args.agent_name, progress=not args.quiet,
-                       isolate_agent=args.isolate_agent)
+                       isolate_agent=args.isolate_agent, route_timeout=args.route_timeout)
     print(summary_markdown(summary))
     print(f"results: {Path(args.out) / 'routes'}, summary: {Path(args.out) / 'summary.md'}")
+    failed = summary["failed"]
+    n = sum(failed.values())
+    if n:
+        kinds = ", ".join(f"{v} {k}" for k, v in failed.items() if v)
+        print(f"v2xbench: {n} of {summary['n_jobs']} route runs failed ({kinds}); see "
+              f"{Path(args.out) / 'summary.md'}", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -37,12 +46,15 @@ def register(sub) -> None:
     ev = sub.add_parser("eval", help="evaluate an agent on a route suite (resumable)",
                         description="Closed-loop evaluation through TorchRL collectors. Writes "
                         "OUT/routes/<route>_s<k>.json per run and OUT/summary.{json,md}; running "
-                        "again on the same OUT resumes.")
+                        "again on the same OUT resumes. Exits 1 when any route failed (error or "
+                        "timeout). The file given to --agent path.py:Class is executed (imported) "
+                        "in this process and in every worker: run only code you trust, or see "
+                        "docs/evaluation.md for what --isolate-agent does and does not protect.")
     ev.add_argument("--agent", default="route_follower",
                     help="registered agent name (route_follower, expert, ...) or path/to/file.py:ClassName")
     ev.add_argument("--suite", default="test50", help="suite name (test50, val, train) or suite JSON path")
     ev.add_argument("--seeds", type=int, default=1, help="seed indices per route")
-    ev.add_argument("--workers", type=int, default=1, help="collector worker processes")
+    ev.add_argument("--workers", type=int, default=1, help="worker processes running routes at a time")
     ev.add_argument("--out", default="results/eval")
     ev.add_argument("--video", action="store_true", help="save a top-down GIF per route in OUT/videos")
     ev.add_argument("--max-routes", type=int, default=None, help="only the first N routes of the suite")
@@ -53,6 +65,9 @@ def register(sub) -> None:
                     help="run the agent in a separate process that receives only route_info and its "
                     "observations (it cannot read or patch the simulator); not for the privileged "
                     "built-in expert and oracles")
+    ev.add_argument("--route-timeout", type=float, default=DEFAULT_ROUTE_TIMEOUT_S, metavar="SECONDS",
+                    help="wall-clock limit of one route (default %(default)g s): a route that "
+                    "runs longer is killed and recorded as failed (timeout), and the run goes on")
     ev.add_argument("--quiet", action="store_true", help="no progress bar")
     ev.set_defaults(func=_eval)
     lb = sub.add_parser("leaderboard", help="leaderboard table and plots from evaluation result dirs")

@@ -96,13 +96,14 @@ class CollectConfig:
     keyframe_every: int = 10
     val_fraction: float = 0.1
     env: dict = field(default_factory=dict)
+    objects_obs: bool = True
 
     def __post_init__(self) -> None:
         if not isinstance(self.suite, str) or not self.suite:
             raise ValueError(f"CollectConfig: suite={self.suite!r} must be a suite name or path")
         if isinstance(self.sensors, str) or not all(isinstance(x, str) for x in self.sensors):
             raise ValueError(f"CollectConfig: sensors={self.sensors!r} must be a list of names")
-        RecordConfig(tuple(self.sensors), self.max_boxes)  # validates both
+        RecordConfig(tuple(self.sensors), self.max_boxes, self.objects_obs)  # validates all
         _positive_int("seeds", self.seeds, MAX_SEEDS)
         _positive_int("max_routes", self.max_routes, None, none_ok=True)
         _positive_int("max_ticks", self.max_ticks, None, none_ok=True)
@@ -143,6 +144,7 @@ class CollectConfig:
         if unknown:
             raise ValueError(f"CollectConfig: unknown fields {unknown}")
         kw = dict(d)
+        kw.setdefault("objects_obs", False)  # data sets from before obs/* was recorded
         for k in ("sensors", "camera_size"):
             if isinstance(kw.get(k), list):
                 kw[k] = tuple(kw[k])
@@ -154,9 +156,10 @@ class CollectConfig:
         from v2xbench.envs.v2x_intersection.config import make_config
 
         ego, rsu = _lidar_specs(self)
-        return record_schema(RecordConfig(tuple(self.sensors), self.max_boxes),
-                             tuple(self.camera_size), make_config(**self.env).route_points,
-                             (ego.max_points, rsu.max_points), _bev_spec().size)
+        env = make_config(**self.env)
+        return record_schema(RecordConfig(tuple(self.sensors), self.max_boxes, self.objects_obs),
+                             tuple(self.camera_size), env.route_points,
+                             (ego.max_points, rsu.max_points), _bev_spec().size, env.max_objects)
 
     def to_json(self) -> dict:
         """JSON-compatible dict (tuples as lists)."""
@@ -303,7 +306,7 @@ def run_episode(cfg: CollectConfig, job: J.Job, root: str | Path) -> dict:
     tracker = EpisodeTracker(world)
     cap = tracker.max_steps if cfg.max_ticks is None else min(cfg.max_ticks, tracker.max_steps)
     rig = _rig(cfg)
-    rcfg = RecordConfig(tuple(cfg.sensors), cfg.max_boxes)
+    rcfg = RecordConfig(tuple(cfg.sensors), cfg.max_boxes, cfg.objects_obs)
     perturber = Perturber(PerturbConfig() if cfg.perturb else None, seed, world.config.dt)
     tmp = temp_shard(root, job.job_id)
     rel = f"shards/{job.job_id}"

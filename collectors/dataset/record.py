@@ -45,6 +45,13 @@ key                             shape, dtype      content
 ``bev_bits``                    (2, S, S) uint8   sensor ``bev``: the 14 binary channels packed
                                                   along axis 0 (:func:`unpack_bev`)
 ``channel``                     (K,) float64      :data:`CHANNEL_FIELDS` of ``Channel.stats``
+``obs/<key>``                   float32           the ego's objects-mode observation (keys
+                                                  :data:`OBS_KEYS`, shapes of
+                                                  ``observations.ego_space``): what a
+                                                  behaviour-cloned ``obs_mode="objects"`` agent
+                                                  sees, the received V2X message decoded in
+                                                  ``v2x_objects``, its sender and age in
+                                                  ``v2x_info`` (``RecordConfig.objects_obs``)
 ==============================  ================  ===========================================
 """
 
@@ -54,7 +61,12 @@ from dataclasses import dataclass
 
 import numpy as np
 from v2xbench.envs.v2x_intersection.geometry import invert_transform
-from v2xbench.envs.v2x_intersection.observations import EGO_FEATURES, ego_observation
+from v2xbench.envs.v2x_intersection.observations import (
+    EGO_FEATURES,
+    OBJECT_FEATURES,
+    V2X_INFO_FEATURES,
+    ego_observation,
+)
 from v2xbench.envs.v2x_intersection.sensors import BEV_CHANNELS, EGO_CAMERA_NAMES, boxes_in_frame
 
 SENSORS = ("rgb", "depth", "semantic", "lidar", "bev")
@@ -78,10 +90,15 @@ class RecordConfig:
         sensors: subset of :data:`SENSORS` stored every tick (``rgb``/``depth``/``semantic`` of
             the 7 cameras, both LiDARs, the BEV).
         max_boxes: rows per ground-truth box set (the nearest ones are kept).
+        objects_obs: also store the ego's objects-mode observation (``obs/*``: exactly what an
+            agent with ``obs_mode="objects"`` receives, including the received V2X message
+            decoded in ``obs/v2x_objects`` and its sender pose and age in ``obs/v2x_info``).
+            Data sets collected before this field existed lack it (their manifests say false).
     """
 
     sensors: tuple[str, ...] = DEFAULT_SENSORS
     max_boxes: int = 96
+    objects_obs: bool = True
 
     def __post_init__(self) -> None:
         bad = set(self.sensors) - set(SENSORS)
@@ -90,10 +107,13 @@ class RecordConfig:
         m = self.max_boxes
         if isinstance(m, bool) or not isinstance(m, int) or not 1 <= m <= MAX_BOXES:
             raise ValueError(f"RecordConfig: max_boxes={m!r} must be an int in [1, {MAX_BOXES}]")
+        if not isinstance(self.objects_obs, bool):
+            raise ValueError(f"RecordConfig: objects_obs={self.objects_obs!r} must be true or false")
 
 
 def record_schema(config: RecordConfig, camera_size: tuple[int, int], route_points: int,
-                  lidar_points: tuple[int, int], bev_size: int) -> dict[tuple[str, ...], tuple]:
+                  lidar_points: tuple[int, int], bev_size: int,
+                  max_objects: int = 32) -> dict[tuple[str, ...], tuple]:
     """Every leaf of a :func:`frame_record` as ``{key path: (dtype name, per-frame shape)}``.
 
     This is the whole schema of a shard's memmap (module docstring): a loader accepts these keys,
@@ -105,6 +125,7 @@ def record_schema(config: RecordConfig, camera_size: tuple[int, int], route_poin
         route_points: ``EnvConfig.route_points`` (rows of ``route``).
         lidar_points: padded rows of the ego and the RSU LiDAR (``LidarSpec.max_points``).
         bev_size: BEV raster side (``BevSpec.size``).
+        max_objects: ``EnvConfig.max_objects`` (rows of ``obs/objects``, ``obs/v2x_objects``).
     """
     from v2xbench.agents.expert.planner import N_WAYPOINTS
 
@@ -142,9 +163,23 @@ def record_schema(config: RecordConfig, camera_size: tuple[int, int], route_poin
         for g, n in zip(("ego", "rsu"), lidar_points):
             schema[("lidar", g, "points")] = ("float32", (int(n), 6))
             schema[("lidar", g, "count")] = ("int64", ())
+    if config.objects_obs:
+        schema.update(_objects_obs_schema(route_points, max_objects))
     if "bev" in config.sensors:
         schema[("bev_bits",)] = ("uint8", (-(-len(BEV_CHANNELS) // 8), bev_size, bev_size))
     return schema
+
+
+#: keys of the stored objects-mode observation (``obs/<key>``)
+OBS_KEYS = ("ego", "route", "objects", "v2x_objects", "v2x_info")
+
+
+def _objects_obs_schema(route_points: int, max_objects: int) -> dict[tuple[str, ...], tuple]:
+    """``obs/*`` leaves: the objects-mode observation (``observations.ego_space``)."""
+    n_obj, m, r = len(OBJECT_FEATURES), int(max_objects), int(route_points)
+    shapes = {"ego": (len(EGO_FEATURES),), "route": (r, 3), "objects": (m, n_obj),
+              "v2x_objects": (m, n_obj), "v2x_info": (len(V2X_INFO_FEATURES),)}
+    return {("obs", k): ("float32", v) for k, v in shapes.items()}
 
 
 def unpack_bev(bits: np.ndarray, channels: int = len(BEV_CHANNELS)) -> np.ndarray:
@@ -257,9 +292,11 @@ def frame_record(world, frame: dict, expert, control: np.ndarray, perturbed: boo
                         for g, n in (("ego", "lidar"), ("rsu", "rsu_lidar"))}
     if "bev" in config.sensors:
         rec["bev_bits"] = np.packbits(frame["bev"].astype(bool), axis=0)
+    if config.objects_obs:
+        rec["obs"] = {k: np.asarray(obs[k], np.float32) for k in OBS_KEYS}
     return rec
 
 
-__all__ = ["BOX_SETS", "CAMERAS", "CHANNEL_FIELDS", "DEFAULT_SENSORS", "MAX_BOXES", "REASONS",
+__all__ = ["BOX_SETS", "CAMERAS", "CHANNEL_FIELDS", "DEFAULT_SENSORS", "MAX_BOXES", "OBS_KEYS", "REASONS",
            "SENSORS", "RecordConfig", "frame_record", "light_info", "nav_command", "reason_code",
            "record_schema", "unpack_bev"]

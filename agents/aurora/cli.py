@@ -96,12 +96,21 @@ def _check_same_run(path: Path, info: dict) -> None:
         return
     old = json.loads(path.read_text())
     keys = ("stage", "branch", "scale", "config", "data", "frame_stride", "seed")
-    diff = [k for k in keys if old.get(k) != json.loads(json.dumps(info[k]))]
+    diff = [k for k in keys if old.get(k) != json.loads(json.dumps(info[k]))
+            and not (k == "config" and _same_config(old.get(k), info[k]))]
     if diff:
         raise ValueError(f"aurora train: {path.parent} holds a run with other settings "
                          f"({', '.join(diff)} differ: {[old.get(k) for k in diff]} vs "
                          f"{[info[k] for k in diff if k != 'config']}); use the same settings "
                          "to resume, or another --out")
+
+
+def _same_config(old, new: dict) -> bool:
+    """Equal configs, where the old file may predate fields added since (issue #33)."""
+    try:
+        return AuroraConfig.from_dict(old) == AuroraConfig.from_dict(new)
+    except (TypeError, ValueError):
+        return False
 
 
 def format_summary(s: dict) -> str:

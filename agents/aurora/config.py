@@ -9,6 +9,10 @@ Scales (:meth:`AuroraConfig.for_scale`):
   sizes, epochs and learning rates of its appendix table); the rest follows the methods it
   builds on (ORION's ViT-L/16 backbone and 4096-wide language model, PETR's 900 detection
   queries and 64 depth bins, MapTR's 50 x 20 map queries, 6 decoder layers). For a GPU.
+  Part 2's language model there has the shape of ORION's Vicuna-7B (32 layers, 32 heads, FFN
+  11008, 32k vocabulary); the paper gives no LoRA rank, roadside top-k or planner widths, so
+  those (LoRA 16 / 32 on every linear layer, 100 + 50 roadside queries, DiffusionDrive's 20
+  anchors and 2 denoising steps) are this project's choices.
 
 Frames: ``ego_range`` is in the ego frame, ``rsu_range`` in the roadside unit's ground frame
 (origin at the pole's foot, x along the unit's yaw, y left, z up); both
@@ -23,6 +27,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from v2xbench.envs.v2x_intersection.classes import NUM_CLASSES
+from v2xbench.envs.v2x_intersection.town.model import COMMAND_NAMES
 
 SCALES = ("tiny", "default", "paper")
 BRANCHES = ("ego", "rsu")
@@ -31,6 +36,8 @@ MAP_CLASS_NAMES = ("divider", "boundary", "crosswalk")
 LIGHT_CLASS_NAMES = ("none", "green", "yellow", "red", "stop_sign")
 #: Cameras per branch (ego: ``EGO_CAMERA_NAMES`` order; rsu: the active unit's camera).
 NUM_CAMERAS = {"ego": 6, "rsu": 1}
+#: Planning decoders of part 2 (:mod:`.planners`); ``vae`` is the paper's default.
+PLANNERS = ("vae", "mlp", "diffusion")
 
 
 @dataclass(frozen=True)
@@ -130,6 +137,42 @@ class AuroraConfig:
     num_light_classes: int = len(LIGHT_CLASS_NAMES)
     # --- semantic tokens (ego branch): the language model's width
     lm_width: int = 48
+    # --- language model (part 2, :mod:`.language`): Llama architecture of width lm_width
+    lm_layers: int = 2
+    lm_heads: int = 2
+    lm_kv_heads: int = 2
+    lm_ffn: int = 96
+    lm_vocab: int = 384  # BPE vocabulary size, special tokens included
+    lm_max_len: int = 256  # positions: visual placeholders + prompt + answer
+    lm_tie_embeddings: bool = True
+    lora_rank: int = 4
+    lora_alpha: float = 8.0
+    lora_dropout: float = 0.0
+    lora_targets: tuple[str, ...] = ("q_proj", "v_proj")
+    # --- CQAF (part 2, :mod:`.cqaf`)
+    cqaf_det_topk: int = 8  # roadside detection queries per message (highest scores)
+    cqaf_map_topk: int = 4  # roadside map queries per message (highest scores)
+    cqaf_temperature: float = 2.0  # m, soft assignment: weight ~ exp(-distance / T)
+    cqaf_match_radius: float = 4.0  # m, a roadside query farther from every ego query is appended
+    cqaf_ego_score: float = 0.3  # ego queries scoring below this do not match roadside ones
+    cqaf_map_score: float = 0.3  # roadside map queries scoring below this are not appended
+    # --- planner (part 2, :mod:`.planners`, :mod:`.planner_losses`)
+    planner: str = "vae"
+    num_commands: int = len(COMMAND_NAMES)
+    plan_waypoints: int = 6  # ego-frame waypoints, plan_dt apart (the data's expert_waypoints)
+    plan_dt: float = 0.5  # s
+    plan_hidden: int = 32
+    plan_latent: int = 8  # VAE latent size
+    plan_anchors: int = 4  # diffusion: trajectory anchors (k-means of training trajectories)
+    plan_diffusion_steps: int = 2  # diffusion: denoising steps at inference
+    plan_traj_scale: tuple[float, float] = (20.0, 10.0)  # m, x / y normalization of trajectories
+    plan_l1_weight: float = 1.0
+    plan_bound_weight: float = 1.0
+    plan_col_weight: float = 1.0
+    plan_kl_weight: float = 1.0
+    plan_cls_weight: float = 1.0  # diffusion: trajectory-mode classification
+    plan_bound_margin: float = 1.0  # m, waypoints closer than this to a road boundary cost
+    plan_col_radius: float = 2.5  # m, waypoints closer than this to an agent's centre cost
     # --- losses and matching costs (PETR / MapTR weights)
     focal_alpha: float = 0.25
     focal_gamma: float = 2.0
@@ -149,7 +192,10 @@ class AuroraConfig:
             raise ValueError(f"AuroraConfig: scale={self.scale!r}; known scales: {SCALES}")
         for name in ("patch_size", "vit_depth", "vit_width", "vit_heads", "depth_bins",
                      "dec_width", "dec_heads", "dec_ffn", "det_layers", "map_layers",
-                     "num_det_queries", "num_map_queries", "lm_width"):
+                     "num_det_queries", "num_map_queries", "lm_width", "lm_layers", "lm_heads",
+                     "lm_kv_heads", "lm_ffn", "lm_vocab", "lm_max_len", "lora_rank",
+                     "cqaf_det_topk", "cqaf_map_topk", "num_commands", "plan_waypoints",
+                     "plan_hidden", "plan_latent", "plan_anchors", "plan_diffusion_steps"):
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 1:
                 raise ValueError(f"AuroraConfig: {name}={v!r} must be an int >= 1")
@@ -179,6 +225,41 @@ class AuroraConfig:
             raise ValueError("AuroraConfig: det_code_weights needs 10 values")
         if not 0 <= self.dropout < 1:
             raise ValueError(f"AuroraConfig: dropout={self.dropout!r} must be in [0, 1)")
+        self._check_part2()
+
+    def _check_part2(self) -> None:
+        """Checks of the language model, CQAF and planner fields (``ValueError`` naming one)."""
+        if self.lm_width % self.lm_heads or self.lm_heads % self.lm_kv_heads:
+            raise ValueError(f"AuroraConfig: lm_width={self.lm_width} must be divisible by "
+                             f"lm_heads={self.lm_heads}, and lm_heads by lm_kv_heads="
+                             f"{self.lm_kv_heads}")
+        if (self.lm_width // self.lm_heads) % 2:
+            raise ValueError("AuroraConfig: lm_width / lm_heads must be even (rotary embedding)")
+        if self.lm_width % self.dec_heads:
+            raise ValueError(f"AuroraConfig: lm_width={self.lm_width} must be divisible by "
+                             f"dec_heads={self.dec_heads} (semantic fusion attention)")
+        if not self.lora_targets or not all(isinstance(t, str) and t for t in self.lora_targets):
+            raise ValueError(f"AuroraConfig: lora_targets={self.lora_targets!r} must be module "
+                             "names such as 'q_proj'")
+        if not 0 <= self.lora_dropout < 1:
+            raise ValueError(f"AuroraConfig: lora_dropout={self.lora_dropout!r} must be in [0, 1)")
+        if self.planner not in PLANNERS:
+            raise ValueError(f"AuroraConfig: planner={self.planner!r}; known planners: {PLANNERS}")
+        for name in ("lora_alpha", "cqaf_temperature", "cqaf_match_radius", "plan_dt"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"AuroraConfig: {name}={v!r} must be a positive number")
+        for name in ("cqaf_ego_score", "cqaf_map_score"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ValueError(f"AuroraConfig: {name}={getattr(self, name)!r} must be in [0, 1]")
+        for name in ("plan_l1_weight", "plan_bound_weight", "plan_col_weight", "plan_kl_weight",
+                     "plan_cls_weight", "plan_bound_margin", "plan_col_radius"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"AuroraConfig: {name}={v!r} must be a number >= 0")
+        if len(self.plan_traj_scale) != 2 or min(self.plan_traj_scale) <= 0:
+            raise ValueError(f"AuroraConfig: plan_traj_scale={self.plan_traj_scale!r} must be two "
+                             "positive numbers (m)")
 
     # ------------------------------------------------------------------ per-branch views
     def image_size(self, branch: str) -> tuple[int, int]:
@@ -220,11 +301,15 @@ class AuroraConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> AuroraConfig:
-        """Inverse of :meth:`to_dict`; unknown keys raise ``ValueError``."""
+        """Inverse of :meth:`to_dict`; unknown keys raise ``ValueError``. Keys missing from
+        ``d`` (a file written before a field existed, e.g. part 1's runs) take the values of
+        ``d["scale"]``."""
         d = dict(d)
         for k in ("stage1", "stage2"):
             if isinstance(d.get(k), dict):
                 d[k] = StageHParams.from_dict(d[k])
+        for k, v in _SCALE_FIELDS.get(d.get("scale"), {}).items():
+            d.setdefault(k, v)
         return _from_dict(cls, d)
 
 
@@ -244,6 +329,9 @@ def _from_dict(cls, d: dict[str, Any]):
     return cls(**kw)
 
 
+#: LoRA on every linear layer of the Llama blocks (attention and MLP).
+_LORA_ALL = ("q_proj", "k_proj", "v_proj", "o_proj", "gate_proj", "up_proj", "down_proj")
+
 _TINY_STAGE = StageHParams(batch_size=2, epochs=1, lr=1e-3, warmup_iters=0, num_workers=0)
 
 #: Default scale, sized by measurement on the 2-core CPU with one torch thread (forward +
@@ -261,6 +349,9 @@ _SCALE_FIELDS: dict[str, dict[str, Any]] = {
         patch_size=16, vit_depth=4, vit_width=128, vit_heads=4, mlp_ratio=2.0,
         depth_bins=16, dec_width=128, dec_heads=4, dec_ffn=256, det_layers=3, map_layers=2,
         num_det_queries=64, num_map_queries=20, map_points=8, lm_width=256,
+        lm_layers=4, lm_heads=4, lm_kv_heads=4, lm_ffn=688, lm_vocab=4096, lm_max_len=512,
+        lora_rank=8, lora_alpha=16.0, lora_targets=_LORA_ALL,
+        cqaf_det_topk=32, cqaf_map_topk=10, plan_hidden=128, plan_latent=32, plan_anchors=20,
         stage1=_DEFAULT_STAGE1, stage2=_DEFAULT_STAGE2,
     ),
     "paper": dict(
@@ -270,6 +361,10 @@ _SCALE_FIELDS: dict[str, dict[str, Any]] = {
         ego_depth_far=61.2, dec_width=256, dec_heads=8, dec_ffn=2048, det_layers=6,
         map_layers=6, num_det_queries=900, num_map_queries=50, map_points=20, dropout=0.1,
         lm_width=4096,
+        lm_layers=32, lm_heads=32, lm_kv_heads=32, lm_ffn=11008, lm_vocab=32000,
+        lm_max_len=4096, lm_tie_embeddings=False, lora_rank=16, lora_alpha=32.0,
+        lora_dropout=0.05, lora_targets=_LORA_ALL, cqaf_det_topk=100, cqaf_map_topk=50,
+        plan_hidden=256, plan_latent=32, plan_anchors=20,
         stage1=StageHParams(batch_size=12, epochs=4, lr=5e-5),
         stage2=StageHParams(batch_size=12, epochs=4, lr=5e-5),
     ),

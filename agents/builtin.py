@@ -28,10 +28,17 @@ class RandomAgent:
 
 @register_agent("constant_speed")
 class ConstantSpeedAgent:
-    """Follows the route at a constant 6 m/s and ignores everything else (a blind baseline)."""
+    """Follows the route at a constant speed (6 m/s by default) and ignores everything else (a
+    blind baseline)."""
 
     obs_mode, privileged, rsu_policy = "objects", False, "none"
-    speed = 6.0  # m/s
+
+    def __init__(self, speed: float = 6.0) -> None:
+        """``speed``: the constant speed, m/s (an ``--agent-config`` file ``{"speed": 4.0}``)."""
+        number = isinstance(speed, (int, float)) and not isinstance(speed, bool)
+        if not number or not 0.0 <= speed <= 30.0:
+            raise ValueError(f"constant_speed: speed={speed!r} must be a number of m/s in [0, 30]")
+        self.speed = float(speed)
 
     def reset(self, route_info: dict) -> None:
         pass

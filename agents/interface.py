@@ -3,17 +3,65 @@
 An agent is any object with::
 
     obs_mode: str                 # observation mode it needs ("objects", "sensors", "bev")
-    rsu_policy: str               # what the RSU sends it: "share_objects" or "none"
+    rsu_policy: str | object      # what the RSU sends it: "share_objects", "none", or its
+                                  # own roadside policy object (see "Roadside policy" below)
     privileged: bool              # optional, informative only (see below)
     def reset(self, route_info: dict) -> None: ...
     def act(self, obs: dict) -> np.ndarray: ...   # (3,) throttle, steer, brake   -- or --
+                                                  # (2,) accel, steer (action_mode="accel_steer")
                                                   # {"waypoints": (K, 2) ego frame, "speed": m/s}
+    def act(self, obs: dict, info: dict) -> ...   # the same, with the step's info (see below)
+    checkpoint: str | list[str]   # optional: weight files / folders it loads (hashed, see below)
+    def fingerprint(self) -> str  # optional: anything else its behaviour depends on
+
+**One observation contract.** ``obs`` is exactly the observation the Gymnasium env
+(``gym.make("v2xbench:V2XIntersection-v0", obs_mode=...)``) returns for the agent's
+``obs_mode``: the keys of ``observations.ego_space`` and nothing more, every value inside that
+space, so a model trained on the gym id (Stable-Baselines3, say) runs unchanged. Anything else the
+harness hands over goes in ``info``: the Gymnasium env's ``info`` dict of the same tick
+(``episode.EpisodeTracker.info``: ``tick``, ``route_completion`` (%), ``v2x_bps``, event counts,
+reward terms, channel statistics; at the first ``act`` of a route the reset's info). ``act``
+receives it when its signature asks for it (:func:`act_takes_info`): a parameter named ``info``
+(passed by keyword), or a second positional parameter without a default (passed positionally);
+otherwise ``act(obs)`` is called, as before.
 
 ``route_info`` is what CARLA's leaderboard gives an agent: the route and its commands, nothing
 about the scenarios on it. Keys: ``route_points`` ((P, 2) world frame, 1 m apart), ``commands``
 ((P,) ``COMMAND_NAMES`` codes), ``town`` (the map's name, public like CARLA's HD map) and
 ``seed`` (the job's world seed; the ``random`` baseline seeds its generator with it). It has no
 route id, scenario list, weather or time of day (:data:`ROUTE_INFO_KEYS`).
+
+**Roadside policy** (bring your own; ``docs/evaluation.md``, ``examples/my_roadside_policy.py``).
+``rsu_policy`` names a built-in policy of the roadside unit (``"share_objects"``: it sends the
+objects it sees; ``"none"``: silence) or is an object with::
+
+    def act(self, rsu_obs: dict) -> np.ndarray | dict | None: ...   # the message of this tick
+    def reset(self, route_info: dict) -> None: ...                   # optional, every route
+
+which the harness runs in the roadside unit's place (``collectors/roadside.py``): every tick a
+unit serves the ego, ``act`` gets that unit's observation (the PettingZoo ``rsu`` agent's:
+``observations.rsu_space``) and returns its message: a 1-D array of at most
+``max_payload_floats`` floats, each finite and within +-1e4 (a raw payload: the ego reads it from
+``obs["v2x_payload"][:int(obs["v2x_info"][6])]``, ``v2x_info`` giving its age and the sender's
+pose too), ``None`` (say nothing), or a PettingZoo RSU action dict ``{"length", "payload",
+"format"}`` (an object list made with ``channel.pack_objects``, ``"format": 0``, is also decoded
+into the ego's ``v2x_objects``). Not bytes: the channel serializes the floats in the run's
+``encoding`` (float16 by default, 2 bytes each, after a 16-byte header) and counts every byte in
+the run's BPS. A longer message fails the route naming the limit; it is never cut. Results and the
+summary name the policy ``custom:<ClassName>``; its code, ``checkpoint`` and ``fingerprint()``
+join the run's fingerprint. With ``--isolate-agent`` it runs in the agent's process.
+
+**Configuration** (``v2xbench eval --agent-config FILE``): the file's JSON object is passed to the
+agent's constructor as keyword arguments (``Class(**config)``; CARLA passes a path to
+``setup(path_to_conf_file)`` instead: an agent that wants a file of its own takes a path argument,
+``{"conf_file": "my.yaml"}``). A key the constructor does not take is refused before any route
+runs (:func:`build_agent`).
+
+**Fingerprint** (what ``eval`` keys its results by, ``collectors/agent_fingerprint.py``): the
+agent's code, its configuration, and what it declares: ``checkpoint`` (a path or a list of paths;
+each file, or every file under a folder, is hashed with SHA-256) and ``fingerprint()`` (a string,
+for anything else, e.g. a model registry id). Declare the weights the agent loads, so that results
+of other weights are never mixed with its own.
 
 Privilege is the harness's decision, never the agent's: only the built-in agents named in
 :data:`PRIVILEGED_AGENTS` are given the simulator (``bind(world)`` after every reset) and marked
@@ -31,6 +79,7 @@ Waypoint outputs are turned into controls by the shared :class:`~.controller.Way
 from __future__ import annotations
 
 import importlib.util
+import inspect
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -46,7 +95,7 @@ class Agent(Protocol):
     """Structural type of a driving agent (see module docstring)."""
 
     obs_mode: str
-    rsu_policy: str
+    rsu_policy: Any  # a built-in policy's name or a roadside policy object (module docstring)
 
     def reset(self, route_info: dict) -> None: ...
 
@@ -111,7 +160,8 @@ def complete_agent(agent: Any, label: str, privileged: bool) -> Any:
     """Fill the optional members' defaults and check the protocol of an agent instance.
 
     Raises:
-        ValueError: ``reset`` or ``act`` missing, or ``privileged = True`` declared by an agent
+        ValueError: ``reset`` or ``act`` missing, an ``rsu_policy`` that is neither a built-in
+            policy's name nor an object with ``act``, or ``privileged = True`` declared by an agent
             the harness does not grant it to (see module docstring).
     """
     for attr, default in _DEFAULTS:
@@ -120,6 +170,7 @@ def complete_agent(agent: Any, label: str, privileged: bool) -> Any:
     missing = [m for m in ("reset", "act") if not callable(getattr(agent, m, None))]
     if missing:
         raise ValueError(f"agent {label!r} lacks method(s) {', '.join(missing)} (see agents/interface.py)")
+    _check_rsu_policy(agent.rsu_policy, label)
     if getattr(agent, "privileged", False) and not privileged:
         raise ValueError(
             f"agent {label!r} declares privileged = True, but only the built-in agents "
@@ -130,43 +181,153 @@ def complete_agent(agent: Any, label: str, privileged: bool) -> Any:
     return agent
 
 
-def load_agent(spec: str) -> Any:
-    """An agent instance from a registered name or ``path/to/file.py:ClassName``.
+def _check_rsu_policy(policy: Any, label: str) -> None:
+    """Raise ``ValueError`` unless ``policy`` names a built-in RSU policy or is a roadside
+    policy object (one with a callable ``act``; module docstring)."""
+    from v2xbench.envs.v2x_intersection.config import RSU_POLICIES
+
+    if isinstance(policy, str):
+        if policy not in RSU_POLICIES:
+            raise ValueError(f"agent {label!r}: rsu_policy={policy!r} must be one of "
+                             f"{RSU_POLICIES} or a roadside policy object with "
+                             "act(rsu_observation) -> message (see agents/interface.py)")
+    elif not callable(getattr(policy, "act", None)):
+        raise ValueError(f"agent {label!r}: rsu_policy is a {type(policy).__name__} without an "
+                         f"act(rsu_observation) method; give one of {RSU_POLICIES} or a roadside "
+                         "policy object (see agents/interface.py)")
+
+
+def agent_file(spec: str) -> Path | None:
+    """The file of a ``path/to/file.py:ClassName`` spec (``None`` for a registered name).
 
     Raises:
-        ValueError: unknown name, missing file or class, an object lacking the protocol, or a
-            non-built-in agent declaring ``privileged = True``.
+        ValueError: neither a registered name nor an existing ``file.py:Class``.
     """
     register_builtins()
     if spec in AGENTS:
-        agent = AGENTS[spec]()
-    elif ":" in spec:
-        path, cls_name = spec.rsplit(":", 1)
-        p = Path(path)
-        if not p.is_file():
+        return None
+    if ":" in spec:
+        path = spec.rsplit(":", 1)[0]
+        if not Path(path).is_file():
             raise ValueError(f"agent file {path!r} not found")
-        mod_name = f"v2xbench_user_agent_{abs(hash(p.resolve()))}"
-        module_spec = importlib.util.spec_from_file_location(mod_name, p)
-        module = importlib.util.module_from_spec(module_spec)
-        sys.modules[mod_name] = module
-        module_spec.loader.exec_module(module)
-        if not hasattr(module, cls_name):
-            raise ValueError(f"agent file {path!r} has no class {cls_name!r}")
-        agent = getattr(module, cls_name)()
-    else:
-        raise ValueError(f"unknown agent {spec!r}; registered: {', '.join(sorted(AGENTS))}; "
-                         "or give path/to/file.py:ClassName")
+        return Path(path)
+    import difflib
+
+    close = difflib.get_close_matches(spec, AGENTS, n=1)
+    hint = f" Did you mean {close[0]!r}?" if close else ""
+    raise ValueError(f"unknown agent {spec!r}.{hint} Registered: {', '.join(sorted(AGENTS))}; "
+                     "or give path/to/file.py:ClassName")
+
+
+def agent_factory(spec: str) -> Callable[..., Any]:
+    """The factory (usually the class) of a registered name or ``path/to/file.py:ClassName``;
+    a file is imported (executed) to find its class.
+
+    Raises:
+        ValueError: see :func:`agent_file`; the file has no such class.
+    """
+    path = agent_file(spec)
+    if path is None:
+        return AGENTS[spec]
+    cls_name = spec.rsplit(":", 1)[1]
+    mod_name = f"v2xbench_user_agent_{abs(hash(path.resolve()))}"
+    module_spec = importlib.util.spec_from_file_location(mod_name, path)
+    module = importlib.util.module_from_spec(module_spec)
+    sys.modules[mod_name] = module
+    module_spec.loader.exec_module(module)
+    if not hasattr(module, cls_name):
+        raise ValueError(f"agent file {str(path)!r} has no class {cls_name!r}")
+    return getattr(module, cls_name)
+
+
+def build_agent(factory: Callable[..., Any], label: str, config: dict | None = None) -> Any:
+    """``factory(**config)`` (``factory()`` without a config; see "Configuration" above).
+
+    Raises:
+        ValueError: ``config`` is not a dict with string keys, or the constructor does not take
+            its keys (the message names them and what it takes).
+    """
+    if not config:
+        return factory()
+    if not isinstance(config, dict) or not all(isinstance(k, str) for k in config):
+        raise ValueError(f"agent config of {label!r} must be an object of keyword arguments, got "
+                         f"{type(config).__name__}")
+    try:
+        sig = inspect.signature(factory)
+    except (TypeError, ValueError):  # not introspectable: let the call say
+        sig = None
+    if sig is not None:
+        try:
+            sig.bind(**config)
+        except TypeError as e:
+            takes = [n for n, p in sig.parameters.items()
+                     if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+            raise ValueError(f"agent {label!r} does not take the agent config {sorted(config)} "
+                             f"({e}); its constructor takes: {', '.join(takes) or 'no arguments'}"
+                             ) from None
+    return factory(**config)
+
+
+def load_agent(spec: str, config: dict | None = None) -> Any:
+    """An agent instance from a registered name or ``path/to/file.py:ClassName``, built with
+    ``config`` as keyword arguments (:func:`build_agent`).
+
+    Raises:
+        ValueError: unknown name, missing file or class, a config the constructor does not take,
+            an object lacking the protocol, or a non-built-in agent declaring ``privileged = True``.
+    """
+    agent = build_agent(agent_factory(spec), spec, config)
     return complete_agent(agent, spec, granted_privilege(spec))
+
+
+def act_info_style(agent: Any) -> str | None:
+    """How ``agent.act`` takes the step's ``info`` (module docstring): ``"keyword"`` (a parameter
+    named ``info``), ``"positional"`` (a second positional parameter without a default) or
+    ``None`` (it does not: ``act(obs)``)."""
+    try:
+        params = list(inspect.signature(agent.act).parameters.values())
+    except (TypeError, ValueError):
+        return None
+    P = inspect.Parameter
+    if any(p.name == "info" and p.kind in (P.POSITIONAL_OR_KEYWORD, P.KEYWORD_ONLY) for p in params):
+        return "keyword"
+    positional = [p for p in params if p.kind in (P.POSITIONAL_ONLY, P.POSITIONAL_OR_KEYWORD)]
+    if len(positional) >= 2 and positional[1].default is inspect.Parameter.empty:
+        return "positional"
+    return None
+
+
+def act_takes_info(agent: Any) -> bool:
+    """Whether ``agent.act`` asks for the step's ``info`` (:func:`act_info_style`)."""
+    return act_info_style(agent) is not None
+
+
+_UNSET = object()
+
+
+def call_act(agent: Any, obs: dict, info: dict | None, style: str | None | object = _UNSET) -> Any:
+    """``agent.act(obs)``, ``agent.act(obs, info=info)`` or ``agent.act(obs, info)`` as the agent
+    asks (``style`` from :func:`act_info_style`, computed when not given)."""
+    if style is _UNSET:
+        style = act_info_style(agent)
+    if style == "keyword":
+        return agent.act(obs, info=info)
+    if style == "positional":
+        return agent.act(obs, info)
+    return agent.act(obs)
 
 
 _CONTROLLER = WaypointController()
 
 
-def to_control(output: Any, obs: dict) -> np.ndarray:
-    """Turn an agent's output into a ``(3,)`` control (waypoints go through the shared controller).
+def to_control(output: Any, obs: dict, action_mode: str = "carla") -> np.ndarray:
+    """Turn an agent's output into a ``(3,)`` control (waypoints go through the shared controller;
+    an array is an action of the env's ``action_mode``, ``envs.v2x_intersection.actions``:
+    ``(3,)`` throttle, steer, brake for ``carla``, ``(2,)`` accel, steer for ``accel_steer``).
 
     Raises:
-        ValueError: output is neither a (3,) control nor a waypoint dict.
+        ValueError: output is neither an action of ``action_mode`` (the message names the mode and
+            its shape) nor a waypoint dict; NaN or inf.
     """
     if isinstance(output, dict):
         if "waypoints" not in output:
@@ -174,7 +335,10 @@ def to_control(output: Any, obs: dict) -> np.ndarray:
         wps = np.asarray(output["waypoints"], dtype=np.float64).reshape(-1, 2)
         speed = float(output.get("speed", np.linalg.norm(wps[0]) / 0.5 if len(wps) else 0.0))
         return _CONTROLLER.control(wps, float(obs["ego"][0]), speed)
+    from v2xbench.envs.v2x_intersection.actions import get_mode, validate_action
+
     a = np.asarray(output, dtype=np.float32)
-    if a.shape != (3,):
-        raise ValueError(f"agent output must be a (3,) control or a waypoint dict, got shape {a.shape}")
-    return a
+    if a.shape != get_mode(action_mode).shape:
+        raise ValueError(f"agent output must be an action of shape {get_mode(action_mode).describe()} "
+                         f"or a waypoint dict, got shape {a.shape}")
+    return validate_action(a, action_mode, "agent output")

@@ -66,8 +66,14 @@ class TensorDictPolicyAgent:
             self.policy.reset()
 
     @torch.no_grad()
-    def act(self, obs: dict) -> np.ndarray | dict:
-        """Run the policy on ``obs``; controls ``(3,)`` or ``{"waypoints": (K, 2)}``."""
+    def act(self, obs: dict, info: dict | None = None) -> np.ndarray | dict:
+        """Run the policy on ``obs``; an action (``(3,)``, or ``(2,)`` under ``action_mode=
+        "accel_steer"``; checked by ``interface.to_control``) or ``{"waypoints": (K, 2)}``.
+        With the step's ``info`` the policy also sees ``route_completion`` and ``v2x_bps`` as
+        ``(1,)`` entries, as in ``V2XTorchEnv``'s observation."""
+        if info is not None:
+            extra = [k for k in ("route_completion", "v2x_bps") if k in info and k not in obs]
+            obs = {**obs, **{k: np.array([info[k]], np.float32) for k in extra}}
         out = self.policy(obs_to_tensordict(obs, self.device))
         if self.action_key not in out.keys(include_nested=True):
             raise KeyError(f"policy output has no {self.action_key!r} (keys: {list(out.keys(True))})")
@@ -76,4 +82,4 @@ class TensorDictPolicyAgent:
             raise ValueError(f"policy output {self.action_key!r} contains NaN or inf")
         if self.waypoints:
             return {"waypoints": a.reshape(-1, 2)}
-        return a.reshape(3)
+        return a.reshape(-1)

@@ -235,7 +235,7 @@ def _stage_patches(timers: _Timers, mode: str) -> list[tuple[object, str, object
     patches += [(world, "TICK_STAGES", stages), (batch, "TICK_STAGES", stages)]
     patches.append((episode.EpisodeTracker, "after_step", timers.wrap(episode.EpisodeTracker.after_step, "after_step")))
     if mode in ("objects", "test50"):  # gym.make's single env
-        patches.append((gym_env, "validate_control", timers.wrap(gym_env.validate_control, "validate_control")))
+        patches.append((gym_env, "validate_action", timers.wrap(gym_env.validate_action, "validate_control")))
         patches.append((gym_env, "ego_observation", timers.wrap(gym_env.ego_observation, "observation")))
     else:
         from v2xbench.envs.v2x_intersection import jit_batch

@@ -2,10 +2,16 @@
 
 :class:`IsolatedAgent` starts ``python -m v2xbench.collectors.agent_process`` (a fresh
 interpreter, not a fork: nothing of the simulator's memory is copied into it) and talks to it over
-a socket pair. The agent is built in that process from its spec string or picklable factory, so
-neither its module's import nor its constructor runs next to the world. Per route the harness
-sends ``route_info`` (:func:`reset`) and then one observation per tick (:func:`act`); the agent
-process answers with the agent's output. The agent never sees the :class:`World`, its actor table
+a socket pair. The agent is built in that process from its spec string or picklable factory (with
+the ``--agent-config`` keyword arguments), so neither its module's import nor its constructor runs
+next to the world; the process answers with what the harness needs to know of it (``obs_mode``,
+``rsu_policy``, whether ``act`` takes ``info``, its declared checkpoint and fingerprint:
+``agent_fingerprint.declared``). Per route the harness sends ``route_info`` (:func:`reset`) and
+then one observation (and the step's ``info``) per tick (:func:`act`); the agent process answers
+with the agent's output. An agent that brings its own roadside policy (``roadside.py``) keeps it
+in its process too: the harness sees a :class:`RemoteRoadside` that sends the roadside unit's
+observation there each tick and gets the message back (as numbers); the policy's ``reset`` runs
+with the agent's. The agent never sees the :class:`World`, its actor table
 or the scenarios: only what the observation and ``route_info`` hold.
 
 Messages to the agent are pickled (the harness is trusted); answers from the agent are JSON
@@ -84,24 +90,40 @@ def _error(e: BaseException) -> dict:
 
 def serve(conn: Connection) -> None:
     """The agent process's loop: build the agent, then answer ``reset`` / ``act`` until closed."""
-    from v2xbench.agents.interface import complete_agent, granted_privilege, load_agent
+    from v2xbench.agents.interface import (
+        act_info_style,
+        build_agent,
+        call_act,
+        complete_agent,
+        granted_privilege,
+        load_agent,
+    )
+
+    from .agent_fingerprint import declared
+    from .roadside import message_values, policy_label, roadside_component, roadside_runner
 
     def answer(msg: dict) -> None:
         conn.send_bytes(json.dumps(msg).encode())
 
     try:
-        agent_arg = conn.recv()
+        agent_arg, config = conn.recv()
         if granted_privilege(agent_arg):
             raise ValueError(f"{agent_arg!r} is privileged and cannot run isolated")
         if isinstance(agent_arg, str):
-            agent = load_agent(agent_arg)
+            label = agent_arg
+            agent = load_agent(agent_arg, config)
         else:  # a factory: never granted privilege here
-            agent = complete_agent(agent_arg(), getattr(agent_arg, "__name__", repr(agent_arg)), False)
+            label = getattr(agent_arg, "__name__", repr(agent_arg))
+            agent = complete_agent(build_agent(agent_arg, label, config), label, False)
+        style = act_info_style(agent)
+        roadside = roadside_runner(agent)
+        hello = {"ok": True, "obs_mode": str(agent.obs_mode), "rsu_policy": policy_label(agent),
+                 "name": type(agent).__name__, "takes_info": style is not None,
+                 "declared": declared(agent, label), "roadside": roadside_component(agent)}
     except BaseException as e:  # noqa: BLE001  (reported to the harness)
         answer(_error(e))
         return
-    answer({"ok": True, "obs_mode": str(agent.obs_mode), "rsu_policy": str(agent.rsu_policy),
-            "name": type(agent).__name__})
+    answer(hello)
     while True:
         try:
             cmd, arg = conn.recv()
@@ -112,9 +134,16 @@ def serve(conn: Connection) -> None:
         try:
             if cmd == "reset":
                 agent.reset(arg)
+                if roadside is not None:
+                    roadside.reset(arg)
                 answer({"ok": True})
+            elif cmd == "rsu_act" and roadside is not None:
+                v = message_values(roadside.policy.act(arg), roadside.label)
+                msg = None if v is None else {"values": v[0].tolist(), "format": v[1]}
+                answer({"ok": True, "message": msg})
             elif cmd == "act":
-                answer({"ok": True, "output": _encode_output(agent.act(arg))})
+                obs, info = arg
+                answer({"ok": True, "output": _encode_output(call_act(agent, obs, info, style))})
             else:
                 raise ValueError(f"unknown command {cmd!r}")
         except BaseException as e:  # noqa: BLE001  (SystemExit too: the route fails, we go on)
@@ -135,26 +164,42 @@ class IsolatedAgent:
     """A proxy with the agent interface whose agent runs in a separate process (module docstring).
 
     Args:
-        agent: registered name, ``path/to/file.py:ClassName`` or picklable zero-argument factory.
+        agent: registered name, ``path/to/file.py:ClassName`` or picklable factory.
         timeout_s: longest wait for one ``reset`` / ``act`` answer.
+        config: keyword arguments of the agent's constructor (``--agent-config``).
+
+    Attributes:
+        obs_mode, name: the agent's, as its process reported them.
+        rsu_policy: the agent's built-in RSU policy name, or a :class:`RemoteRoadside` when the
+            agent brings its own roadside policy.
+        takes_info: whether the agent's ``act`` takes the step's ``info``.
+        declared: its declared checkpoint digests and fingerprint (``agent_fingerprint.declared``).
+        roadside: its roadside policy's fingerprint component (``roadside.roadside_component``;
+            ``None`` for a built-in policy).
 
     Raises:
-        ValueError: the agent could not be built (unknown, no protocol, declares privileged).
+        ValueError: the agent could not be built (unknown, no protocol, declares privileged, a
+            config its constructor does not take, a declared checkpoint that does not exist).
     """
 
     privileged = False
 
-    def __init__(self, agent: str | Any, timeout_s: float = CALL_TIMEOUT_S) -> None:
+    def __init__(self, agent: str | Any, timeout_s: float = CALL_TIMEOUT_S,
+                 config: dict | None = None) -> None:
         from v2xbench.agents.interface import granted_privilege
 
         if granted_privilege(agent):
             raise ValueError(f"agent {agent!r} is privileged (it reads the simulator through bind(world)) "
                              "and cannot run isolated; evaluate it without --isolate-agent")
-        self.agent_arg, self.timeout_s = agent, float(timeout_s)
+        self.agent_arg, self.timeout_s, self.config = agent, float(timeout_s), config
         self._proc: subprocess.Popen | None = None
         self._conn: Connection | None = None
         hello = self._start()
         self.obs_mode, self.rsu_policy, self.name = hello["obs_mode"], hello["rsu_policy"], hello["name"]
+        self.takes_info, self.declared = bool(hello["takes_info"]), hello["declared"]
+        self.roadside = hello.get("roadside")
+        if self.roadside is not None:
+            self.rsu_policy = RemoteRoadside(self, str(hello["rsu_policy"]))
 
     @property
     def pid(self) -> int | None:
@@ -172,7 +217,7 @@ class IsolatedAgent:
         self._proc, self._conn = proc, conn
         self._finalizer = weakref.finalize(self, _kill, proc, conn)
         try:
-            conn.send(self.agent_arg)
+            conn.send((self.agent_arg, self.config))
         except (OSError, pickle.PicklingError, AttributeError, TypeError) as e:
             self.close()
             raise ValueError(f"cannot send agent {self.agent_arg!r} to its process ({e}); give a spec "
@@ -225,9 +270,10 @@ class IsolatedAgent:
         """Send ``route_info`` to the agent's ``reset``."""
         self._call("reset", route_info)
 
-    def act(self, obs: dict) -> Any:
-        """The agent's output for ``obs`` (a control array or a waypoint dict)."""
-        msg = self._call("act", obs)
+    def act(self, obs: dict, info: dict | None = None) -> Any:
+        """The agent's output for ``obs`` (a control array or a waypoint dict); ``info`` reaches
+        the agent when its ``act`` takes it (:attr:`takes_info`)."""
+        msg = self._call("act", (obs, info if self.takes_info else None))
         try:
             return decode_output(msg["output"])
         except (KeyError, TypeError, ValueError) as e:
@@ -247,6 +293,31 @@ class IsolatedAgent:
             except (OSError, subprocess.TimeoutExpired):
                 pass
         _kill(proc, conn)
+
+
+class RemoteRoadside:
+    """The roadside policy of an :class:`IsolatedAgent`, which runs in the agent's process: ``act``
+    sends the roadside unit's observation there and returns the message (``{"length",
+    "payload", "format"}`` or ``None``); its ``reset`` runs there with the agent's.
+
+    Attributes:
+        label: its name in results (``custom:<ClassName>``, as the agent's process reported it).
+    """
+
+    def __init__(self, agent: IsolatedAgent, label: str) -> None:
+        self._agent, self.label = agent, label
+
+    def act(self, rsu_obs: dict) -> dict | None:
+        """The policy's message for ``rsu_obs`` (checked again by ``roadside.to_message``)."""
+        msg = self._agent._call("rsu_act", rsu_obs).get("message")
+        if msg is None:
+            return None
+        try:
+            values = np.asarray(msg["values"], np.float64).reshape(-1)
+            return {"length": values.shape[0], "payload": values, "format": int(msg["format"])}
+        except (KeyError, TypeError, ValueError) as e:
+            raise AgentProcessError(
+                f"agent process sent a malformed roadside message ({e})") from None
 
 
 def _main(argv: list[str]) -> int:

@@ -17,18 +17,28 @@ Two ways to drive:
   ``route_info`` and the observations, so it cannot read or patch the world. Privilege is the
   harness's decision (``interface.granted_privilege``: the built-in expert and oracles only):
   those agents get ``agent.bind(world)`` after every reset and cannot be isolated (``ValueError``);
-  any other agent declaring ``privileged = True`` is refused. Its control for the current
-  observation is exposed as observation ``agent_action (3,)``; the collector's policy is
-  :class:`CopyAgentAction`, so the collected ``action`` is the executed control.
+  any other agent declaring ``privileged = True`` is refused. Its ``act`` gets exactly the
+  Gymnasium env's observation of ``config.obs_mode`` (the keys of ``observations.ego_space``,
+  nothing more), and the Gymnasium env's ``info`` of the same tick when its signature asks for it
+  (``interface.act_info_style``). Its control for the current observation is exposed as
+  observation ``agent_action (3,)``; the collector's policy is :class:`CopyAgentAction`, so the
+  collected ``action`` is the executed control. An agent whose ``rsu_policy`` is an object (its
+  own roadside policy, ``roadside.py``) has it run in the roadside unit's place: each tick its
+  ``act`` gets the unit's observation and its message goes over the channel (``World.step``)
+  instead of the built-in policy's (the world's ``rsu_policy`` is then ``"none"``).
 - *TorchRL policy* (``agent=None``): the collector's policy (any ``TensorDictModule`` reading the
-  observation keys below and writing ``action``) drives; ``agent_action`` stays zero.
+  observation keys below and writing ``action``) drives; ``agent_action`` stays zero. It sees the
+  keys of ``V2XTorchEnv``'s observation (the ego observation plus ``route_completion`` and
+  ``v2x_bps``), so a policy trained there runs here.
 
 Specs (float32 unless noted, batch_size ``[]``): the ego observation of ``config.obs_mode``
 (``observations.ego_space``: ``ego``, ``route``, ``v2x_objects``, ``v2x_info`` and ``objects``,
 or ``cameras`` + ``lidar``, or ``bev``; the mode defaults to the agent's ``obs_mode``),
 ``route_completion (1,)``, ``v2x_bps (1,)``,
 ``agent_action (3,)``, ``job (1,)`` int64 (index of the running job in the queue, -1 idle);
-``action (3,)`` bounded; ``reward (1,)`` (``episode.py``); ``done``/``terminated``/``truncated``.
+``action`` bounded (``(3,)`` for a protocol agent; a TorchRL policy's in ``config.action_mode``:
+``(2,)`` accel, steer for ``accel_steer``, ``envs.v2x_intersection.actions``); ``reward (1,)``
+(``episode.py``); ``done``/``terminated``/``truncated``.
 
 Failures: an exception of the agent (``reset``, ``bind`` or ``act``), of the world, or an invalid
 policy action (NaN) ends the route as failed (``ENDED_ERROR``, DS 0, message and traceback in the
@@ -53,6 +63,7 @@ from torch import nn
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 from v2xbench.agents.torchrl_policy import obs_tensors
+from v2xbench.envs.v2x_intersection.actions import get_mode, validate_action
 from v2xbench.envs.v2x_intersection.config import make_config
 from v2xbench.envs.v2x_intersection.episode import EpisodeTracker
 from v2xbench.envs.v2x_intersection.observations import ego_observation, ego_space, validate_control
@@ -60,6 +71,7 @@ from v2xbench.envs.v2x_intersection.route_files import load_suite_cached
 from v2xbench.envs.v2x_intersection.world import World
 
 from . import jobs as J
+from .roadside import roadside_runner, world_rsu_policy
 from .route_log import RouteLog, build_result, ended_by_code
 
 
@@ -91,23 +103,25 @@ def agent_label(agent: Any) -> tuple[str, str]:
     return name, name
 
 
-def instantiate_agent(agent: Any, isolate: bool = False) -> Any:
-    """An agent instance from a spec string (``interface.load_agent``) or a factory, or with
-    ``isolate`` an :class:`~.agent_process.IsolatedAgent` proxy running it in its own process.
+def instantiate_agent(agent: Any, isolate: bool = False, config: dict | None = None) -> Any:
+    """An agent instance from a spec string (``interface.load_agent``) or a factory, built with
+    ``config`` as keyword arguments, or with ``isolate`` an
+    :class:`~.agent_process.IsolatedAgent` proxy running it in its own process.
 
     Raises:
-        ValueError: see ``interface.load_agent`` / ``complete_agent``; a privileged agent with
-            ``isolate``.
+        ValueError: see ``interface.load_agent`` / ``build_agent`` / ``complete_agent``; a
+            privileged agent with ``isolate``.
     """
-    from v2xbench.agents.interface import complete_agent, granted_privilege, load_agent
+    from v2xbench.agents.interface import build_agent, complete_agent, granted_privilege, load_agent
 
     if isolate:
         from .agent_process import IsolatedAgent
 
-        return IsolatedAgent(agent)
+        return IsolatedAgent(agent, config=config)
     if isinstance(agent, str):
-        return load_agent(agent)
-    return complete_agent(agent(), agent_label(agent)[0], granted_privilege(agent))
+        return load_agent(agent, config)
+    label = agent_label(agent)[0]
+    return complete_agent(build_agent(agent, label, config), label, granted_privilege(agent))
 
 
 def route_info(world, town: str, seed: int) -> dict:
@@ -162,6 +176,8 @@ class EvalEnv(EnvBase):
         video_every, video_size: a frame every this many ticks, of this many pixels.
         agent_name: display name in the results (default: from the spec or factory).
         isolate: run the protocol agent in a separate process (see module docstring).
+        agent_config: keyword arguments of the agent's constructor (``--agent-config``).
+        fingerprint: digest of the run's fingerprint, written into every result.
     """
 
     batch_locked = True
@@ -170,7 +186,8 @@ class EvalEnv(EnvBase):
                  jobs: Sequence[J.Job] | None = None, seeds: int = 1, max_routes: int | None = None,
                  video: bool = False, config: dict | None = None, video_every: int = 5,
                  video_size: int = 256, agent_name: str | None = None,
-                 device: str | torch.device = "cpu", isolate: bool = False) -> None:
+                 device: str | torch.device = "cpu", isolate: bool = False,
+                 agent_config: dict | None = None, fingerprint: str | None = None) -> None:
         torch.set_num_threads(1)
         super().__init__(batch_size=torch.Size([]), device=device)
         self.suite, self.out = str(suite), Path(out)
@@ -188,7 +205,10 @@ class EvalEnv(EnvBase):
 
         self.privileged = agent is not None and granted_privilege(agent)  # the harness decides
         self.agent_process = "isolated" if isolate else "in_process"
-        self.agent = instantiate_agent(agent, isolate) if agent is not None else None
+        self.agent = instantiate_agent(agent, isolate, agent_config) if agent is not None else None
+        # the agent's own roadside policy, run in the unit's place (None: a built-in one)
+        self._roadside = roadside_runner(self.agent) if self.agent is not None else None
+        self.fingerprint = fingerprint
         overrides = dict(config or {})
         bad = {"suite", "route_index"} & set(overrides)
         if bad:
@@ -196,9 +216,12 @@ class EvalEnv(EnvBase):
         self.overrides = dict(overrides)
         if self.agent is not None:  # the agent's declarations choose the mode and the RSU policy
             overrides.setdefault("obs_mode", self.agent.obs_mode)
-            overrides.setdefault("rsu_policy", self.agent.rsu_policy)
+            overrides["rsu_policy"] = world_rsu_policy(self.agent, overrides)
         overrides.setdefault("town", self.routes[0].town if self.routes else "Town01")
         self.config = make_config(**overrides)
+        self.obs_keys = tuple(ego_space(self.config).spaces)  # what a protocol agent's act gets
+        self._info_style = self._agent_info_style()
+        self._info: dict | None = None  # the step's info, built only for an agent that takes it
         self.world = World(self.config)
         self.video_every = int(video_every) if video else 0
         self.video_size = int(video_size)
@@ -210,6 +233,18 @@ class EvalEnv(EnvBase):
         self._obs: dict[str, np.ndarray] = {}
         self._make_specs()
 
+    def _agent_info_style(self) -> str | None:
+        """How the agent's ``act`` takes ``info`` (``interface.act_info_style``; ``None``: not)."""
+        from v2xbench.agents.interface import act_info_style
+
+        from .agent_process import IsolatedAgent
+
+        if self.agent is None:
+            return None
+        if isinstance(self.agent, IsolatedAgent):  # its process reported the agent's signature
+            return "keyword" if self.agent.takes_info else None
+        return act_info_style(self.agent)
+
     # ------------------------------------------------------------------ specs
     def _make_specs(self) -> None:
         obs = {k: _spec(s, self.device) for k, s in ego_space(self.config).spaces.items()}
@@ -217,8 +252,12 @@ class EvalEnv(EnvBase):
             obs[k] = Unbounded(shape=(n,), dtype=torch.float32, device=self.device)
         obs["job"] = Unbounded(shape=(1,), dtype=torch.int64, device=self.device)
         self.observation_spec = Composite(obs, shape=())
-        self.action_spec = Bounded(low=torch.tensor([0.0, -1.0, 0.0]), high=torch.tensor([1.0, 1.0, 1.0]),
-                                   shape=(3,), dtype=torch.float32, device=self.device)
+        # a protocol agent's action is its executed (3,) control (``_act`` maps its output by the
+        # config's action_mode); a TorchRL policy acts in the config's action_mode
+        self.action_mode = "carla" if self.agent is not None else self.config.action_mode
+        m = get_mode(self.action_mode)
+        self.action_spec = Bounded(low=torch.tensor(m.low), high=torch.tensor(m.high),
+                                   shape=m.shape, dtype=torch.float32, device=self.device)
         self.reward_spec = Unbounded(shape=(1,), dtype=torch.float32, device=self.device)
         flag = Categorical(n=2, shape=(1,), dtype=torch.bool, device=self.device)
         self.done_spec = Composite(done=flag, terminated=flag.clone(), truncated=flag.clone(), shape=())
@@ -262,17 +301,21 @@ class EvalEnv(EnvBase):
         if self.agent is not None:
             info = route_info(self.world, spec.town, J.job_seed(spec.seed, job.seed_index))
             call_agent(self.agent.reset, info)
+            if self._roadside is not None:
+                call_agent(self._roadside.reset, info)
             if self.privileged:
                 call_agent(self.agent.bind, self.world)
+            self._info = self._tracker.info() if self._info_style else None  # the reset's info
             obs["agent_action"] = self._act(obs)
         self._obs = obs
 
     def _act(self, obs: dict) -> np.ndarray:
-        from v2xbench.agents.interface import to_control
+        from v2xbench.agents.interface import call_act, to_control
 
-        view = {k: v for k, v in obs.items() if k not in ("agent_action", "job")}
-        out = call_agent(self.agent.act, view)
-        return validate_control(to_control(out, view), "agent output").astype(np.float32)
+        view = {k: obs[k] for k in self.obs_keys}  # the Gymnasium observation, nothing more
+        out = call_agent(call_act, self.agent, view, self._info, self._info_style)
+        control = to_control(out, view, self.config.action_mode)
+        return validate_control(control, "agent output").astype(np.float32)
 
     def _finish(self, ended_by: int, error: BaseException | None = None) -> None:
         """Write the running job's result and go idle."""
@@ -289,7 +332,7 @@ class EvalEnv(EnvBase):
             agent=self.agent_spec, agent_name=self.agent_name,
             privileged=self.privileged, agent_process=self.agent_process, log=self._log,
             ended_by=ended_by, wall_s=time.perf_counter() - self._t0, error=error, video=video,
-            config=self.overrides)
+            config=self.overrides, fingerprint=self.fingerprint)
         J.write_json_atomic(res, J.result_path(self.out, job.job_id))
         self._job, self._job_index, self._log, self._tracker = None, -1, None, None
 
@@ -332,10 +375,14 @@ class EvalEnv(EnvBase):
             return self._td(self._zero_obs(), term=True)
         w = self.world
         try:
-            control = validate_control(tensordict.get("action").detach().cpu().numpy().reshape(-1),
-                                       "policy action")
-            events = w.step_builtin(control)
-            reward, term, trunc, _ = self._tracker.after_step(events, with_info=False)
+            control = validate_action(tensordict.get("action").detach().cpu().numpy().reshape(-1),
+                                      self.action_mode, "policy action")
+            if self._roadside is None:
+                events = w.step_builtin(control)
+            else:  # the agent's roadside policy speaks for the unit (from this tick's observation)
+                events = w.step(control, call_agent(self._roadside.message, w))
+            reward, term, trunc, self._info = self._tracker.after_step(
+                events, with_info=self._info_style is not None)
             self._log.after_step()
         except Exception as e:  # noqa: BLE001
             self._finish(0, error=e)

@@ -9,7 +9,8 @@
 
 or ``v2xbench eval --agent route_follower --suite test50 --seeds 3 --workers 2 --out results/rf``.
 
-The jobs are the suite's routes x ``seeds`` seed indices (``jobs.py``: job ``{route_id}_s{k}``,
+The jobs are the selected routes of the suite x ``seeds`` seed indices (``route_selection.py``:
+``routes``, ``scenario``, ``v2x_only``, ``max_routes``; ``jobs.py``: job ``{route_id}_s{k}``,
 world seed ``route seed + 1000 k``). ``workers`` worker processes each run a
 ``torchrl.collectors.Collector`` over one :class:`~.eval_env.EvalEnv` that claims jobs from the
 shared queue in ``<out>/claims`` and writes ``<out>/routes/<job>.json``. The harness supervises
@@ -17,18 +18,31 @@ them (``eval_workers.py``): a job that runs longer than ``route_timeout`` second
 or whose worker dies (``os._exit`` in the agent, a crash), is recorded as that job's failure
 (result ``failure = "timeout"`` / ``"error"``, ``ended_by = "error"``, DS 0) and a new worker
 takes the remaining jobs. When every job has a result it writes ``<out>/summary.json`` and
-``<out>/summary.md`` (:func:`summarize`).
+``<out>/summary.md`` (``eval_summary.py``).
 
 The run holds ``v2xbench.locks.dir_lock(out)`` from start to end: a second evaluation on the same
-``out`` is refused (``DirectoryLocked`` names the holder). Running again on the same ``out``
-resumes: finished jobs are skipped; claims and temporary files left by an interrupted run are
-removed, and a result file that does not read back (empty, truncated) is removed with a warning
-naming it, so its job runs again.
+``out`` is refused (``DirectoryLocked`` names the holder).
 
-``agent`` is a registered agent name, ``path/to/file.py:ClassName``, a picklable zero-argument
-factory, or a TorchRL policy (a ``TensorDictModule`` reading the observation keys of
+**Results are keyed by a fingerprint** (``agent_fingerprint.py``): the agent's code (the file of
+``path.py:Class``, the modules of a built-in), its declared checkpoint and ``fingerprint()``, the
+agent config, the env overrides, obs_mode / rsu_policy / action_mode, the suite and the agent
+process; for an agent that brings its own roadside policy (``roadside.py``: ``rsu_policy`` is
+then ``custom:<ClassName>`` in the manifest, every summary and the leaderboard) also that
+policy's code, checkpoint and ``fingerprint()``. ``<out>/run.json`` holds it and every result
+its digest. Running again on the same ``out`` with the same fingerprint resumes: finished jobs
+are skipped; claims and temporary files left by an interrupted run are removed, and a result
+file that does not read back (empty, truncated) is removed with a warning naming it, so its job
+runs again. With another fingerprint (an edited agent file, other weights, another config) it
+is refused with a message naming what differs, unless ``overwrite`` (``--overwrite``), which
+deletes the directory's results first and says so. ``retry_failed`` (``--retry-failed``) runs
+the selected jobs whose result is a failure (error or wall-clock timeout) again, same
+fingerprint required.
+
+``agent`` is a registered agent name, ``path/to/file.py:ClassName``, a picklable factory, or a
+TorchRL policy (a ``TensorDictModule`` reading the observation keys of
 :class:`~.eval_env.EvalEnv` and writing ``action``); factories and policies must be picklable
-(they are sent to the worker processes).
+(they are sent to the worker processes). ``agent_config`` (a JSON file or a dict,
+``agent_config.py``) is passed to a protocol agent's constructor as keyword arguments.
 
 Trust: ``path/to/file.py:ClassName`` executes that file: in this process (the agent is built
 once to fail early) and in every worker, or only in the agent's own process with
@@ -38,38 +52,45 @@ results and summary record the harness's decision, not the agent's claim). With
 ``isolate_agent=True`` (``--isolate-agent``) a protocol agent runs in a process of its own and
 sees only ``route_info`` and its observations (``agent_process.py``); privileged agents and
 TorchRL policies cannot be isolated (``ValueError``). Every result and the summary record
-``agent_process`` (``"isolated"`` or ``"in_process"``), and a directory holds one or the other:
-resuming with the other setting is refused like resuming with another agent.
-
-Summary (``metrics.aggregate`` over routes x seeds, bootstrap 95% CI of DS): DS, RC, IS,
-Efficiency, Comfortness, BPS, infractions per km; the same restricted to routes that contain a
-V2X scenario type (``v2x``); per scenario type: instances, success rate (passed with no collision
-in the scenario window and no timeout), collision and timeout rates, mean DS of the runs whose
-route contains the type (failed or missing runs count 0).
+``agent_process`` (``"isolated"`` or ``"in_process"``), part of the fingerprint.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import sys
 import time
-from collections import Counter
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
-from v2xbench.envs.v2x_intersection.metrics import ENDED_BY_NAMES, ENDED_ERROR, aggregate
+from v2xbench.envs.v2x_intersection.config import EnvConfig
+from v2xbench.envs.v2x_intersection.metrics import ENDED_ERROR
 from v2xbench.envs.v2x_intersection.route_files import load_suite_cached
-from v2xbench.envs.v2x_intersection.scenarios import get_scenario
 
-from v2xbench.files import atomic_write_text, check_output_dir, remove_stale_tmp
+from v2xbench.files import check_output_dir, remove_stale_tmp
 from v2xbench.locks import dir_lock
 
 from . import jobs as J
+from .agent_config import resolve_agent_config
+from .agent_fingerprint import (
+    agent_identity,
+    code_digests,
+    declared,
+    describe_differences,
+    make_fingerprint,
+    policy_digest,
+)
 from .eval_env import agent_label, copy_policy, instantiate_agent, make_env_factory
+from .eval_summary import per_scenario, summarize, summary_markdown, write_summary
 from .eval_workers import DEFAULT_ROUTE_TIMEOUT_S, check_route_timeout, run_jobs
-from .route_log import FAILURE_KINDS, build_result
+from .roadside import policy_label, roadside_component
+from .route_log import build_result
+from .route_selection import select_routes
+
+__all__ = ["evaluate", "per_scenario", "summarize", "summary_markdown", "write_summary"]
 
 FRAMES_PER_WORKER = 64  # collector frames per worker between two looks for more work
 
@@ -83,23 +104,77 @@ def _suite_key(suite: str) -> str:
     return str(p.resolve()) if p.suffix else str(suite)
 
 
-def _check_manifest(out: Path, manifest: dict) -> None:
-    """Refuse to mix results of another agent, suite or config in one directory."""
+def _say(msg: str) -> None:
+    print(f"v2xbench eval: {msg}", file=sys.stderr, flush=True)
+
+
+def _config_default(name: str) -> Any:
+    return {f.name: f.default for f in dataclasses.fields(EnvConfig)}[name]
+
+
+def _read_run_json(path: Path) -> dict | None:
+    """The manifest in ``path`` (``None`` when there is none); ``ValueError`` when unreadable."""
+    if not path.is_file():
+        return None
+    try:
+        old = json.loads(path.read_text())
+        if not isinstance(old, dict):
+            raise ValueError(f"a JSON {type(old).__name__}, not an object")
+    except (ValueError, UnicodeDecodeError) as e:
+        raise ValueError(
+            f"{path} is unreadable ({e}); it says what this directory holds: fix it, "
+            "or use --overwrite to delete this directory's results (or another --out)"
+        ) from None
+    return old
+
+
+def _prepare_directory(out: Path, manifest: dict, overwrite: bool) -> None:
+    """Refuse results of another fingerprint in ``out`` (or delete them with ``overwrite``), then
+    write ``run.json``. Call while holding the directory's lock."""
     path = out / "run.json"
-    if path.is_file():
-        try:
-            old = json.loads(path.read_text())
-            if not isinstance(old, dict):
-                raise ValueError(f"a JSON {type(old).__name__}, not an object")
-        except ValueError as e:
-            raise ValueError(f"{path} is unreadable ({e}); it says what this directory holds, so "
-                             "fix or delete it (or use another --out)") from None
-        old.setdefault("agent_process", "in_process")  # directories written before isolation existed
-        for key in ("agent", "suite_key", "config_overrides", "agent_process"):
-            if old.get(key) != manifest[key]:
-                raise ValueError(f"{out} holds results with {key}={old.get(key)!r}, not {manifest[key]!r}; "
-                                 "use another --out (or delete it) to start afresh")
+    has_results = J.routes_dir(out).is_dir() and any(J.routes_dir(out).glob("*.json"))
+    if overwrite:
+        if path.is_file() or has_results:
+            n = J.remove_run_files(out)
+            _say(f"--overwrite: deleted {n} result(s) of the previous run in {out}")
+    else:
+        old = _read_run_json(path)
+        if old is None and has_results:
+            raise ValueError(
+                f"{out} holds results but no run.json saying what produced them; use "
+                "--overwrite to delete them and run afresh (or another --out)"
+            )
+        if old is not None and "fingerprint" not in old:
+            raise ValueError(
+                f"{out} holds results of an evaluation written before results were "
+                "keyed by a fingerprint of the agent (run.json has none), so they "
+                "cannot be trusted to match this one; use --overwrite to delete "
+                "them and run afresh (or another --out)"
+            )
+        if old is not None:
+            comp = (old.get("fingerprint") or {}).get("components") or {}
+            diffs = describe_differences(comp, manifest["fingerprint"]["components"])
+            if diffs:
+                raise ValueError(
+                    f"{out} holds results of another run; what differs: "
+                    + "; ".join(diffs)
+                    + ". Use --overwrite to delete them and run "
+                    "afresh (or another --out)"
+                )
     J.write_json_atomic(manifest, path)
+
+
+def _retry_failed(out: Path, jobs: list[J.Job]) -> list[str]:
+    """Remove the failed results of ``jobs`` so they run again; returns their ids."""
+    failed = J.failed_jobs(out, jobs)
+    for j in failed:
+        J.result_path(out, j.job_id).unlink(missing_ok=True)
+    ids = [j.job_id for j in failed]
+    _say(
+        f"--retry-failed: running {len(ids)} failed route run(s) again"
+        + (f": {', '.join(ids[:10])}{', ...' if len(ids) > 10 else ''}" if ids else "")
+    )
+    return ids
 
 
 def _clean(out: Path) -> None:
@@ -108,59 +183,120 @@ def _clean(out: Path) -> None:
         remove_stale_tmp(d)
 
 
-def evaluate(agent: Any = "route_follower", suite: str = "test50", seeds: int = 1, workers: int = 1,
-             out: str | Path = "results/eval", video: bool = False, max_routes: int | None = None,
-             config: Mapping[str, Any] | None = None, *, agent_name: str | None = None,
-             frames_per_batch: int = FRAMES_PER_WORKER, progress: bool = True,
-             n_boot: int = 2000, isolate_agent: bool = False,
-             route_timeout: float = DEFAULT_ROUTE_TIMEOUT_S) -> dict:
+def _probe_agent(agent: Any, spec: str, isolate: bool, config: dict | None) -> dict:
+    """Build the agent once here (a bad agent fails now, not in every worker) and return what the
+    fingerprint needs of it: ``obs_mode``, ``rsu_policy`` (``custom:<ClassName>`` for its own
+    roadside policy), its declarations and its roadside policy's (``roadside.py``)."""
+    try:
+        probe = instantiate_agent(agent, isolate, config)
+    except SystemExit as e:
+        raise ValueError(f"agent {spec!r} raised SystemExit({e}) while being built") from None
+    if isolate:
+        probe.close()
+        decl, roadside = probe.declared, probe.roadside
+    else:
+        decl, roadside = declared(probe, spec), roadside_component(probe)
+    return {"obs_mode": str(probe.obs_mode), "rsu_policy": policy_label(probe), "declared": decl,
+            "roadside": roadside}
+
+
+def evaluate(
+    agent: Any = "route_follower",
+    suite: str = "test50",
+    seeds: int = 1,
+    workers: int = 1,
+    out: str | Path = "results/eval",
+    video: bool = False,
+    max_routes: int | None = None,
+    config: Mapping[str, Any] | None = None,
+    *,
+    agent_name: str | None = None,
+    frames_per_batch: int = FRAMES_PER_WORKER,
+    progress: bool = True,
+    n_boot: int = 2000,
+    isolate_agent: bool = False,
+    route_timeout: float = DEFAULT_ROUTE_TIMEOUT_S,
+    agent_config: Mapping[str, Any] | str | Path | None = None,
+    routes: str | Sequence[str] | None = None,
+    scenario: str | Sequence[str] | None = None,
+    v2x_only: bool = False,
+    overwrite: bool = False,
+    retry_failed: bool = False,
+) -> dict:
     """Evaluate ``agent`` on ``suite`` and return the summary (see module docstring).
 
     Args:
         agent: registered name, ``path.py:Class``, picklable factory, or TorchRL policy module.
         suite: suite name (``test50``, ``val``, ``train``) or path to a suite JSON.
         seeds: seed indices per route. workers: worker processes running jobs at a time.
-        out: output directory (created; resumed when it holds results of the same run; locked
-            while the run lasts).
+        out: output directory (created; resumed when it holds results of the same fingerprint;
+            locked while the run lasts).
         video: a top-down GIF per route in ``<out>/videos``.
-        max_routes: only the first ``max_routes`` routes of the suite.
+        max_routes: only the first ``max_routes`` of the selected routes.
         config: ``EnvConfig`` overrides (e.g. ``{"num_vehicles": 10}``).
         agent_name: display name (default: from the spec, factory or module class).
         frames_per_batch: frames per worker between two progress checks.
         isolate_agent: run the agent in a separate process from the simulator (module docstring).
         route_timeout: wall-clock limit of one job in seconds (a job that overruns fails).
+        agent_config: keyword arguments of the agent's constructor: a JSON file or a dict.
+        routes: only these route ids (list or comma-separated). scenario: only routes containing
+            one of these scenario types. v2x_only: only routes with a V2X scenario type.
+        overwrite: delete the results already in ``out`` first (whatever their fingerprint).
+        retry_failed: run the selected jobs whose result is a failure again.
 
     Returns:
         The summary dict also written to ``<out>/summary.json``.
 
     Raises:
-        ValueError: a bad argument, agent or suite, ``out`` is a file or another run holds it
-            (``v2xbench.locks.DirectoryLocked``), results of another run are in ``out``.
+        ValueError: a bad argument, agent, agent config, route selection or suite; ``out`` is a
+            file or another run holds it (``v2xbench.locks.DirectoryLocked``); results of
+            another fingerprint are in ``out`` (the message names what differs).
+        FileNotFoundError: the agent config file does not exist.
         RuntimeError: the workers cannot start (their output says why).
     """
     torch.set_num_threads(1)
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"workers={workers!r} must be a positive int")
+    if overwrite and retry_failed:
+        raise ValueError(
+            "--overwrite deletes every result and --retry-failed keeps the good ones: "
+            "give one of them"
+        )
     route_timeout = check_route_timeout(route_timeout)
     out = check_output_dir(out, "evaluation output directory")
-    routes = load_suite_cached(str(suite))
-    jobs = J.make_jobs([r.id for r in routes], seeds, max_routes)
+    suite_routes = load_suite_cached(str(suite))
+    selection = select_routes(
+        suite_routes,
+        str(suite),
+        route_ids=routes,
+        scenario=scenario,
+        v2x_only=v2x_only,
+        max_routes=max_routes,
+    )
+    jobs = J.make_jobs([r.id for r in suite_routes], seeds, indices=selection.indices)
+    agent_cfg, agent_cfg_file = resolve_agent_config(agent_config)
+    agent_cfg = agent_cfg or None
     policy_mode = _is_policy(agent)
     spec, name = agent_label(None if policy_mode else agent)
     if policy_mode:
         spec = name = agent_name or type(agent).__name__
     name = agent_name or name
-    if isolate_agent and policy_mode:
-        raise ValueError("--isolate-agent needs a protocol agent; a TorchRL policy runs in the collector "
-                         "(wrap it in agents.torchrl_policy.TensorDictPolicyAgent)")
+    if policy_mode and (isolate_agent or agent_cfg):
+        what = "--isolate-agent" if isolate_agent else "--agent-config"
+        raise ValueError(
+            f"{what} needs a protocol agent; a TorchRL policy runs in the collector "
+            "(wrap it in agents.torchrl_policy.TensorDictPolicyAgent)"
+        )
     privileged = False
     if not policy_mode:
         from v2xbench.agents.interface import granted_privilege
 
         privileged = granted_privilege(agent)
         if isolate_agent and privileged:
-            raise ValueError(f"agent {spec!r} is privileged (it reads the simulator) and cannot run "
-                             "isolated; evaluate it without --isolate-agent")
+            raise ValueError(
+                f"agent {spec!r} is privileged (it reads the simulator) and cannot run "
+                "isolated; evaluate it without --isolate-agent"
+            )
     if not isinstance(agent, str):  # workers get the agent or policy pickled
         import pickle
 
@@ -168,44 +304,115 @@ def evaluate(agent: Any = "route_follower", suite: str = "test50", seeds: int = 
             pickle.dumps(agent)
         except Exception as e:  # noqa: BLE001
             what = "policy" if policy_mode else "agent factory"
-            raise ValueError(f"{what} {agent!r} is not picklable ({e}); the worker processes need a "
-                             "top-level class or function, or a spec string") from None
-    if not policy_mode:  # a bad agent fails here, not in every worker process
-        try:
-            probe = instantiate_agent(agent, isolate_agent)
-        except SystemExit as e:
-            raise ValueError(f"agent {spec!r} raised SystemExit({e}) while being built") from None
-        if isolate_agent:
-            probe.close()
-    cfg = json.loads(json.dumps(J.to_json_safe(dict(config or {}))))  # as it reads back from run.json
-    manifest = {"agent": spec, "agent_name": name, "suite": str(suite), "suite_key": _suite_key(str(suite)),
-                "config_overrides": cfg, "policy": policy_mode, "privileged": privileged,
-                "agent_process": "isolated" if isolate_agent else "in_process"}
+            raise ValueError(
+                f"{what} {agent!r} is not picklable ({e}); the worker processes need a "
+                "top-level class or function, or a spec string"
+            ) from None
+    # the overrides as they read back from run.json
+    cfg = json.loads(json.dumps(J.to_json_safe(dict(config or {}))))
+    if policy_mode:
+        facts = {
+            "obs_mode": cfg.get("obs_mode", _config_default("obs_mode")),
+            "rsu_policy": cfg.get("rsu_policy", _config_default("rsu_policy")),
+            "declared": {"checkpoint": {"policy": policy_digest(agent)}, "fingerprint": None},
+        }
+        identity, code = f"policy {type(agent).__name__}", {}
+    else:
+        facts = _probe_agent(agent, spec, isolate_agent, agent_cfg)
+        identity, code = agent_identity(agent), code_digests(agent)
+    obs_mode = cfg.get("obs_mode", facts["obs_mode"])
+    rsu_policy = cfg.get("rsu_policy", facts["rsu_policy"])
+    if facts.get("roadside") is not None and "rsu_policy" in cfg:
+        raise ValueError(f"--set rsu_policy={cfg['rsu_policy']!r} conflicts with the agent's own "
+                         f"roadside policy ({facts['rsu_policy']}); drop the override")
+    action_mode = cfg.get("action_mode", _config_default("action_mode"))
+    agent_process = "isolated" if isolate_agent else "in_process"
+    roadside = {"roadside": facts["roadside"]} if facts.get("roadside") is not None else {}
+    fingerprint = make_fingerprint(
+        {
+            **roadside,  # only with the agent's own roadside policy: other runs keep their digest
+            "suite": _suite_key(str(suite)),
+            "agent": identity,
+            "agent_code": code,
+            "checkpoint": facts["declared"]["checkpoint"],
+            "agent_fingerprint": facts["declared"]["fingerprint"],
+            "agent_config": agent_cfg,
+            "config_overrides": cfg,
+            "obs_mode": obs_mode,
+            "rsu_policy": rsu_policy,
+            "action_mode": action_mode,
+            "agent_process": agent_process,
+        }
+    )
+    manifest = {
+        "agent": spec,
+        "agent_name": name,
+        "suite": str(suite),
+        "suite_key": _suite_key(str(suite)),
+        "config_overrides": cfg,
+        "policy": policy_mode,
+        "privileged": privileged,
+        "agent_process": agent_process,
+        "obs_mode": obs_mode,
+        "rsu_policy": rsu_policy,
+        "action_mode": action_mode,
+        "agent_config": agent_cfg,
+        "agent_config_file": agent_cfg_file,
+        "fingerprint": fingerprint,
+    }
     with dir_lock(out, "evaluation"):
-        _check_manifest(out, manifest)
+        _prepare_directory(out, manifest, overwrite)
         _clean(out)
-        J.discard_unreadable_results(out, jobs)
+        J.discard_unreadable_results(out, jobs, fingerprint["digest"])
+        if retry_failed:
+            _retry_failed(out, jobs)
         J.clear_stale_claims(out)
         t0 = time.perf_counter()
         before = {j.job_id for j in jobs if J.has_result(out, j.job_id)}
         stats = {"workers_started": 0, "timeouts": 0, "workers_died": 0}
         if len(before) < len(jobs):
-            env_fn = make_env_factory(suite=str(suite), out=str(out), agent=None if policy_mode else agent,
-                                      jobs=jobs, video=video, config=cfg, agent_name=name,
-                                      isolate=isolate_agent)
+            env_fn = make_env_factory(
+                suite=str(suite),
+                out=str(out),
+                agent=None if policy_mode else agent,
+                jobs=jobs,
+                video=video,
+                config=cfg,
+                agent_name=name,
+                isolate=isolate_agent,
+                agent_config=agent_cfg,
+                fingerprint=fingerprint["digest"],
+            )
             policy = agent if policy_mode else copy_policy()
-            record = _failure_recorder(out, manifest, routes)
-            stats = _run(env_fn, policy, workers, frames_per_batch, out, jobs, progress, name,
-                         route_timeout, record)
+            record = _failure_recorder(out, manifest, suite_routes)
+            stats = _run(
+                env_fn,
+                policy,
+                workers,
+                frames_per_batch,
+                out,
+                jobs,
+                progress,
+                name,
+                route_timeout,
+                record,
+            )
             _clean(out)
         wall = time.perf_counter() - t0
         new = [r for r in J.read_results(out, jobs) if r["job_id"] not in before]
         ran, ticks = len(new), sum(int(r["ticks"]) for r in new)
-        summary = summarize(out, jobs, n_boot=n_boot)
-        summary["run"] = {"workers": workers, "wall_seconds": round(wall, 2), "jobs_run": ran,
-                          "routes_per_minute": round(60.0 * ran / wall, 2) if ran and wall > 0 else None,
-                          "sim_ticks": ticks, "ticks_per_second": round(ticks / wall, 1) if wall > 0 else None,
-                          "video": bool(video), "route_timeout_s": route_timeout, **stats}
+        summary = summarize(out, jobs, n_boot=n_boot, selection=selection.record)
+        summary["run"] = {
+            "workers": workers,
+            "wall_seconds": round(wall, 2),
+            "jobs_run": ran,
+            "routes_per_minute": round(60.0 * ran / wall, 2) if ran and wall > 0 else None,
+            "sim_ticks": ticks,
+            "ticks_per_second": round(ticks / wall, 1) if wall > 0 else None,
+            "video": bool(video),
+            "route_timeout_s": route_timeout,
+            **stats,
+        }
         write_summary(out, summary)
     return summary
 
@@ -215,144 +422,51 @@ def _failure_recorder(out: Path, manifest: dict, routes) -> Callable:
 
     def record(job: J.Job, kind: str, error: BaseException, wall_s: float) -> None:
         spec = routes[job.route_index]
-        res = build_result(job=job, spec=spec, seed=J.job_seed(spec.seed, job.seed_index),
-                           suite=manifest["suite"], agent=manifest["agent"],
-                           agent_name=manifest["agent_name"], privileged=manifest["privileged"],
-                           agent_process=manifest["agent_process"], log=None, ended_by=ENDED_ERROR,
-                           wall_s=wall_s, error=error, config=manifest["config_overrides"],
-                           failure=kind)
+        res = build_result(
+            job=job,
+            spec=spec,
+            seed=J.job_seed(spec.seed, job.seed_index),
+            suite=manifest["suite"],
+            agent=manifest["agent"],
+            agent_name=manifest["agent_name"],
+            privileged=manifest["privileged"],
+            agent_process=manifest["agent_process"],
+            log=None,
+            ended_by=ENDED_ERROR,
+            wall_s=wall_s,
+            error=error,
+            config=manifest["config_overrides"],
+            failure=kind,
+            fingerprint=manifest["fingerprint"]["digest"],
+        )
         J.write_json_atomic(res, J.result_path(out, job.job_id))
 
     return record
 
 
-def _run(env_fn: Callable, policy, workers: int, fpb: int, out: Path, jobs: list, progress: bool,
-         name: str, route_timeout: float, record_failure: Callable) -> dict:
+def _run(
+    env_fn: Callable,
+    policy,
+    workers: int,
+    fpb: int,
+    out: Path,
+    jobs: list,
+    progress: bool,
+    name: str,
+    route_timeout: float,
+    record_failure: Callable,
+) -> dict:
     """Run the jobs in supervised workers until every job has a result (``eval_workers.py``);
     ``record_failure`` writes the result of a job whose worker timed out or died."""
-    return run_jobs(env_fn, policy, workers=workers, out=out, jobs=jobs,
-                    record_failure=record_failure, route_timeout=route_timeout,
-                    frames_per_batch=fpb, progress=progress, desc=f"eval {name}")
-
-
-# ------------------------------------------------------------------------------------ summary
-
-
-def summarize(out: str | Path, jobs: list[J.Job], n_boot: int = 2000) -> dict:
-    """Suite summary of the results of ``jobs`` in ``out`` (see module docstring)."""
-    out = Path(out)
-    manifest = json.loads((out / "run.json").read_text())
-    routes = load_suite_cached(manifest["suite"])
-    results = {r["job_id"]: r for r in J.read_results(out, jobs)}
-    n_routes = len({j.route_index for j in jobs})
-    seeds = len({j.seed_index for j in jobs})
-
-    def metric_dicts(sel):
-        return [dict(results[j.job_id]["metrics"]) for j in sel if j.job_id in results]
-
-    overall = aggregate(metric_dicts(jobs), n_routes, seeds, n_boot=n_boot)
-    is_v2x = {i: any(get_scenario(s.type).v2x for s in routes[i].scenarios) for i in range(len(routes))}
-    v2x_jobs = [j for j in jobs if is_v2x[j.route_index]]
-    n_v2x = len({j.route_index for j in v2x_jobs})
-    v2x = aggregate(metric_dicts(v2x_jobs), n_v2x, seeds, n_boot=n_boot) if n_v2x else {}
-    ended = Counter(results[j.job_id]["ended_by"] for j in jobs if j.job_id in results)
-    failures = [{"job_id": r["job_id"], "failure": _failure_kind(r), "error": r["error"]}
-                for r in results.values() if _failure_kind(r)]
-    failed = Counter(f["failure"] for f in failures)
-    first = next(iter(results.values()), {})
-    return {
-        "agent": manifest["agent"], "agent_name": manifest["agent_name"], "suite": manifest["suite"],
-        "privileged": bool(manifest.get("privileged", first.get("privileged", False))),
-        "agent_process": manifest.get("agent_process", "in_process"), "seeds": seeds, "n_routes": n_routes,
-        "n_jobs": len(jobs), "n_results": len(results), "config_overrides": manifest["config_overrides"],
-        "metrics": overall, "v2x": v2x, "n_v2x_routes": n_v2x,
-        "per_scenario": per_scenario(routes, jobs, results),
-        "ended_by": {k: ended.get(k, 0) for k in ENDED_BY_NAMES},
-        "failed": {k: failed.get(k, 0) for k in FAILURE_KINDS}, "failures": failures,
-    }
-
-
-def _failure_kind(result: dict) -> str | None:
-    """``"error"`` / ``"timeout"`` for a failed route, ``None`` otherwise (results written before
-    the ``failure`` key existed: from ``error``)."""
-    return result.get("failure") or ("error" if result.get("error") else None)
-
-
-def per_scenario(routes, jobs: list[J.Job], results: dict[str, dict]) -> dict[str, dict]:
-    """Per scenario type: instances, success / collision / timeout rates, mean DS of its runs."""
-    acc: dict[str, dict] = {}
-    for j in jobs:
-        res = results.get(j.job_id)
-        ds = float(res["metrics"]["driving_score"]) if res else 0.0
-        outcomes = res["scenarios"] if res else [None] * len(routes[j.route_index].scenarios)
-        types = [s.type for s in routes[j.route_index].scenarios]
-        for typ in set(types):
-            a = acc.setdefault(typ, {"v2x": bool(get_scenario(typ).v2x), "instances": 0, "success": 0,
-                                     "collision": 0, "timed_out": 0, "ds": []})
-            a["ds"].append(ds if np.isfinite(ds) else 0.0)
-        for typ, o in zip(types, outcomes):
-            a = acc[typ]
-            a["instances"] += 1
-            if o is not None:
-                a["success"] += bool(o["success"])
-                a["collision"] += bool(o["collision"])
-                a["timed_out"] += bool(o["timed_out"])
-    table = {}
-    for typ in sorted(acc):
-        a = acc[typ]
-        n = max(a["instances"], 1)
-        table[typ] = {"v2x": a["v2x"], "instances": a["instances"], "runs": len(a["ds"]),
-                      "success_rate": 100.0 * a["success"] / n, "collision_rate": 100.0 * a["collision"] / n,
-                      "timeout_rate": 100.0 * a["timed_out"] / n, "mean_ds": float(np.mean(a["ds"]))}
-    return table
-
-
-def _f(x: Any, nd: int = 1) -> str:
-    return "-" if x is None or (isinstance(x, float) and not np.isfinite(x)) else f"{x:.{nd}f}"
-
-
-def summary_markdown(s: dict) -> str:
-    """The markdown report of a summary dict."""
-    m, v = s["metrics"], s.get("v2x") or {}
-    lines = [f"# {s['agent_name']} on {s['suite']}", "",
-             f"Agent `{s['agent']}`{' (privileged)' if s['privileged'] else ''}"
-             f"{' (isolated process)' if s.get('agent_process') == 'isolated' else ''}; {s['n_routes']} routes x "
-             f"{s['seeds']} seeds = {s['n_jobs']} runs, {s['n_results']} with results.", ""]
-    if s.get("config_overrides"):
-        lines += [f"Config overrides: `{s['config_overrides']}`", ""]
-    lines += ["| metric | all routes | V2X-type routes |", "|---|---|---|"]
-    ci = f"{_f(m['driving_score'])} [{_f(m['driving_score_ci_low'])}, {_f(m['driving_score_ci_high'])}]"
-    vci = (f"{_f(v['driving_score'])} [{_f(v['driving_score_ci_low'])}, {_f(v['driving_score_ci_high'])}]"
-           if v else "-")
-    lines.append(f"| Driving score (95% CI) | {ci} | {vci} |")
-    for key, label, nd in (("route_completion", "Route completion", 1), ("infraction_score", "Infraction score", 3),
-                           ("efficiency", "Efficiency", 1), ("comfortness", "Comfortness", 1),
-                           ("bps", "BPS (bytes/s)", 0), ("peak_bps", "Peak BPS", 0),
-                           ("km_completed", "km completed", 2)):
-        lines.append(f"| {label} | {_f(m.get(key), nd)} | {_f(v.get(key), nd) if v else '-'} |")
-    per_km = sorted(k for k in m if k.endswith("_per_km"))
-    if per_km:
-        lines += ["", "| infraction | per km |", "|---|---|"]
-        lines += [f"| {k[:-7]} | {_f(m[k], 3)} |" for k in per_km]
-    lines += ["", "| scenario type | V2X | instances | success % | collision % | timeout % | mean DS |",
-              "|---|---|---|---|---|---|---|"]
-    for typ, r in s["per_scenario"].items():
-        lines.append(f"| {typ} | {'yes' if r['v2x'] else 'no'} | {r['instances']} | {_f(r['success_rate'])} | "
-                     f"{_f(r['collision_rate'])} | {_f(r['timeout_rate'])} | {_f(r['mean_ds'])} |")
-    lines += ["", "Routes ended by: " + ", ".join(f"{k} {n}" for k, n in s["ended_by"].items() if n)]
-    if s.get("failures"):
-        lines += ["", "Failed runs:", *[f"- `{f['job_id']}` ({f.get('failure') or 'error'}): {f['error']}"
-                                         for f in s["failures"]]]
-    if s.get("run"):
-        r = s["run"]
-        lines += ["", f"Run: {r['jobs_run']} runs ({r.get('sim_ticks', 0)} ticks) in {r['wall_seconds']} s on "
-                  f"{r['workers']} worker(s)" + (f": {r['routes_per_minute']} routes/min, "
-                                                 f"{r['ticks_per_second']} ticks/s." if r.get("routes_per_minute") else ".")]
-    return "\n".join(lines) + "\n"
-
-
-def write_summary(out: str | Path, summary: dict) -> None:
-    """Write ``summary.json`` and ``summary.md`` into ``out``."""
-    out = Path(out)
-    J.write_json_atomic(summary, out / "summary.json")
-    atomic_write_text(out / "summary.md", summary_markdown(summary))
+    return run_jobs(
+        env_fn,
+        policy,
+        workers=workers,
+        out=out,
+        jobs=jobs,
+        record_failure=record_failure,
+        route_timeout=route_timeout,
+        frames_per_batch=fpb,
+        progress=progress,
+        desc=f"eval {name}",
+    )

@@ -4,8 +4,11 @@ A *job* is one route of a suite driven with one seed index ``k``; its id is
 ``{route_id}_s{k}`` and its world seed ``spec.seed + 1000 * k`` (:func:`job_seed`). An output
 directory holds::
 
-    <out>/run.json                 what was evaluated (agent, suite, config overrides)
-    <out>/routes/<job_id>.json     one result per job, written atomically (``v2xbench.files``)
+    <out>/run.json                 what was evaluated: the run's fingerprint (agent code,
+                                   checkpoint, agent config, env overrides, ...:
+                                   ``agent_fingerprint.py``) and labels
+    <out>/routes/<job_id>.json     one result per job, written atomically (``v2xbench.files``),
+                                   carrying the fingerprint's digest
     <out>/claims/<job_id>          created with O_CREAT | O_EXCL by the worker that runs the job;
                                    holds the worker's pid, its mtime is when the job started
     <out>/videos/<job_id>.gif      top-down video (``--video``)
@@ -18,7 +21,9 @@ result is stale when no worker runs it (an interrupted run): the harness removes
 (:func:`clear_stale_claims`), and jobs whose result exists are skipped, which makes runs resumable.
 A result file that does not read back as a result of its job (empty, truncated, edited) counts as
 missing: :func:`discard_unreadable_results` removes it with a warning naming it, and the job runs
-again.
+again; one of another fingerprint is refused (:class:`ForeignResults`). :func:`remove_run_files`
+empties a directory for ``--overwrite``, :func:`failed_jobs` lists the jobs ``--retry-failed``
+runs again.
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import warnings
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -60,18 +66,24 @@ def job_seed(route_seed: int, seed_index: int) -> int:
     return int(route_seed) + SEED_STRIDE * int(seed_index)
 
 
-def make_jobs(route_ids: Sequence[str], seeds: int = 1, max_routes: int | None = None) -> list[Job]:
-    """Jobs for the first ``max_routes`` routes (all by default) x ``seeds`` seed indices.
+def make_jobs(route_ids: Sequence[str], seeds: int = 1, max_routes: int | None = None,
+              indices: Sequence[int] | None = None) -> list[Job]:
+    """Jobs for the routes at ``indices`` of ``route_ids`` (all by default; then only the first
+    ``max_routes``) x ``seeds`` seed indices.
 
     Ordered seed-major (every route with seed 0 first), so an interrupted run has covered the
     suite as evenly as possible.
     """
-    if not isinstance(seeds, int) or seeds < 1:
+    if isinstance(seeds, bool) or not isinstance(seeds, int) or seeds < 1:
         raise ValueError(f"seeds={seeds!r} must be a positive int")
     if max_routes is not None and (not isinstance(max_routes, int) or max_routes < 1):
         raise ValueError(f"max_routes={max_routes!r} must be a positive int or None")
-    n = len(route_ids) if max_routes is None else min(max_routes, len(route_ids))
-    return [Job(job_id(route_ids[r], k), r, k) for k in range(seeds) for r in range(n)]
+    sel = list(range(len(route_ids))) if indices is None else [int(i) for i in indices]
+    bad = [i for i in sel if not 0 <= i < len(route_ids)]
+    if bad:
+        raise ValueError(f"route indices {bad} are out of range for {len(route_ids)} routes")
+    sel = sel if max_routes is None else sel[:max_routes]
+    return [Job(job_id(route_ids[r], k), r, k) for k in range(seeds) for r in sel]
 
 
 # ------------------------------------------------------------------------------------ paths
@@ -253,20 +265,69 @@ class UnreadableResultWarning(UserWarning):
     """A result file could not be read back; its job is run again."""
 
 
-def discard_unreadable_results(out: str | Path, jobs: Iterable[Job]) -> list[Path]:
+class ForeignResults(ValueError):
+    """Result files of another fingerprint (or of none) in an output directory."""
+
+
+def discard_unreadable_results(out: str | Path, jobs: Iterable[Job],
+                               fingerprint: str | None = None) -> list[Path]:
     """Remove the result files of ``jobs`` that do not read back (:func:`read_result`), each with
     an :class:`UnreadableResultWarning` naming it, so their jobs count as missing and run again.
-    Returns the removed paths."""
-    removed = []
+    Returns the removed paths.
+
+    Raises:
+        ForeignResults: with ``fingerprint``, results whose ``fingerprint`` is another (or
+            missing): the message names them.
+    """
+    removed, foreign = [], []
     for j in jobs:
         path = result_path(out, j.job_id)
         if not path.is_file():
             continue
         try:
-            _load_result(path, j.job_id)
+            d = _load_result(path, j.job_id)
         except (ValueError, OSError) as e:
             warnings.warn(f"{e}; treating job {j.job_id} as missing and running it again",
                           UnreadableResultWarning, stacklevel=2)
             path.unlink(missing_ok=True)
             removed.append(path)
+            continue
+        if fingerprint is not None and d.get("fingerprint") != fingerprint:
+            foreign.append(path.name)
+    if foreign:
+        raise ForeignResults(
+            f"{len(foreign)} result file(s) in {routes_dir(out)} were written by another run than "
+            f"the one {Path(out) / 'run.json'} describes ({', '.join(foreign[:5])}"
+            f"{', ...' if len(foreign) > 5 else ''}); use --overwrite to delete them and run "
+            "afresh")
     return removed
+
+
+def failed_jobs(out: str | Path, jobs: Iterable[Job]) -> list[Job]:
+    """The ``jobs`` whose result is a failure (``failure`` ``"error"`` / ``"timeout"``; results
+    written before that key: an ``error``)."""
+    failed = []
+    for j in jobs:
+        if has_result(out, j.job_id):
+            d = read_result(out, j.job_id)
+            if d.get("failure") or d.get("error"):
+                failed.append(j)
+    return failed
+
+
+#: what an evaluation writes into its output directory (``--overwrite`` removes these only)
+RUN_FILES = ("run.json", "summary.json", "summary.md")
+RUN_DIRS = ("routes", "claims", "videos")
+
+
+def remove_run_files(out: str | Path) -> int:
+    """Remove what an evaluation wrote into ``out`` (:data:`RUN_FILES`, :data:`RUN_DIRS`; other
+    files stay); returns how many result files were removed."""
+    out = Path(out)
+    n = len(list(routes_dir(out).glob("*.json"))) if routes_dir(out).is_dir() else 0
+    for d in RUN_DIRS:
+        if (out / d).is_dir():
+            shutil.rmtree(out / d)
+    for f in RUN_FILES:
+        (out / f).unlink(missing_ok=True)
+    return n

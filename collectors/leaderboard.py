@@ -1,17 +1,28 @@
-"""Leaderboard over evaluation result directories: a markdown table, bar plots, a breakdown.
+"""Leaderboard over evaluation result directories: ranked tables per track, bar plots, breakdown.
 
 ``v2xbench leaderboard results/* --out leaderboard`` reads each directory's ``summary.json``
-(written by :func:`~.evaluate.evaluate`) and writes into ``--out``:
+(written by :func:`~.evaluate.evaluate`) and writes into ``--out`` (atomically,
+``v2xbench.files``):
 
-- ``leaderboard.md``: one row per result directory, sorted by driving score: agent, DS with the
-  half-width of its bootstrap 95% CI, RC, IS, Efficiency, Comfortness, BPS and the DS (with its
-  CI) and Efficiency of the routes that contain a V2X scenario type; privileged agents (the
-  built-in expert and oracles, as the harness decided: ``interface.PRIVILEGED_AGENTS``) are marked
-  ``*``, agents that ran in a separate process from the simulator (``--isolate-agent``) ``+``;
-  then a per-scenario-type table (success rate % / mean DS per agent);
-- ``leaderboard.json``: the same rows as data;
+- ``leaderboard.md``: runs are ranked only against comparable runs, as CARLA's leaderboard ranks
+  each track apart: one table per **group** of runs with the same suite, the same routes (the
+  selection's route ids), the same number of seeds, the same observation mode (the *track*:
+  ``objects``, ``sensors``, ``bev``) and the same world settings (the env overrides other than
+  the agent's own choices: obs/action mode, roadside policy and sensor settings). Within a group
+  rows are sorted by driving score: agent, roadside policy, sensor settings (from the env
+  overrides; ``default`` when none), routes x seeds, runs with results, DS with the half-width of
+  its bootstrap 95% CI, RC, IS, Efficiency, Comfortness, BPS and the DS (with its CI) and
+  Efficiency of the routes that contain a V2X scenario type; privileged agents (the built-in
+  expert and oracles, as the harness decided: ``interface.PRIVILEGED_AGENTS``) are marked ``*``,
+  agents that ran in a separate process from the simulator (``--isolate-agent``) ``+``; then the
+  group's per-scenario-type table (success rate % / mean DS per agent). Summaries written before
+  these fields existed show ``unknown`` where they lack one; their routes were the suite's first
+  ``n_routes`` (``--max-routes`` was the only selection then), read from the suite when it loads;
+- ``leaderboard.json``: the rows (with their ``group`` and ``rank``) and the groups as data;
 - ``driving_score.png``, ``route_completion.png``, ``infraction_score.png``, ``bps.png``: bar
-  plots (matplotlib, ``Agg`` backend; skipped with a note when matplotlib is not installed).
+  plots, one set per group (``<metric>_g<k>.png`` for group ``k`` when there are several;
+  matplotlib, ``Agg`` backend; skipped with a note when matplotlib is not installed; plots an
+  earlier call left in ``--out`` are removed first).
 """
 
 from __future__ import annotations
@@ -21,12 +32,27 @@ from pathlib import Path
 
 import numpy as np
 
+from v2xbench.files import atomic_write, atomic_write_text
+
+from .eval_summary import sensor_settings
 from .jobs import write_json_atomic
 
-PLOTS = (("driving_score", "Driving score"), ("route_completion", "Route completion (%)"),
-         ("infraction_score", "Infraction score"), ("bps", "V2X bytes per second"))
-COLUMNS = (("route_completion", "RC", 1), ("infraction_score", "IS", 3), ("efficiency", "Efficiency", 1),
-           ("comfortness", "Comfortness", 1), ("bps", "BPS", 0))
+PLOTS = (
+    ("driving_score", "Driving score"),
+    ("route_completion", "Route completion (%)"),
+    ("infraction_score", "Infraction score"),
+    ("bps", "V2X bytes per second"),
+)
+COLUMNS = (
+    ("route_completion", "RC", 1),
+    ("infraction_score", "IS", 3),
+    ("efficiency", "Efficiency", 1),
+    ("comfortness", "Comfortness", 1),
+    ("bps", "BPS", 0),
+)
+#: env overrides that are the agent's own choices, not world settings (they do not split groups)
+AGENT_SIDE_KEYS = ("obs_mode", "rsu_policy", "action_mode")
+UNKNOWN = "unknown"
 
 
 def _num(x) -> float:
@@ -43,74 +69,178 @@ def _ci_half(lo: float, hi: float) -> float:
     return (hi - lo) / 2.0 if np.isfinite(hi - lo) else float("nan")
 
 
+def _setting(s: dict, key: str) -> str:
+    """``obs_mode`` / ``rsu_policy`` / ``action_mode`` of a summary (older ones: from the env
+    overrides, else ``unknown``)."""
+    return str(s.get(key) or (s.get("config_overrides") or {}).get(key) or UNKNOWN)
+
+
+def world_settings(overrides: dict) -> dict:
+    """The env overrides that change the world (all but :data:`AGENT_SIDE_KEYS` and sensors)."""
+    sensors = sensor_settings(overrides)
+    return {
+        k: v for k, v in sorted(overrides.items()) if k not in AGENT_SIDE_KEYS and k not in sensors
+    }
+
+
+def _selection(s: dict) -> dict:
+    """A summary's route selection; for a summary without one, the suite's first ``n_routes``
+    routes (the only selection there was), or ``{}`` when the suite does not load."""
+    if isinstance(s.get("selection"), dict):
+        return s["selection"]
+    from v2xbench.envs.v2x_intersection.route_files import load_suite_cached
+
+    try:
+        ids = [r.id for r in load_suite_cached(str(s["suite"]))]
+    except (ValueError, OSError):
+        return {}
+    n = int(s["n_routes"])
+    label = f"all {n} routes" if n == len(ids) else f"first {n}"
+    return {"label": label, "route_ids": ids[:n]}
+
+
+def _group(s: dict, overrides: dict) -> tuple[str, str]:
+    """``(key, label)`` of the group a summary is ranked in (module docstring)."""
+    sel = _selection(s)
+    ids = sel.get("route_ids")
+    what = sel.get("label") or f"selection {UNKNOWN}"
+    routes = what if what.startswith("all ") else f"{s['n_routes']} routes ({what})"
+    world = world_settings(overrides)
+    obs = _setting(s, "obs_mode")
+    key = json.dumps(
+        [s["suite"], ids if ids is not None else ["?", s["n_routes"]], s["seeds"], obs, world],
+        sort_keys=True,
+    )
+    label = f"`{obs}` track on {s['suite']}: {routes} x {s['seeds']} seed(s)"
+    if world:
+        label += f", world `{json.dumps(world, sort_keys=True)}`"
+    return key, label
+
+
+def _row(d: Path, s: dict) -> dict:
+    m, v = s["metrics"], s.get("v2x") or {}
+    lo, hi = _num(m.get("driving_score_ci_low")), _num(m.get("driving_score_ci_high"))
+    v_lo, v_hi = _num(v.get("driving_score_ci_low")), _num(v.get("driving_score_ci_high"))
+    overrides = s.get("config_overrides") or {}
+    key, label = _group(s, overrides)
+    return {
+        "run": d.name,
+        "dir": str(d),
+        "agent": s["agent_name"],
+        "agent_spec": s["agent"],
+        "privileged": bool(s.get("privileged")),
+        "agent_process": s.get("agent_process", "in_process"),
+        "suite": s["suite"],
+        "seeds": s["seeds"],
+        "n_routes": s["n_routes"],
+        "n_jobs": s["n_jobs"],
+        "n_results": s["n_results"],
+        "obs_mode": _setting(s, "obs_mode"),
+        "rsu_policy": _setting(s, "rsu_policy"),
+        "action_mode": _setting(s, "action_mode"),
+        "sensors": s["sensors"]
+        if isinstance(s.get("sensors"), dict)
+        else sensor_settings(overrides),
+        "selection": _selection(s).get("label") or UNKNOWN,
+        "fingerprint": s.get("fingerprint"),
+        "group_key": key,
+        "group": label,
+        "driving_score": _num(m["driving_score"]),
+        "ds_ci_low": lo,
+        "ds_ci_high": hi,
+        "ds_ci_half": _ci_half(lo, hi),
+        **{k: _num(m.get(k)) for k, _, _ in COLUMNS},
+        "v2x_driving_score": _num(v.get("driving_score")),
+        "v2x_ds_ci_half": _ci_half(v_lo, v_hi),
+        "v2x_efficiency": _num(v.get("efficiency")),
+        "per_scenario": s.get("per_scenario", {}),
+        "config_overrides": overrides,
+    }
+
+
+def _ds_key(r: dict) -> float:
+    return -r["driving_score"] if np.isfinite(r["driving_score"]) else np.inf
+
+
 def load_rows(result_dirs: list[str | Path]) -> list[dict]:
-    """One row per directory with a ``summary.json``, sorted by driving score (best first).
+    """One row per directory with a ``summary.json``, grouped (module docstring) and ranked by
+    driving score within each group (best first); groups with more runs come first.
 
     Raises:
-        ValueError: none of the directories has a summary.
+        ValueError: none of the directories has a summary, or a summary does not parse.
     """
     rows = []
     for d in map(Path, result_dirs):
         p = d / "summary.json"
         if not p.is_file():
             continue
-        s = json.loads(p.read_text())
-        m, v = s["metrics"], s.get("v2x") or {}
-        lo, hi = _num(m.get("driving_score_ci_low")), _num(m.get("driving_score_ci_high"))
-        v_lo, v_hi = _num(v.get("driving_score_ci_low")), _num(v.get("driving_score_ci_high"))
-        rows.append({
-            "run": d.name, "dir": str(d), "agent": s["agent_name"], "agent_spec": s["agent"],
-            "privileged": bool(s.get("privileged")), "agent_process": s.get("agent_process", "in_process"),
-            "suite": s["suite"], "seeds": s["seeds"],
-            "n_jobs": s["n_jobs"], "n_results": s["n_results"],
-            "driving_score": _num(m["driving_score"]), "ds_ci_low": lo, "ds_ci_high": hi,
-            "ds_ci_half": _ci_half(lo, hi),
-            **{k: _num(m.get(k)) for k, _, _ in COLUMNS},
-            "v2x_driving_score": _num(v.get("driving_score")),
-            "v2x_ds_ci_half": _ci_half(v_lo, v_hi),
-            "v2x_efficiency": _num(v.get("efficiency")),
-            "per_scenario": s.get("per_scenario", {}),
-            "config_overrides": s.get("config_overrides") or {},
-        })
+        try:
+            s = json.loads(p.read_text())
+            rows.append(_row(d, s))
+        except (ValueError, KeyError, TypeError) as e:
+            raise ValueError(
+                f"{p} is not an evaluation summary ({type(e).__name__}: {e})"
+            ) from None
     if not rows:
-        raise ValueError(f"no summary.json in {', '.join(map(str, result_dirs)) or 'no directories'}; "
-                         "run `v2xbench eval` first")
-    rows.sort(key=lambda r: -r["driving_score"] if np.isfinite(r["driving_score"]) else np.inf)
+        raise ValueError(
+            f"no summary.json in {', '.join(map(str, result_dirs)) or 'no directories'}; "
+            "run `v2xbench eval` first"
+        )
+    size = {k: sum(r["group_key"] == k for r in rows) for k in {r["group_key"] for r in rows}}
+    rows.sort(key=lambda r: (-size[r["group_key"]], r["group"], r["group_key"], _ds_key(r)))
+    rank, last = 0, None
+    for r in rows:
+        rank = rank + 1 if r["group_key"] == last else 1
+        r["rank"], last = rank, r["group_key"]
     names = [r["agent"] for r in rows]
     for r in rows:  # the same agent twice (e.g. two configs): tell the rows apart by directory
         r["label"] = r["agent"] if names.count(r["agent"]) == 1 else f"{r['agent']} ({r['run']})"
     return rows
 
 
-def leaderboard_markdown(rows: list[dict]) -> str:
-    """Main table and per-scenario-type breakdown (see module docstring)."""
-    suites = sorted({r["suite"] for r in rows})
-    lines = ["# V2XBench leaderboard", "",
-             f"Suite: {', '.join(suites)}. DS: mean over routes x seeds (failed or missing runs count "
-             "0) +- half-width of the bootstrap 95% CI. `*`: privileged agent (reads the simulator "
-             "state). `+`: the agent ran in a separate process from the simulator.", ""]
-    if len(suites) > 1:
-        lines += ["**Warning: the rows come from different suites and are not comparable.**", ""]
-    configs = {json.dumps(r["config_overrides"], sort_keys=True) for r in rows}
-    if len(configs) > 1:
-        lines += ["**Warning: the rows were run with different config overrides:** "
-                  + "; ".join(f"{r['label']}: `{r['config_overrides'] or 'defaults'}`" for r in rows), ""]
-    lines += ["| # | agent | runs | DS | " + " | ".join(c for _, c, _ in COLUMNS)
-              + " | V2X-type DS | V2X-type Efficiency |",
-              "|---" * (len(COLUMNS) + 6) + "|"]
-    for k, r in enumerate(rows, 1):
+def groups(rows: list[dict]) -> list[list[dict]]:
+    """The rows of :func:`load_rows` split by group, in order."""
+    out: list[list[dict]] = []
+    for r in rows:
+        if not out or out[-1][0]["group_key"] != r["group_key"]:
+            out.append([])
+        out[-1].append(r)
+    return out
+
+
+def _sensors(r: dict) -> str:
+    return "default" if not r["sensors"] else ", ".join(f"{k}={v}" for k, v in r["sensors"].items())
+
+
+def _group_markdown(rows: list[dict]) -> list[str]:
+    lines = [
+        "| # | agent | RSU policy | sensors | routes x seeds | runs | DS | "
+        + " | ".join(c for _, c, _ in COLUMNS)
+        + " | V2X-type DS | V2X-type Efficiency |",
+        "|---" * (len(COLUMNS) + 9) + "|",
+    ]
+    for r in rows:
         star = ("*" if r["privileged"] else "") + ("+" if r["agent_process"] == "isolated" else "")
         cells = " | ".join(_f(r[key], nd) for key, _, nd in COLUMNS)
-        lines.append(f"| {k} | {r['label']}{star} | {r['n_results']}/{r['n_jobs']} | "
-                     f"{_f(r['driving_score'])} +- {_f(r['ds_ci_half'])} | {cells} | "
-                     f"{_f(r['v2x_driving_score'])} +- {_f(r['v2x_ds_ci_half'])} | "
-                     f"{_f(r['v2x_efficiency'])} |")
+        lines.append(
+            f"| {r['rank']} | {r['label']}{star} | {r['rsu_policy']} | {_sensors(r)} | "
+            f"{r['n_routes']} x {r['seeds']} | {r['n_results']}/{r['n_jobs']} | "
+            f"{_f(r['driving_score'])} +- {_f(r['ds_ci_half'])} | {cells} | "
+            f"{_f(r['v2x_driving_score'])} +- {_f(r['v2x_ds_ci_half'])} | "
+            f"{_f(r['v2x_efficiency'])} |"
+        )
     types = sorted({t for r in rows for t in r["per_scenario"]})
     if types:
-        lines += ["", "## Per scenario type", "", "Success rate % (passed, no collision in the scenario "
-                  "window, no timeout) / mean DS of the runs whose route contains the type.", "",
-                  "| scenario type | V2X | " + " | ".join(r["label"] for r in rows) + " |",
-                  "|---|---" + "|---" * len(rows) + "|"]
+        lines += [
+            "",
+            "### Per scenario type",
+            "",
+            "Success rate % (passed, no collision in the "
+            "scenario window, no timeout) / mean DS of the runs whose route contains the type.",
+            "",
+            "| scenario type | V2X | " + " | ".join(r["label"] for r in rows) + " |",
+            "|---|---" + "|---" * len(rows) + "|",
+        ]
         for t in types:
             v2x = next(r["per_scenario"][t]["v2x"] for r in rows if t in r["per_scenario"])
             cells = []
@@ -118,12 +248,31 @@ def leaderboard_markdown(rows: list[dict]) -> str:
                 p = r["per_scenario"].get(t)
                 cells.append(f"{_f(p['success_rate'], 0)} / {_f(p['mean_ds'])}" if p else "-")
             lines.append(f"| {t} | {'yes' if v2x else 'no'} | " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
+    return lines
 
 
-def save_plots(rows: list[dict], out: Path) -> list[Path]:
-    """Bar plots of DS (with CI), RC, IS and BPS, one PNG each; raises ImportError without
-    matplotlib."""
+def leaderboard_markdown(rows: list[dict]) -> str:
+    """One ranked table per group, each with its per-scenario-type breakdown (module docstring)."""
+    parts = groups(rows)
+    lines = [
+        "# V2XBench leaderboard",
+        "",
+        "Runs are ranked only against comparable runs: one table per suite, route selection, "
+        "number of seeds, observation-mode track and world settings (as CARLA's leaderboard "
+        "ranks each track apart). DS: mean over routes x seeds (failed or missing runs count "
+        "0) +- half-width of the bootstrap 95% CI. `*`: privileged agent (reads the simulator "
+        "state). `+`: the agent ran in a separate process from the simulator.",
+        "",
+    ]
+    for k, part in enumerate(parts, 1):
+        lines += [f"## {k}. {part[0]['group']}", ""]
+        lines += _group_markdown(part) + [""]
+    return "\n".join(lines).rstrip("\n") + "\n"
+
+
+def save_plots(rows: list[dict], out: Path, suffix: str = "") -> list[Path]:
+    """Bar plots of DS (with CI), RC, IS and BPS of ``rows``, one PNG each
+    (``<metric><suffix>.png``, written atomically); raises ImportError without matplotlib."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -145,30 +294,49 @@ def save_plots(rows: list[dict], out: Path) -> list[Path]:
         ax.set_title(title)
         ax.grid(axis="y", alpha=0.3)
         fig.tight_layout()
-        p = out / f"{key}.png"
-        fig.savefig(p)
+        p = out / f"{key}{suffix}.png"
+        with atomic_write(p, "wb") as f:
+            fig.savefig(f, format="png")
         plt.close(fig)
         paths.append(p)
     return paths
 
 
-def build_leaderboard(result_dirs: list[str | Path], out: str | Path = "leaderboard",
-                      plots: bool = True) -> dict:
-    """Write ``leaderboard.md``, ``leaderboard.json`` and the plots into ``out``.
+def build_leaderboard(
+    result_dirs: list[str | Path], out: str | Path = "leaderboard", plots: bool = True
+) -> dict:
+    """Write ``leaderboard.md``, ``leaderboard.json`` and the plots into ``out`` (atomically).
 
     Returns:
-        ``{"rows": [...], "markdown": path, "plots": [paths], "note": str | None}``.
+        ``{"rows": [...], "groups": [labels], "markdown": path, "plots": [paths],
+        "note": str | None}``.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     rows = load_rows(result_dirs)
-    md = out / "leaderboard.md"
-    md.write_text(leaderboard_markdown(rows))
-    write_json_atomic({"rows": rows}, out / "leaderboard.json")
+    parts = groups(rows)
+    md = atomic_write_text(out / "leaderboard.md", leaderboard_markdown(rows))
+    write_json_atomic(
+        {
+            "rows": rows,
+            "groups": [{"group": p[0]["group"], "runs": [r["run"] for r in p]} for p in parts],
+        },
+        out / "leaderboard.json",
+    )
     paths, note = [], None
+    for key, _ in PLOTS:  # plots of an earlier grouping would look current
+        for old in (out / f"{key}.png", *out.glob(f"{key}_g*.png")):
+            old.unlink(missing_ok=True)
     if plots:
         try:
-            paths = save_plots(rows, out)
+            for k, part in enumerate(parts, 1):
+                paths += save_plots(part, out, "" if len(parts) == 1 else f"_g{k}")
         except ImportError:
             note = "matplotlib is not installed: no plots (pip install matplotlib)"
-    return {"rows": rows, "markdown": str(md), "plots": [str(p) for p in paths], "note": note}
+    return {
+        "rows": rows,
+        "groups": [p[0]["group"] for p in parts],
+        "markdown": str(md),
+        "plots": [str(p) for p in paths],
+        "note": note,
+    }

@@ -165,7 +165,8 @@ def build_result(*, job, spec, seed: int, suite: str, agent: str, agent_name: st
                  privileged: bool, log: RouteLog | None, ended_by: int, wall_s: float,
                  agent_process: str = "in_process",
                  error: BaseException | None = None, video: str | None = None,
-                 config: dict | None = None, failure: str | None = None) -> dict:
+                 config: dict | None = None, failure: str | None = None,
+                 fingerprint: str | None = None) -> dict:
     """The JSON-ready result of one job (see ``jobs.py`` for where it is written).
 
     ``privileged`` is the harness's decision (``interface.granted_privilege``) and
@@ -173,7 +174,8 @@ def build_result(*, job, spec, seed: int, suite: str, agent: str, agent_name: st
     A route that ended with ``error`` is recorded with ``ended_by = ENDED_ERROR`` and a driving
     score of 0 (the suite's DS counts it as 0 too); the RC reached before the error is kept.
     ``failure`` says how it failed (:data:`FAILURE_KINDS`; default ``"error"`` when there is an
-    ``error``, ``None`` for a route that ran to its end).
+    ``error``, ``None`` for a route that ran to its end). ``fingerprint`` is the digest of the
+    run's fingerprint (``agent_fingerprint.py``): the results of a directory share one.
     """
     if failure is not None and failure not in FAILURE_KINDS:
         raise ValueError(f"failure={failure!r} must be one of {FAILURE_KINDS}")
@@ -203,5 +205,5 @@ def build_result(*, job, spec, seed: int, suite: str, agent: str, agent_name: st
         "error": None if error is None else f"{type(error).__name__}: {error}",
         "traceback": None if error is None else "".join(
             traceback.format_exception(type(error), error, error.__traceback__)),
-        "video": video, "config_overrides": dict(config or {}),
+        "video": video, "config_overrides": dict(config or {}), "fingerprint": fingerprint,
     }

@@ -5,7 +5,9 @@ changing V2XBench::
 
     v2xbench eval --agent examples/my_agent.py:CautiousDriver --suite test50 --out results/cautious
 
-(add ``--isolate-agent`` to run it in a process of its own, apart from the simulator).
+(add ``--isolate-agent`` to run it in a process of its own, apart from the simulator, and
+``--agent-config cfg.json`` with ``{"use_v2x": false}`` to build it with ``use_v2x=False``: the
+file's JSON object is passed to the constructor as keyword arguments).
 
 The protocol (``v2xbench.agents.interface``):
 
@@ -13,13 +15,21 @@ The protocol (``v2xbench.agents.interface``):
 - ``privileged``: ``False`` (it does not read the simulator; only the built-in expert and oracles
   may, and the harness refuses any other agent that declares ``True``).
 - ``rsu_policy``: what the roadside unit sends it: ``"share_objects"`` (the objects the RSU sees)
-  or ``"none"`` (no V2X).
+  or ``"none"`` (no V2X), or an object, its own roadside policy
+  (``examples/my_roadside_policy.py``).
 - ``reset(route_info)``: called at the start of every route with ``route_points`` ((P, 2) world
   frame, 1 m apart) and ``commands`` ((P,) navigation codes), as CARLA gives an agent its route,
   plus ``town`` and ``seed``; nothing about the scenarios. Clear all per-route state here.
 - ``act(obs) -> control``: ``(3,)`` array (throttle in [0, 1], steer in [-1, 1], brake in [0, 1])
   or, as here, ``{"waypoints": (K, 2) ego frame, "speed": m/s}``, which V2XBench's shared
-  waypoint controller turns into a control.
+  waypoint controller turns into a control. ``obs`` is exactly the Gymnasium env's observation
+  (``gym.make("v2xbench:V2XIntersection-v0")``), so a model trained there runs unchanged. Write
+  ``act(self, obs, info)`` to also get the step's info (the Gymnasium env's ``info``: ``tick``,
+  ``route_completion``, ``v2x_bps``, event counts, ...); this driver does not need it.
+- optional ``checkpoint`` (path(s) of the weights it loads) and ``fingerprint()`` (a string):
+  ``eval`` keys its results by a fingerprint of the agent (this file's contents, its checkpoint,
+  its config, the ``--set`` overrides) and refuses to resume into results of another one
+  (``--overwrite`` starts afresh). This driver has no weights.
 
 The observation (``obs_mode="objects"``, all float32, ego frame: x forward, y left, metres):
 
@@ -29,7 +39,9 @@ The observation (``obs_mode="objects"``, all float32, ego frame: x forward, y le
 - ``objects (32, 11)``: what the ego's sensors see; columns present, class_id, x, y, yaw, length,
   width, height, vx, vy, visibility; unused rows are zero.
 - ``v2x_objects (32, 11)``: what the RSU sent, moved into the ego frame (same columns).
-- ``v2x_info (6,)``: received, age_ticks, num_objects, rsu_x, rsu_y, rsu_yaw.
+- ``v2x_info (8,)``: received, age_ticks, num_objects, rsu_x, rsu_y, rsu_yaw, payload_length,
+  payload_format; ``v2x_payload (320,)``: the received message's floats as sent (a custom
+  roadside policy's message is only there: ``examples/my_roadside_policy.py``).
 
 The driver follows the route at a modest speed, slows for curves, brakes for anything (seen by
 itself or received over V2X) whose current or predicted position is within its corridor along the

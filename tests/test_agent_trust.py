@@ -28,6 +28,7 @@ from v2xbench.agents.interface import (
     load_agent,
 )
 from v2xbench.collectors import jobs as J
+from v2xbench.collectors.agent_fingerprint import code_digests
 from v2xbench.collectors.agent_process import AgentProcessError, IsolatedAgent
 from v2xbench.collectors.eval_env import EvalEnv
 from v2xbench.collectors.evaluate import evaluate
@@ -235,9 +236,10 @@ def test_isolated_and_in_process_runs_match(suite, tmp_path):  # noqa: F811
         assert (a[jid]["agent_process"], b[jid]["agent_process"]) == ("in_process", "isolated")
     with pytest.raises(ValueError, match="agent_process"):  # no resuming in the other mode
         evaluate("route_follower", suite, out=tmp_path / "iso", **kw)
-    run = tmp_path / "in" / "run.json"  # a directory from before isolation existed: in-process
-    run.write_text(json.dumps({k: v for k, v in json.loads(run.read_text()).items() if k != "agent_process"}))
-    assert evaluate("route_follower", suite, out=tmp_path / "in", **kw)["run"]["jobs_run"] == 0
+    assert evaluate("route_follower", suite, out=tmp_path / "iso", isolate_agent=True,
+                    **kw)["run"]["jobs_run"] == 0  # the same mode resumes
+    fp = json.loads((tmp_path / "iso" / "run.json").read_text())["fingerprint"]["components"]
+    assert fp["agent_process"] == "isolated" and fp["agent_code"] == code_digests("route_follower")
     lb = build_leaderboard([tmp_path / "in", tmp_path / "iso"], tmp_path / "lb", plots=False)
     assert {r["run"]: r["agent_process"] for r in lb["rows"]} == {"in": "in_process", "iso": "isolated"}
     md = Path(lb["markdown"]).read_text()

@@ -290,3 +290,50 @@ def test_tensordict_policy_agent_drives_through_the_interface():
                                                  out_keys=["other"]))
     with pytest.raises(KeyError, match="action"):
         bad.act(obs)
+
+
+def test_leaderboard_ranks_comparable_runs_together(rf_run, flaky_run, suite, tmp_path,
+                                                    monkeypatch):
+    import os
+
+    from v2xbench.collectors.eval_summary import sensor_settings
+    from v2xbench.collectors.leaderboard import world_settings
+
+    import v2xbench.files as files
+
+    (rf, rf_summary), (fl, _) = rf_run, flaky_run
+    assert (rf_summary["obs_mode"], rf_summary["rsu_policy"], rf_summary["action_mode"]) == (
+        "objects", "share_objects", "carla")
+    one = tmp_path / "one_route"
+    evaluate("route_follower", suite, out=one, routes="tiny_0", config=CFG, progress=False)
+    old = tmp_path / "old"  # a summary written before these fields existed
+    shutil.copytree(rf, old)
+    s = json.loads((old / "summary.json").read_text())
+    for k in ("obs_mode", "rsu_policy", "action_mode", "sensors", "selection", "fingerprint",
+              "agent_config"):
+        s.pop(k)
+    (old / "summary.json").write_text(json.dumps(s))
+    synced = []
+    real = os.fsync
+    monkeypatch.setattr(files.os, "fsync", lambda fd: (synced.append(fd), real(fd)))
+    res = build_leaderboard([rf, fl, one, old], tmp_path / "lb")
+    assert len(synced) >= 2 + (0 if res["note"] else 4 * len(res["groups"]))  # every file atomic
+    rows = {r["run"]: r for r in res["rows"]}
+    assert rows["route_follower"]["group"] == rows["out"]["group"]  # flaky's dir is "out"
+    assert len({rows[k]["group"] for k in rows}) == 3 and len(res["groups"]) == 3
+    assert rows["out"]["rsu_policy"] == "none"
+    assert rows["route_follower"]["rsu_policy"] == "share_objects"
+    assert rows["one_route"]["rank"] == 1
+    assert rows["one_route"]["selection"] == "routes tiny_0"
+    assert {rows["route_follower"]["rank"], rows["out"]["rank"]} == {1, 2}
+    assert rows["old"]["obs_mode"] == "unknown" and rows["old"]["selection"] == "all 3 routes"
+    assert rows["route_follower"]["sensors"] == {} and rows["one_route"]["n_routes"] == 1
+    md = Path(res["markdown"]).read_text()
+    assert md.count("\n## ") == 3 and "`objects` track on" in md and "`unknown` track on" in md
+    assert "| 3 x 1 |" in md and "| 1 x 1 |" in md and "| share_objects | default |" in md
+    assert not list((tmp_path / "lb").glob(".*"))  # no temporaries left
+    if res["note"] is None:
+        assert len(res["plots"]) == 12 and Path(res["plots"][0]).name == "driving_score_g1.png"
+    cfg = {"camera_size": [256, 128], "lidar_points": 8000, "num_vehicles": 3, "rsu_policy": "none"}
+    assert sensor_settings(cfg) == {"camera_size": [256, 128], "lidar_points": 8000}
+    assert world_settings(cfg) == {"num_vehicles": 3}

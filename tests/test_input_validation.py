@@ -33,7 +33,7 @@ SMALL = dict(num_vehicles=2, num_parked=1, num_pedestrians=1, num_bicycles=0, ro
         ("rsu_slots", 10**6, "[1, 16]"),
         ("route_step", 10**6, "[1, 50]"),
         ("latency_ticks", 10**6, "[1, 100]"),
-        ("max_payload_floats", 10**9, "[10, 65536]"),
+        ("max_payload_floats", 10**9, "[10, 65535]"),
         ("max_steps", 10**9, "[1, 100000]"),
         ("route_length", 1e9, "[10, 5000]"),
         ("ego_range", 1e6, "[1, 500]"),

@@ -159,7 +159,8 @@ class CollectConfig:
         env = make_config(**self.env)
         return record_schema(RecordConfig(tuple(self.sensors), self.max_boxes, self.objects_obs),
                              tuple(self.camera_size), env.route_points,
-                             (ego.max_points, rsu.max_points), _bev_spec().size, env.max_objects)
+                             (ego.max_points, rsu.max_points), _bev_spec().size, env.max_objects,
+                             env.max_payload_floats)
 
     def to_json(self) -> dict:
         """JSON-compatible dict (tuples as lists)."""

@@ -50,8 +50,9 @@ key                             shape, dtype      content
                                                   ``observations.ego_space``): what a
                                                   behaviour-cloned ``obs_mode="objects"`` agent
                                                   sees, the received V2X message decoded in
-                                                  ``v2x_objects``, its sender and age in
-                                                  ``v2x_info`` (``RecordConfig.objects_obs``)
+                                                  ``v2x_objects``, as sent in ``v2x_payload``,
+                                                  its sender and age in ``v2x_info``
+                                                  (``RecordConfig.objects_obs``)
 ==============================  ================  ===========================================
 """
 
@@ -92,7 +93,8 @@ class RecordConfig:
         max_boxes: rows per ground-truth box set (the nearest ones are kept).
         objects_obs: also store the ego's objects-mode observation (``obs/*``: exactly what an
             agent with ``obs_mode="objects"`` receives, including the received V2X message
-            decoded in ``obs/v2x_objects`` and its sender pose and age in ``obs/v2x_info``).
+            decoded in ``obs/v2x_objects``, as sent in ``obs/v2x_payload``, and its sender pose
+            and age in ``obs/v2x_info``).
             Data sets collected before this field existed lack it (their manifests say false).
     """
 
@@ -113,7 +115,8 @@ class RecordConfig:
 
 def record_schema(config: RecordConfig, camera_size: tuple[int, int], route_points: int,
                   lidar_points: tuple[int, int], bev_size: int,
-                  max_objects: int = 32) -> dict[tuple[str, ...], tuple]:
+                  max_objects: int = 32, max_payload_floats: int = 320
+                  ) -> dict[tuple[str, ...], tuple]:
     """Every leaf of a :func:`frame_record` as ``{key path: (dtype name, per-frame shape)}``.
 
     This is the whole schema of a shard's memmap (module docstring): a loader accepts these keys,
@@ -126,6 +129,7 @@ def record_schema(config: RecordConfig, camera_size: tuple[int, int], route_poin
         lidar_points: padded rows of the ego and the RSU LiDAR (``LidarSpec.max_points``).
         bev_size: BEV raster side (``BevSpec.size``).
         max_objects: ``EnvConfig.max_objects`` (rows of ``obs/objects``, ``obs/v2x_objects``).
+        max_payload_floats: ``EnvConfig.max_payload_floats`` (size of ``obs/v2x_payload``).
     """
     from v2xbench.agents.expert.planner import N_WAYPOINTS
 
@@ -164,21 +168,23 @@ def record_schema(config: RecordConfig, camera_size: tuple[int, int], route_poin
             schema[("lidar", g, "points")] = ("float32", (int(n), 6))
             schema[("lidar", g, "count")] = ("int64", ())
     if config.objects_obs:
-        schema.update(_objects_obs_schema(route_points, max_objects))
+        schema.update(_objects_obs_schema(route_points, max_objects, max_payload_floats))
     if "bev" in config.sensors:
         schema[("bev_bits",)] = ("uint8", (-(-len(BEV_CHANNELS) // 8), bev_size, bev_size))
     return schema
 
 
 #: keys of the stored objects-mode observation (``obs/<key>``)
-OBS_KEYS = ("ego", "route", "objects", "v2x_objects", "v2x_info")
+OBS_KEYS = ("ego", "route", "objects", "v2x_objects", "v2x_info", "v2x_payload")
 
 
-def _objects_obs_schema(route_points: int, max_objects: int) -> dict[tuple[str, ...], tuple]:
+def _objects_obs_schema(route_points: int, max_objects: int,
+                        max_payload_floats: int = 320) -> dict[tuple[str, ...], tuple]:
     """``obs/*`` leaves: the objects-mode observation (``observations.ego_space``)."""
     n_obj, m, r = len(OBJECT_FEATURES), int(max_objects), int(route_points)
     shapes = {"ego": (len(EGO_FEATURES),), "route": (r, 3), "objects": (m, n_obj),
-              "v2x_objects": (m, n_obj), "v2x_info": (len(V2X_INFO_FEATURES),)}
+              "v2x_objects": (m, n_obj), "v2x_info": (len(V2X_INFO_FEATURES),),
+              "v2x_payload": (int(max_payload_floats),)}
     return {("obs", k): ("float32", v) for k, v in shapes.items()}
 
 

@@ -4,7 +4,8 @@
 (:class:`~.torchrl_env.V2XTorchEnv`) and the Gymnasium vector env (:class:`V2XVectorEnv`, what
 ``gym.make_vec("V2XIntersection-v0", num_envs=N)`` returns). Per tick it
 
-1. validates all ``(N, 3)`` actions at once (same checks and clipping as the single env);
+1. validates all ``(N, D)`` actions at once (same checks and clipping as the single env; ``D``
+   is 3 or 2 by ``config.action_mode``, mapped to ``(N, 3)`` controls, :mod:`.actions`);
 2. advances every world by one tick with its built-in RSU policy (``World.step_builtin``, the
    fixed step order of :mod:`.world`), stage by stage: each stage (the message, the traffic's
    move, scenario hooks, events, perception, delivery) runs over all worlds before the next,
@@ -31,33 +32,23 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from .config import make_config
+from .actions import action_space, validate_actions
+from .config import make_config, plain_scalar
 from .episode import EpisodeTracker, v2x_bps
 from .jit import HAVE_JIT
 from .jit_batch import PerceiveBatch, TrafficBatch
-from .observations import ego_action_space, ego_observation, ego_space, fill_objects_observation
+from .observations import ego_observation, ego_space, fill_objects_observation
 from .validation import Int, check_options
 from .world import TICK_STAGES, StepError, World
 
 #: worlds in one batch (each holds its own actor table, sensors and observation rows)
 NUM_WORLDS_RULE = Int(1, 1024, "worlds")
-_LOW = np.array([0.0, -1.0, 0.0])
-_HIGH = np.array([1.0, 1.0, 1.0])
 
 
-def validate_controls(actions, n: int) -> np.ndarray:
-    """Check ``(n, 3)`` ego controls and clip them into range (``validate_control`` per row)."""
-    a = np.asarray(actions)
-    if a.dtype.kind not in "fiu":
-        raise ValueError(f"actions: expected a numeric array of shape ({n}, 3), got dtype {a.dtype}")
-    if a.shape != (n, 3):
-        raise ValueError(f"actions: expected shape ({n}, 3) = (throttle, steer, brake) per world, got {a.shape}")
-    a = a.astype(np.float64)
-    bad = ~np.isfinite(a).all(axis=1)
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        raise ValueError(f"action[{i}]: contains NaN or inf: {a[i].tolist()}")
-    return np.clip(a, _LOW, _HIGH)
+def validate_controls(actions, n: int, mode: str = "carla") -> np.ndarray:
+    """Check ``(n, D)`` ego actions of action ``mode`` (``config.action_mode``), clip them into
+    range and map them to ``(n, 3)`` controls (``actions.validate_actions``)."""
+    return validate_actions(actions, n, mode)
 
 
 def _alloc(space: gym.Space, n: int):
@@ -167,7 +158,7 @@ class WorldBatch:
             StepError: a world to step was never reset (``World.step`` also raises for a world
                 that has ended; the episode tracker's own end is left to the caller's resets).
         """
-        controls = validate_controls(actions, self.n)
+        controls = validate_controls(actions, self.n, self.config.action_mode)
         idx = list(range(self.n)) if active is None else [int(i) for i in np.flatnonzero(np.asarray(active, bool))]
         for i in idx:  # check them all first: a bad world raises before any world has moved
             if self.trackers[i] is None:
@@ -224,7 +215,7 @@ class V2XVectorEnv(VectorEnv):
         self.num_envs = num_envs
         self.config = self.batch.config
         self.single_observation_space = self.batch.space
-        self.single_action_space = ego_action_space()
+        self.single_action_space = action_space(self.config.action_mode)
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.action_space = batch_space(self.single_action_space, num_envs)
         self.render_mode = None
@@ -239,6 +230,7 @@ class V2XVectorEnv(VectorEnv):
 
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
         n = self.num_envs
+        seed = plain_scalar(seed)  # a NumPy integer is an int seed
         if seed is None:
             seeds = [int(s) for s in self._seed_rng.integers(2**31, size=n)]
         elif isinstance(seed, int):

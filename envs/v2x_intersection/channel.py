@@ -1,7 +1,9 @@
 """The V2X channel between the roadside unit (RSU) and the ego vehicle.
 
 The RSU's action in the RL environments *is* its message: a typed, fixed-size action
-(:func:`message_space`) holding a used length and a float payload. The :class:`Channel`
+(:func:`message_space`) holding a used length, a float payload and the payload's format (an
+object list, which the ego decodes, or a raw payload of the sender's own design; the channel
+treats both as opaque floats, :data:`PAYLOAD_FORMATS`). The :class:`Channel`
 serializes every message to real bytes (:func:`encode_message`), counts them, and applies
 latency, radio loss and a bandwidth cap before the ego receives and decodes it. **Bandwidth
 (BPS) is always measured here**, from the serialized byte counts, never reported by a method
@@ -22,6 +24,7 @@ import numbers
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from gymnasium import spaces
@@ -32,16 +35,22 @@ from .wire import (
     _ENCODING_DTYPES,
     _MAX_U16,
     ENCODING_CODES,
+    FORMAT_OBJECTS,
+    FORMAT_RAW,
+    FORMAT_SHIFT,
     HEADER_SIZE,
     MAGIC,
     NUM_OBJECT_FIELDS,
     OBJECT_FIELDS,
+    PAYLOAD_FORMATS,
     PAYLOAD_LIMIT,
     WIRE_VERSION,
     _check_used,
     _is_int,
     _serialize,
+    check_format,
     check_header,
+    decode_frame,
     decode_message,
     encode_message,
     max_objects,
@@ -51,18 +60,23 @@ from .wire import (
 
 __all__ = [
     "ENCODING_CODES",
+    "FORMAT_OBJECTS",
+    "FORMAT_RAW",
     "HEADER_SIZE",
     "MAGIC",
     "NUM_OBJECT_FIELDS",
     "OBJECT_FIELDS",
+    "PAYLOAD_FORMATS",
     "PAYLOAD_LIMIT",
     "WIRE_VERSION",
     "Channel",
     "ChannelConfig",
+    "Delivery",
     "decode_message",
     "empty_message",
     "encode_message",
     "max_objects",
+    "message_format",
     "message_space",
     "pack_objects",
     "unpack_objects",
@@ -172,22 +186,41 @@ def message_space(config: ChannelConfig) -> spaces.Dict:
     """The RSU's action space: its message.
 
     ``{"length": Discrete(max_payload_floats + 1), "payload": Box(-1e4, 1e4, (max_payload_floats,),
-    float32)}``. Only ``payload[:length]`` is sent; the rest is ignored (keep it zero).
-    ``length == 0`` means "send nothing" (0 bytes). The ``+-1e4`` bound (:data:`PAYLOAD_LIMIT`) stays
-    inside float16's finite range.
+    float32), "format": Discrete(2)}``. Only ``payload[:length]`` is sent; the rest is ignored
+    (keep it zero). ``length == 0`` means "send nothing" (0 bytes). The ``+-1e4`` bound
+    (:data:`PAYLOAD_LIMIT`) stays inside float16's finite range. ``format``
+    (:data:`PAYLOAD_FORMATS`): 0 = an object list (:func:`pack_objects`; the ego decodes it into
+    ``v2x_objects``), 1 = a raw payload (the ego gets it only as ``v2x_payload``); a message
+    without the key is an object list, as before the key existed (:func:`message_format`).
     """
     m = config.max_payload_floats
     return spaces.Dict(
         {
             "length": spaces.Discrete(m + 1),
             "payload": spaces.Box(-PAYLOAD_LIMIT, PAYLOAD_LIMIT, (m,), np.float32),
+            "format": spaces.Discrete(len(PAYLOAD_FORMATS)),
         }
     )
 
 
 def empty_message(config: ChannelConfig) -> dict[str, object]:
     """A valid "send nothing" action: ``length`` 0 and an all-zero payload."""
-    return {"length": 0, "payload": np.zeros(config.max_payload_floats, np.float32)}
+    return {"length": 0, "payload": np.zeros(config.max_payload_floats, np.float32),
+            "format": FORMAT_OBJECTS}
+
+
+def message_format(action: Mapping) -> int:
+    """The payload format code of an RSU message action (:data:`PAYLOAD_FORMATS`):
+    ``action["format"]``, or :data:`FORMAT_OBJECTS` when it has no ``"format"`` key.
+
+    Raises:
+        ValueError: a format that is not a known code (the message lists them).
+    """
+    fmt = action.get("format", FORMAT_OBJECTS)
+    return fmt if type(fmt) is int and fmt in _FORMAT_CODES else check_format(fmt)
+
+
+_FORMAT_CODES = frozenset(PAYLOAD_FORMATS.values())
 
 
 def _check_length(length: object, max_floats: int) -> int:
@@ -251,6 +284,16 @@ def validate_message(action: Mapping, config: ChannelConfig) -> tuple[int, np.nd
 # --------------------------------------------------------------------------------------------
 # The channel
 # --------------------------------------------------------------------------------------------
+
+
+class Delivery(NamedTuple):
+    """A message as :meth:`Channel.deliver` hands it over: who sent it, when, what it holds, and
+    the payload's format code (:data:`PAYLOAD_FORMATS`)."""
+
+    sender: int
+    tick: int
+    payload: np.ndarray
+    format: int
 
 
 class Channel:
@@ -351,7 +394,8 @@ class Channel:
         self._now = tick
 
     # ----------------------------------------------------------------------------------- send
-    def send(self, tick: int, sender_id: int, length: int, payload: np.ndarray) -> int:
+    def send(self, tick: int, sender_id: int, length: int, payload: np.ndarray,
+             fmt: int = FORMAT_OBJECTS) -> int:
         """Send the first ``length`` floats of ``payload`` from ``sender_id`` at ``tick``.
 
         Args:
@@ -360,16 +404,20 @@ class Channel:
             length: Floats to send, ``0..max_payload_floats``; 0 sends nothing.
             payload: ``(>= length,)`` floats; ``payload[:length]`` must be finite and within
                 ``+-PAYLOAD_LIMIT``.
+            fmt: the payload's format code (:data:`PAYLOAD_FORMATS`; carried in the header, so it
+                costs no bytes).
 
         Returns:
             Bytes put on air: ``header_bytes + length * itemsize``, or 0 if ``length == 0`` or
             the message was dropped by the bandwidth cap (lost messages return their bytes).
 
         Raises:
-            ValueError: Oversized/negative length, bad payload, or a tick earlier than the clock.
+            ValueError: Oversized/negative length, bad payload or format, or a tick earlier than
+                the clock.
         """
         cfg = self.config
         length = _check_length(length, cfg.max_payload_floats)
+        fmt = check_format(fmt)
         if length == 0:
             self.advance(tick)
             self._last_bytes = 0
@@ -380,16 +428,20 @@ class Channel:
         if p.dtype.kind != "f":
             raise ValueError(f"message payload has wrong dtype {p.dtype}: expected floating point")
         _check_used(p, length)
-        return self.send_valid(tick, sender_id, length, p)
+        return self.send_valid(tick, sender_id, length, p, fmt)
 
-    def send_valid(self, tick: int, sender_id: int, length: int, p: np.ndarray) -> int:
-        """:meth:`send` without its payload checks: the caller guarantees ``length > 0`` and
-        ``p[:length]`` finite float32 within ``+-PAYLOAD_LIMIT`` (e.g. after
-        :func:`validate_message`, or rows the world packed itself)."""
+    def send_valid(self, tick: int, sender_id: int, length: int, p: np.ndarray,
+                   fmt: int = FORMAT_OBJECTS) -> int:
+        """:meth:`send` without its payload checks: the caller guarantees ``length > 0``,
+        ``p[:length]`` finite float32 within ``+-PAYLOAD_LIMIT`` and ``fmt`` a format code (e.g.
+        after :func:`validate_message` and :func:`message_format`, or rows the world packed
+        itself)."""
         self.advance(tick)
         check_header(sender_id, tick)
         # payload[:length] is finite and within +-PAYLOAD_LIMIT: the cast cannot overflow.
-        return self._transmit(tick, _serialize(sender_id, tick, p[:length].astype(self._dtype), self._code, self._pad))
+        code = self._code | (fmt << FORMAT_SHIFT)
+        data = _serialize(sender_id, tick, p[:length].astype(self._dtype), code, self._pad)
+        return self._transmit(tick, data)
 
     def send_encoded(self, tick: int, data: np.ndarray) -> int:
         """:meth:`send_valid` for a message already serialized by this channel's rules (the bytes of
@@ -432,11 +484,13 @@ class Channel:
         return n
 
     def send_action(self, tick: int, sender_id: int, action: Mapping) -> int:
-        """Validate an RSU message action (:func:`validate_message`) and :meth:`send` it."""
+        """Validate an RSU message action (:func:`validate_message`, :func:`message_format`) and
+        :meth:`send` it."""
         length, payload = validate_message(action, self.config)
+        fmt = message_format(action)
         if length == 0:
             return self.send(tick, sender_id, 0, payload)
-        return self.send_valid(tick, sender_id, length, payload)
+        return self.send_valid(tick, sender_id, length, payload, fmt)
 
     # -------------------------------------------------------------------------------- receive
     def receive(self, tick: int) -> list[tuple[int, int, np.ndarray]]:
@@ -447,8 +501,13 @@ class Channel:
 
         Returns:
             ``[(sender_id, sent_tick, payload), ...]`` oldest first, ``payload`` a ``(L,)``
-            float32 array; empty if nothing is due.
+            float32 array; empty if nothing is due. :meth:`deliver` adds each payload's format.
         """
+        return [d[:3] for d in self.deliver(tick)]
+
+    def deliver(self, tick: int) -> list[Delivery]:
+        """:meth:`receive` with each message's payload format: :class:`Delivery` tuples
+        ``(sender, tick, payload, format)``, oldest first."""
         self.advance(tick)
         q = self._pending
         if not q or q[0][0] > tick:
@@ -460,12 +519,13 @@ class Channel:
             if HAVE_JIT:
                 ok, sender, sent, payload = decode_kernel(np.frombuffer(data, np.uint8), hb)
                 # where a check fails, the codec raises naming the problem
-                out.append((sender, sent, payload) if ok else decode_message(data, hb))
+                out.append(Delivery(sender, sent, payload, data[3] >> FORMAT_SHIFT) if ok
+                           else Delivery(*decode_frame(data, hb)))
             else:
-                out.append(decode_message(data, hb))
+                out.append(Delivery(*decode_frame(data, hb)))
             self._bytes_delivered += n
             self._n_delivered += 1
-        self._last_delivered = out[-1]
+        self._last_delivered = out[-1][:3]
         return out
 
     def receive_latest(self, tick: int) -> tuple[int, int, np.ndarray] | None:

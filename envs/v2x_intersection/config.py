@@ -8,10 +8,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from .validation import Bool, Check, Choice, Float, Int, OrNone, Rule, Text
 from .wire import NUM_OBJECT_FIELDS
 
 OBS_MODES = ("objects", "sensors", "bev")
+ACTION_MODES = ("carla", "accel_steer")  # actions.MODES: the ego's action and its mapping
 RSU_POLICIES = ("none", "share_objects")
 ENCODINGS = ("float16", "float32")
 MAX_ACTORS_PER_KIND = 500  # num_vehicles, num_parked, ... (a town fits fewer: a warning says so)
@@ -32,24 +35,36 @@ class EnvConfig:
         suite: draw routes from a suite (``train``, ``val``, ``test50`` or a suite JSON path).
         route_index: the suite route to use (default: drawn from the reset seed).
         seed: seed of the first ``reset()`` called without one (so ``gym.make(..., seed=3)`` works).
-        route_length: length of the random route drawn at reset (m).
+        route_length: length of the random route drawn at reset (m; a ``ShortfallWarning`` once per
+            town and value where no route that long is found).
         num_vehicles: NPC vehicles driving with IDM.
         num_parked: parked vehicles in parking lanes.
         num_pedestrians: pedestrians on sidewalks and crosswalks.
         num_bicycles: bicycles riding at the right edge of lanes.
-        large_vehicle_fraction: share of NPC and parked vehicles that are trucks/vans/buses.
+        large_vehicle_fraction: share of NPC and parked vehicles that are trucks/vans/buses (6-11 m
+            long, ``actors.SIZES``; a parked one longer than a slot takes two slots).
         jaywalk_prob: per-second probability that a walking pedestrian crosses mid-block.
         obs_mode: ``objects`` (object lists; fast, for RL), ``sensors`` (the ego's 6 cameras and
             LiDAR instead of its object list; the RSU adds its camera and LiDAR) or ``bev`` (an
             ego-centred semantic BEV raster instead of the object list).
+        action_mode: the ego's action (:mod:`.actions`): ``carla`` (default; ``(3,)`` throttle,
+            steer, brake) or ``accel_steer`` (``(2,)`` signed acceleration in [-1, 1] and steer;
+            +-1 = +-3.5 m/s^2, 0 coasts: for RL).
         max_objects: object slots in the ego's and RSU's object lists.
         route_points: route points ahead in the observation (every ``route_step`` m).
         route_step: spacing of observed route points (m, a whole number: route points are 1 m apart).
-        ego_range, rsu_range: sensing ranges (m).
-        rsu_policy: built-in RSU message policy for the single-agent Gymnasium env.
+        ego_range: ego sensing range (m).
+        rsu_range: RSU sensing range and the farthest distance of an active unit (m).
+        rsu_policy: built-in RSU message policy of the Gymnasium and TorchRL envs
+            (``RSU_POLICIES``).
         rsu_slots: RSU agents in the PettingZoo env (the nearest forward-facing units).
-        latency_ticks, loss_prob, bandwidth_bytes_per_s, max_payload_floats, encoding: V2X channel
-            (``channel.ChannelConfig``); latency >= 1: the RSU acts on tick t, the ego reads at t + latency.
+        latency_ticks: V2X delivery delay (``channel.ChannelConfig``): a message the RSU sends at
+            tick t is in the ego's observation at t + latency_ticks.
+        loss_prob: probability that a transmitted V2X message is lost (its bytes still count).
+        bandwidth_bytes_per_s: cap on V2X bytes on air per second (``None``: unlimited).
+        max_payload_floats: V2X message payload capacity in floats (320 = 32 objects; the size
+            of the ego's ``v2x_payload``); a longer message is an error, never cut.
+        encoding: wire encoding of V2X payload floats (``float16``: 2 bytes, ``float32``: 4).
         max_steps: episode cap in ticks (``None``: from the route's time budget).
         terminate_on_collision: end the episode at the first collision (for RL; off for eval).
         render_size: top-down render size in pixels.
@@ -69,6 +84,7 @@ class EnvConfig:
     large_vehicle_fraction: float = 0.25
     jaywalk_prob: float = 0.01
     obs_mode: str = "objects"
+    action_mode: str = "carla"
     max_objects: int = 32
     route_points: int = 20
     route_step: int = 2
@@ -94,15 +110,24 @@ class EnvConfig:
                 raise TypeError(f"config: field {name!r} has no rule in config.FIELD_RULES "
                                 "(add one)")
             rule.check(value, f"config: {name}")
+            if isinstance(value, np.generic):  # np.int64(3) -> 3: the config holds Python values
+                object.__setattr__(self, name, plain_scalar(value))
         for check in COMBINATION_CHECKS:
             check(self)
 
 
+def plain_scalar(value: Any) -> Any:
+    """A NumPy scalar as the Python value it holds (``np.int64(3)`` -> ``3``, ``np.float32`` ->
+    ``float``); anything else unchanged. NumPy integers are accepted wherever ints are."""
+    return value.item() if isinstance(value, np.generic) else value
+
+
 def _known_town(name: Any) -> None:
-    from .town import NAMED_TOWNS
+    from .town import NAMED_TOWNS, town_hint
 
     if name not in NAMED_TOWNS:
-        raise ValueError(f"{name!r} is not a known town ({', '.join(NAMED_TOWNS)})")
+        raise ValueError(f"{name!r} is not a known town{town_hint(name)} "
+                         f"({', '.join(NAMED_TOWNS)})")
 
 
 def _known_scenario(name: Any) -> None:
@@ -131,6 +156,7 @@ FIELD_RULES: dict[str, Rule] = {
     "large_vehicle_fraction": _PROB,
     "jaywalk_prob": _PROB,
     "obs_mode": Choice(OBS_MODES),
+    "action_mode": Choice(ACTION_MODES, why="the ego's action: actions.MODES"),
     "max_objects": Int(1, 256, "object slots"),
     "route_points": Int(1, 200, "points"),
     "route_step": Int(1, 50, "m"),
@@ -142,8 +168,9 @@ FIELD_RULES: dict[str, Rule] = {
                          "reaches the ego's observation at tick t + latency_ticks"),
     "loss_prob": _PROB,
     "bandwidth_bytes_per_s": OrNone(Float(0.0, 1e12, "bytes/s", lo_open=True)),
-    "max_payload_floats": Int(NUM_OBJECT_FIELDS, 65_536, "floats", why="a message must carry "
-                              f"at least one object of {NUM_OBJECT_FIELDS} floats"),
+    "max_payload_floats": Int(NUM_OBJECT_FIELDS, 65_535, "floats", why="a message must carry "
+                              f"at least one object of {NUM_OBJECT_FIELDS} floats; the wire "
+                              "header's length is a uint16"),
     "encoding": Choice(ENCODINGS),
     "max_steps": OrNone(Int(1, 100_000, "ticks")),
     "terminate_on_collision": Bool(),

@@ -5,7 +5,8 @@ Reward = weighted sum of named terms (each visible as ``info["reward_<term>"]``)
 ==============  =======  ====================================================
 term            weight   value per tick
 ==============  =======  ====================================================
-progress        1.0      metres of route passed this tick / 10
+progress        1.0      metres the ego advanced along the route this tick / 10
+                         (continuous: :func:`route_progress`, not 1 m route points)
 collision       -10.0    collisions this tick (pedestrian, vehicle, static)
 infraction      -2.0     red light, stop sign, off-road, wrong way this tick
 comfort         -0.01    ``abs(accel) / 4``, a mild smoothness penalty
@@ -21,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import infractions as inf
+from .jit_route import PROGRESS_RADIUS_M, PROGRESS_WINDOW, route_progress_kernel
 
 REWARD_WEIGHTS = {"progress": 1.0, "collision": -10.0, "infraction": -2.0, "comfort": -0.01}
 COLLISIONS = (inf.COLLISION_PEDESTRIAN, inf.COLLISION_VEHICLE, inf.COLLISION_STATIC)
@@ -40,13 +42,23 @@ def v2x_bps(world) -> float:
     return world.channel.bytes_sent_total / (world.tick * world.config.dt) if world.tick else 0.0
 
 
+def route_progress(world) -> float:
+    """The ego's continuous route progress (m): the furthest position on the route polyline within
+    ``jit_route.PROGRESS_RADIUS_M`` of the ego, from the monitor's progress point on (the
+    continuous version of ``infractions.EventMonitor.progress``; ``jit_route``)."""
+    r = world.route
+    x, y = world.table.pos[0].tolist()
+    return float(route_progress_kernel(r.points, r.s, int(world.monitor.progress), x, y,
+                                       PROGRESS_RADIUS_M, PROGRESS_WINDOW))
+
+
 class EpisodeTracker:
     """Turns a world's events into reward, termination flags and a numeric info dict."""
 
     def __init__(self, world) -> None:
         self.world = world
         self.max_steps = time_budget_steps(world)
-        self.prev_s = float(world.route.s[world.monitor.progress])
+        self.prev_s = route_progress(world)  # never decreases (as the monitor's progress)
         self.route_length = world.route.length
         self.done = False
 
@@ -55,7 +67,7 @@ class EpisodeTracker:
         ``with_info`` is false: callers that never read it skip building it)."""
         w = self.world
         mon = w.monitor
-        s = float(w.route.s[mon.progress])
+        s = max(route_progress(w), self.prev_s)
         if events:
             collision = float(sum(e[0] in COLLISIONS for e in events))
             infraction = float(sum(e[0] in INFRACTIONS for e in events))

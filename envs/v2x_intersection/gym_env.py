@@ -3,9 +3,12 @@
 ``gym.make("v2xbench:V2XIntersection-v0", **config)`` (any :class:`~.config.EnvConfig` key).
 
 - Observation: ``Dict`` (``observations.ego_space``): ego state, route ahead, objects the ego
-  sees, objects received over V2X (in the ego frame) and V2X metadata.
-- Action: ``Box(3)`` = throttle in [0, 1], steer in [-1, 1], brake in [0, 1]. Finite values out of
-  range are clipped; wrong shape, NaN or inf raise ``ValueError``.
+  sees, objects received over V2X (in the ego frame), the received V2X payload as sent
+  (``v2x_payload``) and V2X metadata.
+- Action (``config.action_mode``, :mod:`.actions`): ``"carla"`` (default) ``Box(3)`` = throttle
+  in [0, 1], steer in [-1, 1], brake in [0, 1]; ``"accel_steer"`` ``Box(2)`` = signed acceleration
+  in [-1, 1] (+-3.5 m/s^2) and steer in [-1, 1]. Finite values out of range are clipped; wrong
+  shape, NaN or inf raise ``ValueError``.
 - RSU: ``config.rsu_policy`` = ``"share_objects"`` (send the objects it sees) or ``"none"``.
 - Reset options: ``spec`` (a route file's ``RouteSpec``), or ``route`` and ``scenarios``; any
   other key raises ``ValueError``.
@@ -21,9 +24,10 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from .config import make_config
+from .actions import action_space, validate_action
+from .config import make_config, plain_scalar
 from .episode import EpisodeTracker
-from .observations import ego_action_space, ego_observation, ego_space, validate_control
+from .observations import ego_observation, ego_space
 from .validation import check_options
 from .world import StepError, World
 
@@ -43,7 +47,7 @@ class V2XIntersectionEnv(gym.Env):
         self.world = World(self.config)
         self.render_mode = render_mode
         self.observation_space = ego_space(self.config)
-        self.action_space = ego_action_space()
+        self.action_space = action_space(self.config.action_mode)
         self._tracker: EpisodeTracker | None = None
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -52,6 +56,7 @@ class V2XIntersectionEnv(gym.Env):
         options = check_options(options, RESET_OPTIONS)
         if seed is None and self._tracker is None:
             seed = self.config.seed
+        seed = plain_scalar(seed)  # a NumPy integer seeds as the int it holds
         super().reset(seed=seed)
         if seed is None:
             seed = int(self.np_random.integers(2**31))
@@ -65,7 +70,7 @@ class V2XIntersectionEnv(gym.Env):
             raise StepError("step() called before reset()")
         if self._tracker.done:
             raise StepError("step() called after the episode ended; call reset()")
-        control = validate_control(action)
+        control = validate_action(action, self.config.action_mode)
         events = self.world.step_builtin(control)
         reward, terminated, truncated, info = self._tracker.after_step(events)
         return ego_observation(self.world), reward, terminated, truncated, info

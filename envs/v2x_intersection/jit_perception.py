@@ -21,6 +21,9 @@ from .jit import (
 from .jit_grid import project_grid_kernel
 
 UNSEEN_KEY = 1.0e6  # m: units that do not see the ego's look-ahead point rank after all that do
+#: bound of the observation boxes (``observations.BIG``): received objects whose ego-frame position
+#: or velocity would leave it are clipped to it (:func:`_rsu_row_to_ego`)
+OBS_BOUND = 1.0e4
 
 
 @_njit_inline
@@ -150,21 +153,23 @@ def _rsu_row_to_ego(out, r, col, src, b, x, y, yaw, ex, ey, eyaw, c, s, ce, se, 
     """Object fields ``src[b:b + 10]`` (float32, in the frame of the unit at ``(x, y, yaw)``,
     cosine/sine ``c``/``s``) re-expressed in the ego frame into ``out[r, col:col + 10]``:
     positions, headings and velocities (``ce``/``se``: the ego's heading, ``cr``/``sr``: the
-    difference); the other fields copied."""
+    difference), positions and velocities clipped to ``+-OBS_BOUND``; the other fields copied
+    (a payload holds values within ``wire.PAYLOAD_LIMIT`` = ``OBS_BOUND``)."""
     two_pi = 2.0 * np.pi
+    lim = OBS_BOUND
     for f in range(10):
         out[r, col + f] = src[b + f]
     p0 = np.float64(src[b + 1])
     p1 = np.float64(src[b + 2])
     d0 = (c * p0 - s * p1 + x) - ex
     d1 = (s * p0 + c * p1 + y) - ey
-    out[r, col + 1] = ce * d0 + se * d1
-    out[r, col + 2] = -se * d0 + ce * d1
+    out[r, col + 1] = min(max(ce * d0 + se * d1, -lim), lim)
+    out[r, col + 2] = min(max(-se * d0 + ce * d1, -lim), lim)
     out[r, col + 3] = (np.float64(src[b + 3]) + yaw - eyaw + np.pi) % two_pi - np.pi
     vx = np.float64(src[b + 7])
     vy = np.float64(src[b + 8])
-    out[r, col + 7] = cr * vx - sr * vy
-    out[r, col + 8] = sr * vx + cr * vy
+    out[r, col + 7] = min(max(cr * vx - sr * vy, -lim), lim)
+    out[r, col + 8] = min(max(sr * vx + cr * vy, -lim), lim)
 
 
 def perceive_workspace(n, static_boxes, static_heights, static_cos, static_sin, static_half_diag) -> tuple:

@@ -21,9 +21,11 @@ from .wire import (
     _TRACK_ID_COL,
     ENCODING_CODES,
     FLOAT16_TRACK_ID_MODULUS,
+    FORMAT_SHIFT,
     HEADER_SIZE,
     MAGIC,
     NUM_OBJECT_FIELDS,
+    PAYLOAD_FORMATS,
     WIRE_VERSION,
 )
 
@@ -44,6 +46,8 @@ _CRC_TABLE = _crc_table()
 _MAGIC0, _MAGIC1 = MAGIC[0], MAGIC[1]
 _TRACK_MOD = np.float32(FLOAT16_TRACK_ID_MODULUS)
 _F16, _F32 = ENCODING_CODES["float16"], ENCODING_CODES["float32"]  # the wire codes of the encodings
+_CODE_MASK = (1 << FORMAT_SHIFT) - 1  # header byte 3: the encoding's bits (the format's above)
+_MAX_FORMAT = max(PAYLOAD_FORMATS.values())
 
 
 @_njit_inline
@@ -88,8 +92,9 @@ def _crc_update(crc, data, lo, hi):  # pragma: no cover
 def encode_kernel(values, n, sender, tick, code, pad):  # pragma: no cover
     """:func:`.wire.encode_message`'s bytes for ``values[:n]`` (float32, contiguous, finite and
     within the payload bound: the caller checked them), sent by ``sender`` at ``tick``, with
-    encoding ``code`` (``wire.ENCODING_CODES``) and ``pad`` zero bytes after the 16-byte header."""
-    item = 2 if code == _F16 else 4
+    header byte 3 ``code`` (``wire.ENCODING_CODES``, the payload format in its high bits) and
+    ``pad`` zero bytes after the 16-byte header."""
+    item = 2 if (code & _CODE_MASK) == _F16 else 4
     hb = HEADER_SIZE + pad
     out = np.zeros(hb + n * item, np.uint8)
     out[0], out[1], out[2], out[3] = _MAGIC0, _MAGIC1, WIRE_VERSION, code
@@ -158,15 +163,15 @@ def float_bits(h):  # pragma: no cover
 def decode_kernel(data, header_bytes):  # pragma: no cover
     """:func:`.wire.decode_message` of the message bytes ``data`` (uint8): ``(ok, sender, tick,
     payload float32)``; ``ok`` is false where the codec would raise (the caller then lets it name
-    the problem)."""
+    the problem). The payload format is header byte 3's high bits (``data[3] >> FORMAT_SHIFT``)."""
     none = np.zeros(0, np.float32)
     n = data.shape[0]
     if n < header_bytes or n < HEADER_SIZE:
         return False, 0, 0, none
     if data[0] != _MAGIC0 or data[1] != _MAGIC1 or data[2] != WIRE_VERSION:
         return False, 0, 0, none
-    code = data[3]
-    if code != _F16 and code != _F32:
+    code = data[3] & _CODE_MASK
+    if (code != _F16 and code != _F32) or (data[3] >> FORMAT_SHIFT) > _MAX_FORMAT:
         return False, 0, 0, none
     item = 2 if code == _F16 else 4
     sender = np.int64(data[4]) | (np.int64(data[5]) << 8)

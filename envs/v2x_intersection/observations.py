@@ -18,13 +18,25 @@ key                       shape               content
 ``route``                 ``(P, 3)``          next route points in the ego frame (x, y, command)
 ``objects``               ``(M, 11)``         actors the ego sees (``OBJECT_FEATURES``, ego frame)
 ``v2x_objects``           ``(M, 11)``         objects received from the RSU, moved to the ego frame
-``v2x_info``              ``(6,)``            ``V2X_INFO_FEATURES``
+``v2x_info``              ``(8,)``            ``V2X_INFO_FEATURES``
+``v2x_payload``           ``(L,)``            the received payload as sent, zero-padded
 ========================  ==================  ===============================================
+
+``L = max_payload_floats``. Every received message is in ``v2x_payload`` (its first
+``v2x_info.payload_length`` floats, the rest zero; as float32 after the wire's encoding), whatever
+its format; only an object list (``payload_format`` 0, ``wire.PAYLOAD_FORMATS``) is also decoded
+into ``v2x_objects``. A raw payload (format 1: a custom roadside policy's own message) leaves
+``v2x_objects`` empty and ``num_objects`` 0. ``age_ticks`` and the sender's pose
+(``rsu_x``, ``rsu_y``, ``rsu_yaw``, in the ego frame) describe the message in both keys. The
+``v2x_*`` keys are in every mode (``objects``, ``sensors``, ``bev``).
 
 RSU observation: ``unit`` (``UNIT_FEATURES``), ``calibration`` ``(2, 4, 4)`` =
 (``T_world_rsu``, ``T_ego_rsu``), ``objects`` ``(M, 11)`` in the RSU ground frame (origin at the
 pole's foot, x along the unit's yaw, z up; pitch and roll are in ``T_world_rsu``).
 Rows of object arrays are sorted by distance; unused rows are all zero (``present = 0``).
+Received objects whose ego-frame ``x``, ``y``, ``vx`` or ``vy`` would pass ``+-BIG`` (an object
+10 km away; a payload's values are within ``wire.PAYLOAD_LIMIT``) are clipped to it at decode,
+so every value stays inside its box.
 """
 
 from __future__ import annotations
@@ -46,18 +58,21 @@ from .geometry import (
 )
 from .jit import HAVE_JIT
 from .jit_observations import ego_obs_packed_kernel
+from .jit_perception import OBS_BOUND
 from .rsu import RSU_PITCH
 from .traffic import STOP_LINE_SETBACK, stop_sign_lanes
 from .visibility import VISIBLE_THRESHOLD
-from .wire import NUM_OBJECT_FIELDS, decode_message, unpack_objects
+from .wire import FORMAT_OBJECTS, NUM_OBJECT_FIELDS, PAYLOAD_LIMIT, decode_frame, unpack_objects
 
 EGO_FEATURES = ("speed", "accel", "yaw_rate", "throttle", "steer", "brake", "light_state",
                 "dist_to_stop_line", "route_completion")
 OBJECT_FEATURES = ("present", "class_id", "x", "y", "yaw", "length", "width", "height", "vx", "vy",
                    "visibility")
-V2X_INFO_FEATURES = ("received", "age_ticks", "num_objects", "rsu_x", "rsu_y", "rsu_yaw")
+V2X_INFO_FEATURES = ("received", "age_ticks", "num_objects", "rsu_x", "rsu_y", "rsu_yaw",
+                     "payload_length", "payload_format")
+_PAYLOAD_LENGTH = V2X_INFO_FEATURES.index("payload_length")
 UNIT_FEATURES = ("unit_id", "x", "y", "z", "yaw", "pitch")
-BIG = 1e4  # bound of the observation boxes
+BIG = OBS_BOUND  # bound of the observation boxes (1e4; received objects are clipped to it)
 _RSU_BASE = ("unit", "calibration", "objects")
 #: received objects stay in the observation this many ticks after their delivery (then zeroed)
 V2X_HOLD_TICKS = 5
@@ -90,6 +105,14 @@ def _sensor_spaces(obs_mode: str) -> spaces.Dict:
     return _rig(obs_mode).observation_space()
 
 
+def _v2x_info_box(max_payload_floats: int) -> spaces.Box:
+    """``v2x_info``'s box: ``+-BIG``, with room for the payload length when a payload holds more
+    than ``BIG`` floats."""
+    high = np.full(len(V2X_INFO_FEATURES), BIG, np.float32)
+    high[_PAYLOAD_LENGTH] = max(BIG, max_payload_floats)
+    return spaces.Box(np.float32(-BIG), high, dtype=np.float32)
+
+
 def ego_space(cfg) -> spaces.Dict:
     """Observation space of the ego agent (see module docstring)."""
     m = cfg.max_objects
@@ -97,7 +120,8 @@ def ego_space(cfg) -> spaces.Dict:
         "ego": _box(len(EGO_FEATURES)),
         "route": _box(cfg.route_points, 3),
         "v2x_objects": _box(m, len(OBJECT_FEATURES)),
-        "v2x_info": _box(len(V2X_INFO_FEATURES)),
+        "v2x_info": _v2x_info_box(cfg.max_payload_floats),
+        "v2x_payload": _box(cfg.max_payload_floats, low=-PAYLOAD_LIMIT, high=PAYLOAD_LIMIT),
     }
     if cfg.obs_mode == "objects":
         d["objects"] = _box(m, len(OBJECT_FEATURES))
@@ -198,7 +222,8 @@ def ego_observation(world) -> dict[str, np.ndarray]:
         m = cfg.max_objects
         out = {"ego": np.empty(len(EGO_FEATURES), np.float32), "route": np.empty((cfg.route_points, 3), np.float32),
                "v2x_objects": np.empty((m, len(OBJECT_FEATURES)), np.float32),
-               "v2x_info": np.empty(len(V2X_INFO_FEATURES), np.float32)}
+               "v2x_info": np.empty(len(V2X_INFO_FEATURES), np.float32),
+               "v2x_payload": np.empty(cfg.max_payload_floats, np.float32)}
         if cfg.obs_mode == "objects":
             out["objects"] = np.empty((m, len(OBJECT_FEATURES)), np.float32)
         fill_objects_observation(world, out)
@@ -228,8 +253,8 @@ def ego_observation(world) -> dict[str, np.ndarray]:
     yaw_rate = t.speed[0] * float(libm.tan(steer * world.params.max_steer)) / world.params.wheelbase
     ego = np.array([t.speed[0], t.accel[0], yaw_rate, *world.last_control, light, dist_line,
                     world.monitor.route_completion], np.float32)
-    v2x, info = _v2x(world, ego_xy, ego_yaw)
-    out = {"ego": ego, "route": route, "v2x_objects": v2x, "v2x_info": info}
+    v2x, info, raw = _v2x(world, ego_xy, ego_yaw)
+    out = {"ego": ego, "route": route, "v2x_objects": v2x, "v2x_info": info, "v2x_payload": raw}
     if cfg.obs_mode == "objects":
         from .world import object_rows  # (world imports this module)
 
@@ -253,20 +278,23 @@ def _sensor_keys(world, out: dict) -> dict:
 
 
 def fill_objects_observation(world, out: dict) -> None:
-    """Write the ego observation's ``ego``, ``route``, ``v2x_objects``, ``v2x_info`` (and
-    ``objects``, when ``out`` has it) into the arrays of ``out``, in one kernel call (numba path of
-    :func:`ego_observation`; ``batch.WorldBatch`` passes rows of its buffers)."""
+    """Write the ego observation's ``ego``, ``route``, ``v2x_objects``, ``v2x_info``,
+    ``v2x_payload`` (and ``objects``, when ``out`` has it) into the arrays of ``out``, in one kernel
+    call and a copy of the payload (numba path of :func:`ego_observation`; ``batch.WorldBatch``
+    passes rows of its buffers)."""
     cfg, t, r = world.config, world.table, world.route
     k0 = world.monitor.progress
     lane = int(r.lane_ids[min(k0, len(r.lane_ids) - 1)])
     inbox = world.inbox
     has_msg = inbox is not None and world.tick - inbox[1] < cfg.latency_ticks + V2X_HOLD_TICKS
     if has_msg:
-        sender, sent_tick, payload = inbox
+        sender, sent_tick, raw = inbox[0], inbox[1], inbox[2]
+        fmt = _inbox_format(inbox)
+        payload = raw if fmt == FORMAT_OBJECTS else _NO_PAYLOAD  # only object lists are decoded
         rx, ry, _, ryaw = world.rsus.pose[sender].tolist()
         age = world.tick - sent_tick
     else:
-        payload, rx, ry, ryaw, age = _NO_PAYLOAD, 0.0, 0.0, 0.0, 0
+        raw, fmt, payload, rx, ry, ryaw, age = None, 0, _NO_PAYLOAD, 0.0, 0.0, 0.0, 0
     objects = out.get("objects")
     if objects is not None:
         world.object_classes()  # refreshes the class array the kernel reads (emergency vehicles)
@@ -276,6 +304,26 @@ def fill_objects_observation(world, out: dict) -> None:
         out["v2x_info"], objects is not None, k0, world.ego_vis, lane, has_msg, payload, rx, ry, ryaw, age,
         world.last_control, float(world.applied_control[1]), world.lane_signal, world.monitor.route_completion,
         consts)
+    _fill_payload(out["v2x_payload"], out["v2x_info"], raw, fmt)
+
+
+def _inbox_format(inbox: tuple) -> int:
+    """The payload format of an inbox message (``channel.Delivery``; a bare ``(sender, tick,
+    payload)`` is an object list)."""
+    return int(inbox[3]) if len(inbox) > 3 else FORMAT_OBJECTS
+
+
+def _fill_payload(buf: np.ndarray, info: np.ndarray, raw: np.ndarray | None, fmt: int) -> None:
+    """Write a held message's payload into ``buf`` (zero-padded) and its length and format into
+    ``info`` (``raw`` ``None``: nothing held, ``buf`` zeroed; ``info`` is then already zero)."""
+    if raw is None:
+        buf[:] = 0.0
+        return
+    n = raw.shape[0]
+    buf[:n] = raw
+    buf[n:] = 0.0
+    info[_PAYLOAD_LENGTH] = n
+    info[_PAYLOAD_LENGTH + 1] = fmt
 
 
 def _obs_consts(world) -> tuple:
@@ -288,14 +336,20 @@ def _obs_consts(world) -> tuple:
             LIGHT_STOP_SIGN)
 
 _NO_PAYLOAD = np.zeros(0, np.float32)
+#: channel-layout columns of a received object that move with the frame (x, y, vx, vy)
+_MOVED = [1, 2, 7, 8]
 
 
-def _v2x(world, ego_xy: np.ndarray, ego_yaw: float) -> tuple[np.ndarray, np.ndarray]:
+def _v2x(world, ego_xy: np.ndarray, ego_yaw: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``v2x_objects``, ``v2x_info`` and ``v2x_payload`` (NumPy path)."""
     cfg = world.config
     info = np.zeros(len(V2X_INFO_FEATURES), np.float32)
+    raw_obs = np.zeros(cfg.max_payload_floats, np.float32)
     if world.inbox is None or world.tick - world.inbox[1] >= cfg.latency_ticks + V2X_HOLD_TICKS:
-        return np.zeros((cfg.max_objects, len(OBJECT_FEATURES)), np.float32), info
-    sender, sent_tick, payload = world.inbox
+        return np.zeros((cfg.max_objects, len(OBJECT_FEATURES)), np.float32), info, raw_obs
+    sender, sent_tick, raw = world.inbox[:3]
+    fmt = _inbox_format(world.inbox)
+    payload = raw if fmt == FORMAT_OBJECTS else _NO_PAYLOAD  # only object lists are decoded
     x, y, _, yaw = world.rsus.pose[sender]  # float64 scalars (a float32 row + yaw stays float64)
     n_rows = len(payload) // NUM_OBJECT_FIELDS
     rows = unpack_objects(payload, n_rows * NUM_OBJECT_FIELDS)
@@ -307,11 +361,16 @@ def _v2x(world, ego_xy: np.ndarray, ego_yaw: float) -> tuple[np.ndarray, np.ndar
         c, s = np.cos(yaw - ego_yaw), np.sin(yaw - ego_yaw)
         vx, vy = rows[:, 7].copy(), rows[:, 8].copy()
         rows[:, 7], rows[:, 8] = c * vx - s * vy, s * vx + c * vy
+        # a payload's values are within PAYLOAD_LIMIT in the RSU frame; in the ego frame a
+        # position or velocity may pass the box bound: clip it (as the kernel does)
+        rows[:, _MOVED] = np.clip(rows[:, _MOVED], -BIG, BIG)
     rows_obs = _rows(rows, np.ones(n_rows), cfg.max_objects)
     c, s = np.cos(ego_yaw), np.sin(ego_yaw)  # the unit in the ego frame (world_to_local_2d's operations)
     d0, d1 = x - ego_xy[0], y - ego_xy[1]
-    info[:] = (1.0, world.tick - sent_tick, n_rows, c * d0 + s * d1, -s * d0 + c * d1, wrap_angle(yaw - ego_yaw))
-    return rows_obs, info
+    info[:_PAYLOAD_LENGTH] = (1.0, world.tick - sent_tick, n_rows, c * d0 + s * d1,
+                              -s * d0 + c * d1, wrap_angle(yaw - ego_yaw))
+    _fill_payload(raw_obs, info, raw, fmt)
+    return rows_obs, info, raw_obs
 
 
 def rsu_observation(world, slot: int = 0) -> dict[str, np.ndarray]:
@@ -340,6 +399,9 @@ def rsu_observation(world, slot: int = 0) -> dict[str, np.ndarray]:
 
 
 def decode_inbox(data: bytes) -> np.ndarray:
-    """Decode raw channel bytes into object rows (for tools that read recorded traffic)."""
-    _, _, payload = decode_message(data)
+    """Decode raw channel bytes into object rows (for tools that read recorded traffic); a raw
+    payload (not an object list) gives no rows."""
+    _, _, payload, fmt = decode_frame(data)
+    if fmt != FORMAT_OBJECTS:
+        return np.zeros((0, NUM_OBJECT_FIELDS), np.float32)
     return unpack_objects(payload, len(payload) - len(payload) % NUM_OBJECT_FIELDS)

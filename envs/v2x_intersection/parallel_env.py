@@ -3,11 +3,18 @@
 ===================  ===========================================================================
 agents               ``"ego"``, ``"rsu"`` (``rsu_slots > 1``: ``"rsu"``, ``"rsu_1"``, ...)
 ego observation      ``observations.ego_space``: ego state, route, seen objects, received V2X
-ego action           ``Box(3)``: throttle [0, 1], steer [-1, 1], brake [0, 1] (clipped; NaN raises)
+ego action           ``config.action_mode`` (:mod:`.actions`): ``carla`` ``Box(3)`` throttle [0, 1],
+                     steer [-1, 1], brake [0, 1]; ``accel_steer`` ``Box(2)`` accel, steer in [-1, 1]
+                     (clipped; a wrong shape, NaN or inf raise)
 rsu observation      ``observations.rsu_space``: unit id + pose, calibration, objects it sees
-rsu action           its V2X message: ``Dict(length=Discrete(L+1), payload=Box(L))`` (the
-                     channel serializes, counts bytes, delays, drops; BPS is measured there)
+rsu action           its V2X message: ``Dict(length=Discrete(L+1), payload=Box(L),
+                     format=Discrete(2))`` (``channel.message_space``; format 0 = an object list,
+                     decoded into the ego's ``v2x_objects``, 1 = a raw payload of its own design;
+                     every payload reaches the ego's ``v2x_payload``; the channel serializes,
+                     counts bytes, delays, drops; BPS is measured there)
 rewards              ego: :mod:`.episode` terms; rsu: the same (a cooperative team reward)
+state                ``state()``: every agent's observation flattened (``gymnasium.spaces.flatten``)
+                     and concatenated, inside ``state_space`` (a ``Box``)
 ===================  ===========================================================================
 
 Each RSU agent always denotes *the currently active unit* of its slot (the nearest
@@ -20,19 +27,20 @@ from __future__ import annotations
 import functools
 from typing import Any
 
+import numpy as np
+from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
+from .actions import action_space, validate_action
 from .config import make_config
 from .episode import EpisodeTracker
 from .gym_env import RESET_OPTIONS
 from .observations import (
-    ego_action_space,
     ego_observation,
     ego_space,
     rsu_action_space,
     rsu_observation,
     rsu_space,
-    validate_control,
 )
 from .validation import check_options
 from .world import StepError, World
@@ -57,7 +65,8 @@ class V2XParallelEnv(ParallelEnv):
         self.agents: list[str] = []
         self._obs_spaces = {"ego": ego_space(self.config), **{a: rsu_space(self.config) for a in self.rsu_agents}}
         msg_space = rsu_action_space(self.world.channel_config)
-        self._act_spaces = {"ego": ego_action_space(), **{a: msg_space for a in self.rsu_agents}}
+        self._act_spaces = {"ego": action_space(self.config.action_mode), **{a: msg_space for a in self.rsu_agents}}
+        self.state_space = state_space(self._obs_spaces, self.possible_agents)
         self._tracker: EpisodeTracker | None = None
 
     @functools.cache  # noqa: B019 - the same object on every call, as PettingZoo asks
@@ -94,7 +103,7 @@ class V2XParallelEnv(ParallelEnv):
             raise ValueError(f"actions for unknown agents: {sorted(unknown)}")
         if "ego" not in actions:
             raise ValueError("actions must include 'ego'")
-        control = validate_control(actions["ego"], "ego action")
+        control = validate_action(actions["ego"], self.config.action_mode, "ego action")
         message = actions.get("rsu")  # only the first slot's unit transmits in v0
         events = self.world.step(control, message)
         reward, terminated, truncated, info = self._tracker.after_step(events)
@@ -115,9 +124,19 @@ class V2XParallelEnv(ParallelEnv):
 
         return render_topdown(self.world, self.config.render_size)
 
-    def state(self):
-        """Global state: the ego observation plus the first RSU's (flattened, for CTDE)."""
-        import numpy as np
-
+    def state(self) -> np.ndarray:
+        """Global state (for CTDE): every agent's observation, ``possible_agents`` order, each
+        flattened by ``gymnasium.spaces.flatten`` (keys sorted); inside :attr:`state_space`."""
         obs = self._observe()
-        return np.concatenate([v.ravel() for a in self.possible_agents for v in obs[a].values()])
+        flat = [spaces.flatten(self._obs_spaces[a], obs[a]) for a in self.possible_agents]
+        return np.concatenate(flat)
+
+
+def state_space(obs_spaces: dict, agents: list[str]) -> spaces.Box:
+    """The ``Box`` of :meth:`V2XParallelEnv.state`: the agents' flattened observation spaces
+    (``gymnasium.spaces.flatten_space``) end to end, their bounds and the common dtype."""
+    flat = [spaces.flatten_space(obs_spaces[a]) for a in agents]
+    dtype = np.result_type(*(f.dtype for f in flat))
+    low = np.concatenate([f.low.astype(dtype) for f in flat])
+    high = np.concatenate([f.high.astype(dtype) for f in flat])
+    return spaces.Box(low, high, dtype=dtype)

@@ -11,7 +11,8 @@ offset   type    field
 =======  ======  ==========================================================================
 0        2s      magic ``b"VX"``
 2        uint8   format version (:data:`WIRE_VERSION`, currently 1)
-3        uint8   encoding code: 1 = float16, 2 = float32 (:data:`ENCODING_CODES`)
+3        uint8   low 4 bits: encoding code, 1 = float16, 2 = float32 (:data:`ENCODING_CODES`);
+                 high 4 bits: payload format, 0 = object list, 1 = raw (:data:`PAYLOAD_FORMATS`)
 4        uint16  sender id (RSU unit id, 0..65535)
 6        uint16  payload length in floats (0..65535)
 8        uint32  tick at which the message was sent (simulation ticks of ``dt`` seconds)
@@ -23,6 +24,13 @@ hdr      L*size  payload: ``L`` floats in the declared encoding (2 or 4 bytes ea
 So every message costs exactly ``header_bytes + length * itemsize`` bytes on air, with
 ``header_bytes = 16`` by default (:data:`HEADER_SIZE`). A ``length`` of 0 means "say nothing":
 no message is sent, no header, 0 bytes.
+
+Payload formats (:data:`PAYLOAD_FORMATS`): the channel carries and counts every payload alike, as
+opaque floats; the format only says how a receiver may read it. ``objects`` (0) is the
+"share objects" object list (:func:`pack_objects`), which the ego decodes into its
+``v2x_objects``; ``raw`` (1) is any other payload (a custom roadside policy's own message), which
+the ego receives as is. An object-list message has the same bytes as before the format existed
+(format 0 leaves byte 3 as the encoding code alone).
 """
 
 from __future__ import annotations
@@ -43,6 +51,11 @@ __all__ = [
     "PAYLOAD_LIMIT",
     "WIRE_VERSION",
     "check_header",
+    "FORMAT_OBJECTS",
+    "FORMAT_RAW",
+    "PAYLOAD_FORMATS",
+    "check_format",
+    "decode_frame",
     "decode_message",
     "encode_message",
     "max_objects",
@@ -58,6 +71,13 @@ WIRE_VERSION = 1
 ENCODING_CODES: dict[str, int] = {"float16": 1, "float32": 2}
 _CODE_TO_DTYPE: dict[int, np.dtype] = {1: np.dtype("<f2"), 2: np.dtype("<f4")}
 _ENCODING_DTYPES: dict[str, np.dtype] = {"float16": np.dtype("<f2"), "float32": np.dtype("<f4")}
+#: Wire codes of the payload formats (high 4 bits of header byte 3; see the module docstring).
+PAYLOAD_FORMATS: dict[str, int] = {"objects": 0, "raw": 1}
+FORMAT_OBJECTS = PAYLOAD_FORMATS["objects"]
+FORMAT_RAW = PAYLOAD_FORMATS["raw"]
+FORMAT_SHIFT = 4  # the format's bits in header byte 3
+_CODE_MASK = (1 << FORMAT_SHIFT) - 1  # the encoding's bits in header byte 3
+_FORMAT_NAMES = {v: k for k, v in PAYLOAD_FORMATS.items()}
 
 _HEADER = struct.Struct("<2sBBHHII")  # magic, version, encoding, sender, length, tick, crc32
 _HEADER_NOCRC = struct.Struct("<2sBBHHI")
@@ -111,6 +131,7 @@ def encode_message(
     payload: np.ndarray,
     encoding: str = "float16",
     header_bytes: int = HEADER_SIZE,
+    fmt: int = FORMAT_OBJECTS,
 ) -> bytes:
     """Serialize one message to bytes (see the wire format in the module docstring).
 
@@ -120,13 +141,15 @@ def encode_message(
         payload: ``(L,)`` floats, all finite, ``L <= 65535``; encoded with round-to-nearest.
         encoding: ``"float16"`` or ``"float32"``.
         header_bytes: Total header size; bytes beyond :data:`HEADER_SIZE` are zero padding.
+        fmt: Payload format code (:data:`PAYLOAD_FORMATS`; default the object list).
 
     Returns:
         ``header_bytes + L * itemsize`` bytes.
 
     Raises:
-        ValueError: For out-of-range ids/ticks/lengths, an unknown encoding, a payload that is not
-            1-D, non-finite values, or values that overflow the encoding (float16 max is 65504).
+        ValueError: For out-of-range ids/ticks/lengths, an unknown encoding or format, a payload
+            that is not 1-D, non-finite values, or values that overflow the encoding (float16 max
+            is 65504).
     """
     dtype = _ENCODING_DTYPES.get(encoding)
     if dtype is None:
@@ -134,6 +157,7 @@ def encode_message(
             f"unknown encoding {encoding!r}; expected one of {tuple(_ENCODING_DTYPES)}"
         )
     check_header(sender_id, tick)
+    fmt = check_format(fmt)
     if header_bytes < HEADER_SIZE:
         raise ValueError(f"header_bytes must be >= {HEADER_SIZE}, got {header_bytes}")
     p = np.asarray(payload)
@@ -149,7 +173,19 @@ def encode_message(
         if not np.isfinite(p).all():
             raise ValueError("payload contains NaN or inf")
         raise ValueError(f"payload values overflow {encoding} (max abs {float(np.abs(p).max())})")
-    return _serialize(sender_id, tick, enc, ENCODING_CODES[encoding], header_bytes - HEADER_SIZE)
+    code = ENCODING_CODES[encoding] | (fmt << FORMAT_SHIFT)
+    return _serialize(sender_id, tick, enc, code, header_bytes - HEADER_SIZE)
+
+
+def check_format(fmt: object) -> int:
+    """``fmt`` as a Python int if it is a payload format code (:data:`PAYLOAD_FORMATS`); raise
+    ``ValueError`` naming the known formats otherwise."""
+    if isinstance(fmt, np.ndarray) and fmt.ndim == 0 and fmt.dtype.kind in "iu":
+        fmt = fmt.item()
+    if not _is_int(fmt) or int(fmt) not in _FORMAT_NAMES:
+        known = ", ".join(f"{v} = {k}" for k, v in PAYLOAD_FORMATS.items())
+        raise ValueError(f"message format must be a payload format code ({known}), got {fmt!r}")
+    return int(fmt)
 
 
 def check_header(sender_id: int, tick: int) -> None:
@@ -172,6 +208,13 @@ def _serialize(sender_id: int, tick: int, enc: np.ndarray, code: int, pad: int) 
 def decode_message(
     data: bytes | bytearray | memoryview, header_bytes: int = HEADER_SIZE
 ) -> tuple[int, int, np.ndarray]:
+    """``(sender_id, tick, payload)`` of :func:`decode_frame` (the payload format left out)."""
+    return decode_frame(data, header_bytes)[:3]
+
+
+def decode_frame(
+    data: bytes | bytearray | memoryview, header_bytes: int = HEADER_SIZE
+) -> tuple[int, int, np.ndarray, int]:
     """Parse bytes produced by :func:`encode_message`, checking the header and checksum.
 
     Args:
@@ -179,12 +222,13 @@ def decode_message(
         header_bytes: Header size the message was encoded with.
 
     Returns:
-        ``(sender_id, tick, payload)`` with ``payload`` a new ``(L,)`` float32 array.
+        ``(sender_id, tick, payload, fmt)`` with ``payload`` a new ``(L,)`` float32 array and
+        ``fmt`` its format code (:data:`PAYLOAD_FORMATS`).
 
     Raises:
         ValueError: Naming the problem: truncated data, bad magic, unsupported version, unknown
-            encoding, non-zero padding, size mismatch (truncated or trailing payload bytes), or
-            checksum mismatch (corrupt message).
+            encoding or payload format, non-zero padding, size mismatch (truncated or trailing
+            payload bytes), or checksum mismatch (corrupt message).
     """
     n = len(data)
     if n < header_bytes or n < HEADER_SIZE:
@@ -196,9 +240,12 @@ def decode_message(
         raise ValueError(f"bad magic {bytes(magic)!r}, expected {MAGIC!r}: not a V2X message")
     if version != WIRE_VERSION:
         raise ValueError(f"unsupported wire version {version} (this codec reads {WIRE_VERSION})")
-    dtype = _CODE_TO_DTYPE.get(code)
+    fmt = code >> FORMAT_SHIFT
+    if fmt not in _FORMAT_NAMES:
+        raise ValueError(f"unknown payload format {fmt} in header (known: {PAYLOAD_FORMATS})")
+    dtype = _CODE_TO_DTYPE.get(code & _CODE_MASK)
     if dtype is None:
-        raise ValueError(f"unknown encoding code {code} in header")
+        raise ValueError(f"unknown encoding code {code & _CODE_MASK} in header")
     expected = header_bytes + length * dtype.itemsize
     if n != expected:
         what = "truncated" if n < expected else "trailing bytes in"
@@ -212,7 +259,7 @@ def decode_message(
     if zlib.crc32(body, zlib.crc32(mv[: HEADER_SIZE - 4])) != crc:
         raise ValueError("checksum mismatch: corrupt message")
     payload = np.frombuffer(body, dtype=dtype).astype(np.float32)
-    return sender_id, tick, payload
+    return sender_id, tick, payload, fmt
 
 def _check_used(payload: np.ndarray, length: int) -> None:
     """Raise if the used part ``payload[:length]`` holds NaN/inf or leaves the Box bound."""

@@ -70,7 +70,7 @@ from .traffic import (
     warn_spawn_shortfall,
 )
 from .visibility import VISIBILITY_SAMPLING, VISIBLE_THRESHOLD, visible_fraction
-from .wire import check_header, max_objects, pack_objects, pack_rows
+from .wire import FORMAT_OBJECTS, check_header, max_objects, pack_objects, pack_rows
 
 _NO_PAYLOAD = np.zeros(0, np.float32)
 _NO_BYTES = np.zeros(0, np.uint8)
@@ -247,7 +247,8 @@ class World:
         self.applied_control = self.last_control
         self.control_noise: tuple[float, float, float] | None = None
         self.last_events: list = []
-        self.inbox: tuple | None = None  # (sender, sent_tick, payload) last delivered message
+        #: the last delivered message, ``channel.Delivery`` (sender, sent_tick, payload, format)
+        self.inbox: tuple | None = None
         self.ended = False
         self.lane_signal = self.signals.lane_states(0.0)
         self.perceive()
@@ -335,7 +336,8 @@ class World:
         Args:
             control: ``(3,)`` ego ``(throttle in [0, 1], steer in [-1, 1], brake in [0, 1])``;
                 validated by the adapters (``spaces.validate_control``).
-            rsu_message: the active RSU's message ``{"length", "payload"}`` (``None``: nothing sent).
+            rsu_message: the active RSU's message ``{"length", "payload", "format"}``
+                (``channel.message_space``; ``None``: nothing sent).
 
         Returns:
             Events emitted during this tick (``infractions.EventMonitor``).
@@ -509,7 +511,7 @@ class World:
 
     def deliver(self) -> list:
         """Step 8: the channel delivers what is due into the ego's inbox; returns ``last_events``."""
-        for msg in self.channel.receive(self.tick):
+        for msg in self.channel.deliver(self.tick):
             self.inbox = msg
         return self.last_events
 
@@ -612,7 +614,7 @@ class World:
         if objs is None:
             return empty_message(self.channel_config)
         length, payload = pack_objects(objs, self.config.max_payload_floats, self.config.encoding)
-        return {"length": length, "payload": payload}
+        return {"length": length, "payload": payload, "format": FORMAT_OBJECTS}
 
     def _builtin_objects(self) -> np.ndarray | None:
         """What the built-in policy sends: the slot-0 RSU's object rows (``None``: nothing)."""

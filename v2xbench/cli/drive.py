@@ -62,7 +62,7 @@ def _drive(args: argparse.Namespace) -> int:
                 frames.append(env.render())
             if rig is not None and ticks % args.sensors_every == 0:
                 mosaics.append(mosaic(rig.capture(env.world)))
-            bar.update(round(info["route_completion"] - bar.n, 1))
+            bar.update(int(info["route_completion"]) - bar.n)  # whole %, not 83.79999999999964
             if terminated or truncated:
                 break
     wall = time.perf_counter() - t0

@@ -17,7 +17,10 @@ def _eval(args: argparse.Namespace) -> int:
     summary = evaluate(args.agent, suite=args.suite, seeds=args.seeds, workers=args.workers, out=args.out,
                        video=args.video, max_routes=args.max_routes, config=parse_set(args.set),
                        agent_name=args.agent_name, progress=not args.quiet,
-                       isolate_agent=args.isolate_agent, route_timeout=args.route_timeout)
+                       isolate_agent=args.isolate_agent, route_timeout=args.route_timeout,
+                       agent_config=args.agent_config, routes=args.routes, scenario=args.scenario,
+                       v2x_only=args.v2x_only, overwrite=args.overwrite,
+                       retry_failed=args.retry_failed)
     print(summary_markdown(summary))
     print(f"results: {Path(args.out) / 'routes'}, summary: {Path(args.out) / 'summary.md'}")
     failed = summary["failed"]
@@ -46,7 +49,10 @@ def register(sub) -> None:
     ev = sub.add_parser("eval", help="evaluate an agent on a route suite (resumable)",
                         description="Closed-loop evaluation through TorchRL collectors. Writes "
                         "OUT/routes/<route>_s<k>.json per run and OUT/summary.{json,md}; running "
-                        "again on the same OUT resumes. Exits 1 when any route failed (error or "
+                        "again on the same OUT resumes when the run's fingerprint (agent code, "
+                        "declared checkpoint, agent config, --set overrides, obs/RSU/action mode) "
+                        "is the same, and is refused, naming what differs, when it is not "
+                        "(--overwrite starts afresh). Exits 1 when any route failed (error or "
                         "timeout). The file given to --agent path.py:Class is executed (imported) "
                         "in this process and in every worker: run only code you trust, or see "
                         "docs/evaluation.md for what --isolate-agent does and does not protect.")
@@ -57,7 +63,23 @@ def register(sub) -> None:
     ev.add_argument("--workers", type=int, default=1, help="worker processes running routes at a time")
     ev.add_argument("--out", default="results/eval")
     ev.add_argument("--video", action="store_true", help="save a top-down GIF per route in OUT/videos")
-    ev.add_argument("--max-routes", type=int, default=None, help="only the first N routes of the suite")
+    ev.add_argument("--max-routes", type=int, default=None,
+                    help="only the first N of the (selected) routes of the suite")
+    ev.add_argument("--routes", default=None, metavar="ID,ID",
+                    help="only these route ids (comma-separated), e.g. test50_000,test50_007")
+    ev.add_argument("--scenario", action="append", default=None, metavar="TYPE",
+                    help="only routes containing this scenario type (repeatable or "
+                    "comma-separated)")
+    ev.add_argument("--v2x-only", action="store_true",
+                    help="only routes containing a V2X scenario type")
+    ev.add_argument("--agent-config", default=None, metavar="FILE",
+                    help="JSON object passed to the agent's constructor as keyword arguments "
+                    "(recorded in the run's fingerprint)")
+    ev.add_argument("--overwrite", action="store_true",
+                    help="delete the results already in OUT first and run afresh")
+    ev.add_argument("--retry-failed", action="store_true",
+                    help="run again the selected routes whose result is a failure (error or "
+                    "timeout); the fingerprint must be the same")
     ev.add_argument("--set", action="append", metavar="KEY=VALUE",
                     help="environment config override, e.g. --set num_vehicles=10 (repeatable)")
     ev.add_argument("--agent-name", default=None, help="display name in the summary and leaderboard")

@@ -6,6 +6,7 @@ town (as the paper's Town12 test split) and is never used for training routes.
 
 from __future__ import annotations
 
+import difflib
 import functools
 import json
 from pathlib import Path
@@ -27,11 +28,25 @@ TRAIN_TOWNS = ("Town01", "Town02", "Town03", "Town04", "Town05", "Town06")
 TEST_TOWNS = ("Town12",)
 
 
+def town_hint(name: object) -> str:
+    """``"; did you mean 'Town01'?"`` for a near miss of a named town (``town01``, ``Town1``,
+    ``Twon01``), else ``""``."""
+    if not isinstance(name, str):
+        return ""
+    same_case = {n.lower(): n for n in NAMED_TOWNS}
+    close = [same_case[name.lower()]] if name.lower() in same_case else []
+    if not close and name.lower().startswith("town") and name[4:].isdigit():
+        close = [n for n in NAMED_TOWNS if int(n[4:]) == int(name[4:])]
+    close = close or difflib.get_close_matches(name, NAMED_TOWNS, n=1)
+    return f"; did you mean {close[0]!r}?" if close else ""
+
+
 @functools.lru_cache(maxsize=16)
 def get_town(name: str) -> Town:
-    """A named town (cached). Raises ``ValueError`` for unknown names."""
+    """A named town (cached). Raises ``ValueError`` for unknown names (with a near match)."""
     if name not in NAMED_TOWNS:
-        raise ValueError(f"unknown town {name!r}; known: {', '.join(NAMED_TOWNS)}")
+        raise ValueError(f"unknown town {name!r}{town_hint(name)} "
+                         f"(known: {', '.join(NAMED_TOWNS)})")
     template, seed, size = NAMED_TOWNS[name]
     return generate_town(template, seed, size, name=name)
 
@@ -51,5 +66,5 @@ def load_town(path: str | Path) -> Town:
 
 __all__ = [
     "COMMAND_NAMES", "LaneIndex", "NAMED_TOWNS", "TEMPLATES", "TEST_TOWNS", "TRAIN_TOWNS", "Town",
-    "generate_town", "get_town", "load_town", "save_town",
+    "generate_town", "get_town", "load_town", "save_town", "town_hint",
 ]

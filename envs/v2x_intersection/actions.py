@@ -49,7 +49,8 @@ def _carla_one(a: np.ndarray, name: str) -> np.ndarray:
 def _accel_steer_one(a: np.ndarray, name: str) -> np.ndarray:
     accel, steer = a.tolist()
     if not (math.isfinite(accel) and math.isfinite(steer)):
-        raise ValueError(f"{name}: contains NaN or inf: {[accel, steer]} (action_mode='accel_steer')")
+        raise ValueError(f"{name}: contains NaN or inf: {[accel, steer]} "
+                         "(action_mode='accel_steer')")
     accel, steer = _clip(accel, -1.0, 1.0), _clip(steer, -1.0, 1.0)
     throttle = accel if accel > 0.0 else 0.0
     brake = -accel * BRAKE_PER_ACCEL if accel < 0.0 else 0.0

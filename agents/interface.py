@@ -13,6 +13,7 @@ An agent is any object with::
     def act(self, obs: dict, info: dict) -> ...   # the same, with the step's info (see below)
     checkpoint: str | list[str]   # optional: weight files / folders it loads (hashed, see below)
     def fingerprint(self) -> str  # optional: anything else its behaviour depends on
+    sensors: dict                 # optional: the sensor configuration it needs (see below)
 
 **One observation contract.** ``obs`` is exactly the observation the Gymnasium env
 (``gym.make("v2xbench:V2XIntersection-v0", obs_mode=...)``) returns for the agent's
@@ -56,6 +57,16 @@ agent's constructor as keyword arguments (``Class(**config)``; CARLA passes a pa
 ``setup(path_to_conf_file)`` instead: an agent that wants a file of its own takes a path argument,
 ``{"conf_file": "my.yaml"}``). A key the constructor does not take is refused before any route
 runs (:func:`build_agent`).
+
+**Sensors** (``obs_mode="sensors"``). An agent trained on one camera resolution, set of images
+or LiDAR density declares it, e.g. ``sensors = {"camera_size": (128, 64), "camera_images":
+("rgb",), "lidar_scale": 0.5}``: keys of ``config.SENSOR_FIELDS``, values as ``EnvConfig``
+takes them (checked when the agent is built, :func:`declared_sensors`). ``eval`` configures the
+env from the declaration (a field it leaves out keeps the env's default or ``--set``), so the
+agent gets exactly those images and only those are rendered; a ``--set`` of a declared field
+with another value is refused before any route runs, naming both values (an agent fed other
+images than it was trained on would fail silently). The declaration is part of the run's env
+overrides: the fingerprint, the summary and the leaderboard's sensors column record it.
 
 **Fingerprint** (what ``eval`` keys its results by, ``collectors/agent_fingerprint.py``): the
 agent's code, its configuration, and what it declares: ``checkpoint`` (a path or a list of paths;
@@ -171,6 +182,7 @@ def complete_agent(agent: Any, label: str, privileged: bool) -> Any:
     if missing:
         raise ValueError(f"agent {label!r} lacks method(s) {', '.join(missing)} (see agents/interface.py)")
     _check_rsu_policy(agent.rsu_policy, label)
+    declared_sensors(agent, label)
     if getattr(agent, "privileged", False) and not privileged:
         raise ValueError(
             f"agent {label!r} declares privileged = True, but only the built-in agents "
@@ -179,6 +191,34 @@ def complete_agent(agent: Any, label: str, privileged: bool) -> Any:
     if privileged and not callable(getattr(agent, "bind", None)):
         raise ValueError(f"privileged agent {label!r} has no bind(world) method")
     return agent
+
+
+def declared_sensors(agent: Any, label: str = "agent") -> dict[str, Any]:
+    """The sensor configuration ``agent`` declares it needs (its optional ``sensors`` dict; module
+    docstring, "Sensors") as ``config.sensor_config`` values (JSON: lists; ``camera_images`` in
+    ``config.CAMERA_IMAGES`` order); ``{}`` when it declares none.
+
+    Raises:
+        ValueError: ``sensors`` is not a dict, names a key outside ``config.SENSOR_FIELDS``, or
+            holds a value the field's rule refuses (the message names the agent and the field).
+    """
+    from v2xbench.envs.v2x_intersection.config import SENSOR_FIELDS, make_config, sensor_config
+
+    decl = getattr(agent, "sensors", None)
+    if decl is None:
+        return {}
+    if not isinstance(decl, dict):
+        raise ValueError(f"agent {label!r}: sensors must be a dict of {', '.join(SENSOR_FIELDS)}, "
+                         f"got {type(decl).__name__}")
+    unknown = sorted(str(k) for k in decl if k not in SENSOR_FIELDS)
+    if unknown:
+        raise ValueError(f"agent {label!r}: sensors has unknown key(s) {unknown}; known: "
+                         f"{', '.join(SENSOR_FIELDS)}")
+    try:
+        values = sensor_config(make_config(**decl))
+    except ValueError as e:
+        raise ValueError(f"agent {label!r}: sensors: {e}") from None
+    return {k: values[k] for k in SENSOR_FIELDS if k in decl}
 
 
 def _check_rsu_policy(policy: Any, label: str) -> None:

@@ -95,6 +95,7 @@ def serve(conn: Connection) -> None:
         build_agent,
         call_act,
         complete_agent,
+        declared_sensors,
         granted_privilege,
         load_agent,
     )
@@ -119,7 +120,8 @@ def serve(conn: Connection) -> None:
         roadside = roadside_runner(agent)
         hello = {"ok": True, "obs_mode": str(agent.obs_mode), "rsu_policy": policy_label(agent),
                  "name": type(agent).__name__, "takes_info": style is not None,
-                 "declared": declared(agent, label), "roadside": roadside_component(agent)}
+                 "declared": declared(agent, label), "roadside": roadside_component(agent),
+                 "sensors": declared_sensors(agent, label)}
     except BaseException as e:  # noqa: BLE001  (reported to the harness)
         answer(_error(e))
         return
@@ -174,6 +176,7 @@ class IsolatedAgent:
             agent brings its own roadside policy.
         takes_info: whether the agent's ``act`` takes the step's ``info``.
         declared: its declared checkpoint digests and fingerprint (``agent_fingerprint.declared``).
+        sensors: the sensor configuration it declares (``interface.declared_sensors``).
         roadside: its roadside policy's fingerprint component (``roadside.roadside_component``;
             ``None`` for a built-in policy).
 
@@ -197,6 +200,7 @@ class IsolatedAgent:
         hello = self._start()
         self.obs_mode, self.rsu_policy, self.name = hello["obs_mode"], hello["rsu_policy"], hello["name"]
         self.takes_info, self.declared = bool(hello["takes_info"]), hello["declared"]
+        self.sensors = dict(hello.get("sensors") or {})
         self.roadside = hello.get("roadside")
         if self.roadside is not None:
             self.rsu_policy = RemoteRoadside(self, str(hello["rsu_policy"]))

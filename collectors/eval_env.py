@@ -172,7 +172,9 @@ class EvalEnv(EnvBase):
         seeds, max_routes: used when ``jobs`` is ``None``.
         video: save a top-down GIF per route under ``<out>/videos``.
         config: ``EnvConfig`` overrides (e.g. smaller populations). ``obs_mode`` and
-            ``rsu_policy`` default to the agent's declared ones; ``suite``/``route_index`` are not allowed (jobs choose).
+            ``rsu_policy`` default to the agent's declared ones, the sensor fields to its declared
+            ``sensors`` (an override that differs is refused, ``agent_sensors.py``);
+            ``suite``/``route_index`` are not allowed (jobs choose).
         video_every, video_size: a frame every this many ticks, of this many pixels.
         agent_name: display name in the results (default: from the spec or factory).
         isolate: run the protocol agent in a separate process (see module docstring).
@@ -213,6 +215,13 @@ class EvalEnv(EnvBase):
         bad = {"suite", "route_index"} & set(overrides)
         if bad:
             raise ValueError(f"EvalEnv: config keys {sorted(bad)} are chosen by the job queue")
+        if self.agent is not None:  # its declared sensors configure the env (agent_sensors.py)
+            from v2xbench.agents.interface import declared_sensors
+
+            from .agent_sensors import apply_agent_sensors
+
+            needs = declared_sensors(self.agent, self.agent_spec)
+            overrides = apply_agent_sensors(overrides, needs, self.agent_spec)
         self.overrides = dict(overrides)
         if self.agent is not None:  # the agent's declarations choose the mode and the RSU policy
             overrides.setdefault("obs_mode", self.agent.obs_mode)

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from v2xbench.envs.v2x_intersection.config import SENSOR_FIELDS
 from v2xbench.envs.v2x_intersection.metrics import ENDED_BY_NAMES, aggregate
 from v2xbench.envs.v2x_intersection.route_files import load_suite_cached
 from v2xbench.envs.v2x_intersection.scenarios import get_scenario
@@ -26,22 +27,12 @@ from v2xbench.files import atomic_write_text
 from . import jobs as J
 from .route_log import FAILURE_KINDS
 
-#: words that make an env override a sensor setting (camera sizes, which images, LiDAR density)
-SENSOR_WORDS = ("sensor", "camera", "image", "lidar", "rgb", "depth", "semantic", "instance")
-
 
 def sensor_settings(overrides: dict | None) -> dict:
-    """The sensor settings among env overrides: the config's ``SENSOR_FIELDS`` where it declares
-    them, else the keys naming a sensor (:data:`SENSOR_WORDS`); ``{}``: the defaults."""
-    from v2xbench.envs.v2x_intersection import config as C
-
-    fields = getattr(C, "SENSOR_FIELDS", None)
-    keys = [
-        k
-        for k in (overrides or {})
-        if (k in fields if fields is not None else any(w in k.lower() for w in SENSOR_WORDS))
-    ]
-    return {k: overrides[k] for k in sorted(keys)}
+    """The sensor settings among env overrides (``config.SENSOR_FIELDS``: ``camera_size``,
+    ``camera_images``, ``lidar_scale``; an agent's declared ``sensors`` are among the overrides,
+    ``agent_sensors.py``); ``{}``: the defaults."""
+    return {k: overrides[k] for k in sorted(overrides or {}) if k in SENSOR_FIELDS}
 
 
 def summarize(

@@ -26,7 +26,9 @@ The run holds ``v2xbench.locks.dir_lock(out)`` from start to end: a second evalu
 **Results are keyed by a fingerprint** (``agent_fingerprint.py``): the agent's code (the file of
 ``path.py:Class``, the modules of a built-in), its declared checkpoint and ``fingerprint()``, the
 agent config, the env overrides, obs_mode / rsu_policy / action_mode, the suite and the agent
-process; for an agent that brings its own roadside policy (``roadside.py``: ``rsu_policy`` is
+process (the overrides include the sensor configuration an agent declares, ``agent_sensors.py``:
+the env is configured from it, and a ``--set`` that differs from it is refused); for an agent
+that brings its own roadside policy (``roadside.py``: ``rsu_policy`` is
 then ``custom:<ClassName>`` in the manifest, every summary and the leaderboard) also that
 policy's code, checkpoint and ``fingerprint()``. ``<out>/run.json`` holds it and every result
 its digest. Running again on the same ``out`` with the same fingerprint resumes: finished jobs
@@ -66,7 +68,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from v2xbench.envs.v2x_intersection.config import EnvConfig
+from v2xbench.envs.v2x_intersection.config import EnvConfig, make_config
 from v2xbench.envs.v2x_intersection.metrics import ENDED_ERROR
 from v2xbench.envs.v2x_intersection.route_files import load_suite_cached
 
@@ -83,6 +85,7 @@ from .agent_fingerprint import (
     make_fingerprint,
     policy_digest,
 )
+from .agent_sensors import apply_agent_sensors
 from .eval_env import agent_label, copy_policy, instantiate_agent, make_env_factory
 from .eval_summary import per_scenario, summarize, summary_markdown, write_summary
 from .eval_workers import DEFAULT_ROUTE_TIMEOUT_S, check_route_timeout, run_jobs
@@ -110,6 +113,19 @@ def _say(msg: str) -> None:
 
 def _config_default(name: str) -> Any:
     return {f.name: f.default for f in dataclasses.fields(EnvConfig)}[name]
+
+
+def _check_overrides(cfg: dict) -> None:
+    """Refuse bad env overrides here, before anything is written or a worker starts (each
+    worker's env would refuse them, naming the field, only after the run began)."""
+    bad = sorted({"suite", "route_index"} & set(cfg))
+    if bad:
+        raise ValueError(f"--set {', '.join(bad)}: chosen by the job queue (use --suite and "
+                         "--routes)")
+    try:
+        make_config(**cfg)
+    except ValueError as e:
+        raise ValueError(f"--set: {e}") from None
 
 
 def _read_run_json(path: Path) -> dict | None:
@@ -186,7 +202,10 @@ def _clean(out: Path) -> None:
 def _probe_agent(agent: Any, spec: str, isolate: bool, config: dict | None) -> dict:
     """Build the agent once here (a bad agent fails now, not in every worker) and return what the
     fingerprint needs of it: ``obs_mode``, ``rsu_policy`` (``custom:<ClassName>`` for its own
-    roadside policy), its declarations and its roadside policy's (``roadside.py``)."""
+    roadside policy), its declarations, its roadside policy's (``roadside.py``) and the sensors
+    it declares (``interface.declared_sensors``)."""
+    from v2xbench.agents.interface import declared_sensors
+
     try:
         probe = instantiate_agent(agent, isolate, config)
     except SystemExit as e:
@@ -197,7 +216,7 @@ def _probe_agent(agent: Any, spec: str, isolate: bool, config: dict | None) -> d
     else:
         decl, roadside = declared(probe, spec), roadside_component(probe)
     return {"obs_mode": str(probe.obs_mode), "rsu_policy": policy_label(probe), "declared": decl,
-            "roadside": roadside}
+            "roadside": roadside, "sensors": declared_sensors(probe, spec)}
 
 
 def evaluate(
@@ -320,12 +339,15 @@ def evaluate(
     else:
         facts = _probe_agent(agent, spec, isolate_agent, agent_cfg)
         identity, code = agent_identity(agent), code_digests(agent)
+        # the agent's declared sensors configure the env; a --set that differs is refused
+        cfg = apply_agent_sensors(cfg, facts["sensors"], spec)
     obs_mode = cfg.get("obs_mode", facts["obs_mode"])
     rsu_policy = cfg.get("rsu_policy", facts["rsu_policy"])
     if facts.get("roadside") is not None and "rsu_policy" in cfg:
         raise ValueError(f"--set rsu_policy={cfg['rsu_policy']!r} conflicts with the agent's own "
                          f"roadside policy ({facts['rsu_policy']}); drop the override")
     action_mode = cfg.get("action_mode", _config_default("action_mode"))
+    _check_overrides(cfg)
     agent_process = "isolated" if isolate_agent else "in_process"
     roadside = {"roadside": facts["roadside"]} if facts.get("roadside") is not None else {}
     fingerprint = make_fingerprint(

@@ -334,6 +334,6 @@ def test_leaderboard_ranks_comparable_runs_together(rf_run, flaky_run, suite, tm
     assert not list((tmp_path / "lb").glob(".*"))  # no temporaries left
     if res["note"] is None:
         assert len(res["plots"]) == 12 and Path(res["plots"][0]).name == "driving_score_g1.png"
-    cfg = {"camera_size": [256, 128], "lidar_points": 8000, "num_vehicles": 3, "rsu_policy": "none"}
-    assert sensor_settings(cfg) == {"camera_size": [256, 128], "lidar_points": 8000}
+    cfg = {"camera_size": [256, 128], "lidar_scale": 0.5, "num_vehicles": 3, "rsu_policy": "none"}
+    assert sensor_settings(cfg) == {"camera_size": [256, 128], "lidar_scale": 0.5}
     assert world_settings(cfg) == {"num_vehicles": 3}

@@ -9,7 +9,11 @@ An episode that raises (world or expert) is recorded under ``failed`` in the man
 error, and the others go on; a later run retries it. Resuming: running again on the same root skips finished shards, removes temporary folders of
 interrupted episodes and re-runs them from their seed; episodes are deterministic (world seed,
 expert, perturbation seed), so a resumed collection has the same content as an uninterrupted one.
-The settings are stored in ``manifest.json`` and must match on resume.
+The settings are stored in ``manifest.json`` and must match on resume. The manifest's
+``sensor_config`` is the sensor configuration of the recorded frames in ``EnvConfig`` terms
+(``config.SENSOR_FIELDS``: ``camera_size`` = ``--camera-size``, ``camera_images`` = the images of
+``--sensors``, ``lidar_scale`` = ``--lidar-scale``): ``gym.make(..., obs_mode="sensors",
+**manifest["sensor_config"])`` gives an agent the images the data set holds, of the same shapes.
 
 Scales (``SCALES``): ``tiny`` (3 routes x 1 seed, 150 ticks each: a smoke test), ``default``
 (every route of the suite once: 52.7K frames and 50.9K QA pairs for ``train``, measured) and
@@ -75,9 +79,9 @@ class CollectConfig:
         seeds: seed indices per route. max_routes: only the first N routes (``None``: all).
         max_ticks: cap per episode (``None``: the route's time budget, ``episode.time_budget_steps``).
         sensors: stored every tick (``record.SENSORS``); keyframe images are always written.
-        camera_size: ``(width, height)`` of the 7 cameras.
-        lidar_scale: fraction of the default LiDAR channels and azimuths (GT visibility uses
-            the LiDARs; < 1 is faster and coarser).
+        camera_size: ``(width, height)`` of the 7 cameras (``EnvConfig.camera_size``).
+        lidar_scale: fraction of the default LiDAR channels and azimuths
+            (``EnvConfig.lidar_scale``; GT visibility uses the LiDARs; < 1 is faster and coarser).
         perturb: inject recovery noise (:mod:`.perturb`).
         max_boxes: rows per GT box set. keyframe_every: ticks between keyframes.
         val_fraction: share of routes held out as ``val`` (by a hash of the route id).
@@ -108,12 +112,10 @@ class CollectConfig:
         _positive_int("max_routes", self.max_routes, None, none_ok=True)
         _positive_int("max_ticks", self.max_ticks, None, none_ok=True)
         _positive_int("keyframe_every", self.keyframe_every, None)
-        for name, lo_open, hi_open in (("lidar_scale", True, False), ("val_fraction", False, True)):
-            v = getattr(self, name)
-            ok = _is_real(v) and (0.0 < v if lo_open else 0.0 <= v) and (v < 1 if hi_open else v <= 1)
-            if not ok:
-                span = "(0, 1]" if lo_open else "[0, 1)"
-                raise ValueError(f"CollectConfig: {name}={v!r} must be a number in {span}")
+        v = self.val_fraction
+        if not (_is_real(v) and 0.0 <= v < 1):
+            raise ValueError(f"CollectConfig: val_fraction={v!r} must be a number in [0, 1)")
+        self.sensor_config()  # camera_size and lidar_scale by the EnvConfig fields' rules
         size = self.camera_size
         if (isinstance(size, str) or len(size) != 2 or not all(_is_int(v) for v in size)
                 or not all(8 <= v <= MAX_CAMERA_SIDE for v in size)):
@@ -126,7 +128,13 @@ class CollectConfig:
         bad = {"suite", "route_index", "obs_mode"} & set(self.env)
         if bad:
             raise ValueError(f"CollectConfig: env keys {sorted(bad)} are chosen by the collector")
-        from v2xbench.envs.v2x_intersection.config import make_config
+        from v2xbench.envs.v2x_intersection.config import SENSOR_FIELDS, make_config
+
+        bad = set(SENSOR_FIELDS) & set(self.env)
+        if bad:
+            raise ValueError(f"CollectConfig: env keys {sorted(bad)} are the collector's sensor "
+                             "settings: give them as camera_size, sensors and lidar_scale "
+                             "(--camera-size, --sensors, --lidar-scale)")
 
         try:
             make_config(obs_mode="objects", **self.env)  # up front, not in the first episode
@@ -149,6 +157,27 @@ class CollectConfig:
             if isinstance(kw.get(k), list):
                 kw[k] = tuple(kw[k])
         return cls(**kw)
+
+    def sensor_config(self) -> dict:
+        """The sensor configuration of the recorded frames as ``EnvConfig`` fields
+        (``config.sensor_config``: ``camera_size``, ``camera_images`` = the images of
+        ``sensors``, ``lidar_scale``), stored in the manifest.
+
+        Raises:
+            ValueError: ``camera_size`` or ``lidar_scale`` breaks its ``EnvConfig`` rule.
+        """
+        from v2xbench.envs.v2x_intersection.config import CAMERA_IMAGES, make_config, sensor_config
+
+        if isinstance(self.camera_size, str):  # the env would read "128x64"; the collector does not
+            raise ValueError(f"CollectConfig: camera_size={self.camera_size!r} must be (width, "
+                             "height)")
+        images = tuple(k for k in CAMERA_IMAGES if k in self.sensors)
+        try:
+            cfg = make_config(camera_size=self.camera_size, camera_images=images,
+                              lidar_scale=self.lidar_scale)
+        except ValueError as e:
+            raise ValueError(f"CollectConfig: {e}") from None
+        return sensor_config(cfg)
 
     def record_schema(self) -> dict[tuple[str, ...], tuple]:
         """``record.record_schema`` of the frames these settings record (every key, dtype and
@@ -206,12 +235,10 @@ def route_split(route_id: str, suite_split: str, val_fraction: float) -> str:
 
 
 def _lidar_specs(cfg: CollectConfig):
-    """The ego and the RSU LiDAR specs of ``cfg`` (``lidar_scale``)."""
-    from v2xbench.envs.v2x_intersection.sensors.lidar import ego_lidar_spec, rsu_lidar_spec
+    """The ego and the RSU LiDAR specs of ``cfg`` (``lidar_scale``, as ``EnvConfig``'s)."""
+    from v2xbench.envs.v2x_intersection.sensors.lidar import scaled_lidar_specs
 
-    s = cfg.lidar_scale
-    return (ego_lidar_spec(max(4, round(32 * s)), max(16, round(360 * s))),
-            rsu_lidar_spec(max(4, round(64 * s)), max(16, round(240 * s))))
+    return scaled_lidar_specs(cfg.lidar_scale)
 
 
 def _bev_spec():
@@ -422,6 +449,7 @@ def _start_manifest(cfg: CollectConfig, root: Path, jobs: list) -> tuple[dict, d
     for sid, meta in done.items():
         shard_info.setdefault(sid, _summary(meta))
     manifest = {"format": MANIFEST_FORMAT, "config": cfg.to_json(),
+                "sensor_config": cfg.sensor_config(),
                 "episodes": [j.job_id for j in jobs],
                 "shards": {k: v for k, v in shard_info.items() if k in done}, "failed": {}}
     return manifest, done

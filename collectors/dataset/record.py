@@ -2,8 +2,9 @@
 
 :func:`frame_record` returns a nested dict of NumPy arrays (one TensorDict row of a shard,
 :mod:`.shards`). Keys, shapes and dtypes (``M = RecordConfig.max_boxes``, ``R`` route points,
-``C`` cameras selected in ``RecordConfig.cameras``; poses and calibration in float64 so that
-frames compose exactly):
+``C`` cameras selected in ``RecordConfig.cameras``, ``H x W`` their size: the manifest's
+``sensor_config["camera_size"]``, the ``EnvConfig`` field an agent's env takes; poses and
+calibration in float64 so that frames compose exactly):
 
 ==============================  ================  ===========================================
 key                             shape, dtype      content

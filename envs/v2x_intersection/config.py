@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from .validation import Bool, Check, Choice, Float, Int, OrNone, Rule, Text
+from .validation import Bool, Check, Choice, Float, Int, OrNone, Rule, Text, kind_of, show
 from .wire import NUM_OBJECT_FIELDS
 
 OBS_MODES = ("objects", "sensors", "bev")
@@ -18,6 +19,14 @@ ACTION_MODES = ("carla", "accel_steer")  # actions.MODES: the ego's action and i
 RSU_POLICIES = ("none", "share_objects")
 ENCODINGS = ("float16", "float32")
 MAX_ACTORS_PER_KIND = 500  # num_vehicles, num_parked, ... (a town fits fewer: a warning says so)
+#: the images a camera renders (``sensors.camera``), in their canonical order
+CAMERA_IMAGES = ("rgb", "depth", "semantic", "instance")
+MIN_CAMERA_SIDE, MAX_CAMERA_SIDE = 2, 4096  # pixels: a camera's width and height
+MAX_LIDAR_SCALE = 2.0  # x the default LiDAR channels and azimuths (bounds the point arrays)
+#: the fields of the one sensor configuration (``obs_mode="sensors"``): accepted by ``gym.make``,
+#: ``parallel_env``, ``V2XTorchEnv``, ``v2xbench eval --set`` and ``v2xbench collect``; an agent
+#: declares the values it needs as ``sensors = {...}`` (``agents/interface.py``)
+SENSOR_FIELDS = ("camera_size", "camera_images", "lidar_scale")
 
 
 @dataclass(frozen=True)
@@ -45,8 +54,16 @@ class EnvConfig:
             long, ``actors.SIZES``; a parked one longer than a slot takes two slots).
         jaywalk_prob: per-second probability that a walking pedestrian crosses mid-block.
         obs_mode: ``objects`` (object lists; fast, for RL), ``sensors`` (the ego's 6 cameras and
-            LiDAR instead of its object list; the RSU adds its camera and LiDAR) or ``bev`` (an
-            ego-centred semantic BEV raster instead of the object list).
+            LiDAR instead of its object list; the RSU adds its camera and LiDAR; configured by
+            ``camera_size``, ``camera_images``, ``lidar_scale``) or ``bev`` (an ego-centred
+            semantic BEV raster instead of the object list).
+        camera_size: ``(width, height)`` of the 6 ego cameras and the RSU camera in ``sensors``
+            mode (pixels; ``[256, 128]`` or ``"256x128"`` also accepted).
+        camera_images: the images every camera renders and observes in ``sensors`` mode, of
+            ``rgb``, ``depth``, ``semantic``, ``instance`` (stored in that order; ``()``: no
+            cameras, LiDAR only). Images not asked for are neither rendered nor in the space.
+        lidar_scale: density of the ego and RSU LiDARs in ``sensors`` mode, as a fraction of the
+            default channels and azimuths (ego 32 x 360, RSU 64 x 240; ``sensors.lidar``).
         action_mode: the ego's action (:mod:`.actions`): ``carla`` (default; ``(3,)`` throttle,
             steer, brake) or ``accel_steer`` (``(2,)`` signed acceleration in [-1, 1] and steer;
             +-1 = +-3.5 m/s^2, 0 coasts: for RL).
@@ -84,6 +101,9 @@ class EnvConfig:
     large_vehicle_fraction: float = 0.25
     jaywalk_prob: float = 0.01
     obs_mode: str = "objects"
+    camera_size: tuple[int, int] = (128, 64)
+    camera_images: tuple[str, ...] = CAMERA_IMAGES
+    lidar_scale: float = 1.0
     action_mode: str = "carla"
     max_objects: int = 32
     route_points: int = 20
@@ -109,9 +129,12 @@ class EnvConfig:
             if rule is None:
                 raise TypeError(f"config: field {name!r} has no rule in config.FIELD_RULES "
                                 "(add one)")
-            rule.check(value, f"config: {name}")
-            if isinstance(value, np.generic):  # np.int64(3) -> 3: the config holds Python values
-                object.__setattr__(self, name, plain_scalar(value))
+            prepared = _PREPARE.get(name, _same)(value)  # [256, 128] -> (256, 128), ...
+            rule.check(prepared, f"config: {name}")
+            if isinstance(prepared, np.generic):  # np.int64(3) -> 3: the config holds Python values
+                prepared = plain_scalar(prepared)
+            if prepared is not value:
+                object.__setattr__(self, name, prepared)
         for check in COMBINATION_CHECKS:
             check(self)
 
@@ -138,6 +161,58 @@ def _known_scenario(name: Any) -> None:
     get_scenario(name)
 
 
+def _same(value: Any) -> Any:
+    return value
+
+
+def _size_value(value: Any) -> Any:
+    """``[256, 128]``, ``(np.int64(256), 128)`` or ``"256x128"`` as ``(256, 128)`` (anything else
+    unchanged, for the rule to refuse)."""
+    if isinstance(value, str):
+        m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", value)
+        return (int(m.group(1)), int(m.group(2))) if m else value
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return tuple(plain_scalar(v) for v in value)
+    return value
+
+
+def _images_value(value: Any) -> Any:
+    """A list (or ``"rgb,depth"``) of image names as a tuple in :data:`CAMERA_IMAGES` order
+    (anything else unchanged, for the rule to refuse)."""
+    if isinstance(value, str):
+        value = [v.strip() for v in value.split(",") if v.strip()]
+    if isinstance(value, (list, tuple)):
+        rank = {k: i for i, k in enumerate(CAMERA_IMAGES)}
+        return tuple(sorted(value, key=lambda v: rank.get(v, len(rank)) if isinstance(v, str)
+                            else len(rank)))
+    return value
+
+
+#: how a field's value is put in its stored form before its rule checks it (JSON lists as tuples)
+_PREPARE: dict[str, Callable[[Any], Any]] = {"camera_size": _size_value,
+                                             "camera_images": _images_value}
+
+
+def _camera_size(value: Any) -> None:
+    if not (isinstance(value, tuple) and len(value) == 2):
+        raise ValueError(f"expected (width, height) in pixels, e.g. [128, 64] or '128x64', got "
+                         f"{kind_of(value)} {show(value)}")
+    side = Int(MIN_CAMERA_SIDE, MAX_CAMERA_SIDE, "pixels")
+    for name, v in zip(("width", "height"), value):
+        side.check(v, name)
+
+
+def _camera_images(value: Any) -> None:
+    if not isinstance(value, tuple):
+        raise ValueError(f"expected a list of image names of {CAMERA_IMAGES}, got "
+                         f"{kind_of(value)} {show(value)}")
+    kind = Choice(CAMERA_IMAGES, why="the images a camera renders")
+    for v in value:
+        kind.check(v, "image")
+    if len(set(value)) != len(value):
+        raise ValueError(f"{show(list(value))} names an image twice")
+
+
 _COUNT = Int(0, MAX_ACTORS_PER_KIND)
 _PROB = Float(0.0, 1.0, why="a probability")
 
@@ -156,6 +231,11 @@ FIELD_RULES: dict[str, Rule] = {
     "large_vehicle_fraction": _PROB,
     "jaywalk_prob": _PROB,
     "obs_mode": Choice(OBS_MODES),
+    "camera_size": Check(_camera_size, f"(width, height), ints in [{MIN_CAMERA_SIDE}, "
+                         f"{MAX_CAMERA_SIDE}] pixels"),
+    "camera_images": Check(_camera_images, f"a list of distinct images of {CAMERA_IMAGES}"),
+    "lidar_scale": Float(0.0, MAX_LIDAR_SCALE, "x the default density", lo_open=True,
+                         why="fraction of the default LiDAR channels and azimuths"),
     "action_mode": Choice(ACTION_MODES, why="the ego's action: actions.MODES"),
     "max_objects": Int(1, 256, "object slots"),
     "route_points": Int(1, 200, "points"),
@@ -206,6 +286,13 @@ COMBINATION_CHECKS: list[Callable[[EnvConfig], None]] = [_suite_and_index]
 
 
 CONFIG_FIELDS = tuple(f.name for f in dataclasses.fields(EnvConfig))
+
+
+def sensor_config(cfg: EnvConfig) -> dict[str, Any]:
+    """The :data:`SENSOR_FIELDS` of ``cfg`` as JSON values (lists): what a data set's manifest
+    records and what an agent's ``sensors`` declaration is compared with."""
+    return {k: list(v) if isinstance(v, tuple) else v
+            for k, v in ((k, getattr(cfg, k)) for k in SENSOR_FIELDS)}
 
 
 def make_config(config: EnvConfig | None = None, **kwargs: Any) -> EnvConfig:

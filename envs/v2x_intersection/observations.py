@@ -6,6 +6,10 @@ replaced by ``cameras`` - 6 ego cameras, each ``rgb``/``depth``/``semantic``/``i
 ``lidar``) and ``bev`` (the ego's ``objects`` key is replaced by ``bev (C, H, W)`` uint8, which
 draws only the actors the ego sees, as ``objects``; the raster of every actor is the privileged
 ``BevSpec(privileged=True)``, never an observation). Sensor layouts and defaults: :mod:`.sensors`.
+The ``sensors`` mode is configured by ``config.SENSOR_FIELDS``: ``camera_size`` (every camera's
+``(width, height)``), ``camera_images`` (the images a camera has: only those are rendered and in
+the space; ``()`` leaves out ``cameras`` and the RSU's ``camera``) and ``lidar_scale`` (the
+LiDARs' density, ``sensors.lidar.scaled_lidar_specs``).
 Class ids are the observed ones (``World.object_classes``: an emergency vehicle is
 ``classes.EMERGENCY_VEHICLE``), in every mode and in the RSU's messages.
 
@@ -84,25 +88,36 @@ def _box(*shape: int, low: float = -BIG, high: float = BIG) -> spaces.Box:
     return spaces.Box(low, high, shape=shape, dtype=np.float32)
 
 
-def sensor_rig(obs_mode: str):
-    """The :class:`~.sensors.SensorRig` an observation mode needs (``None`` for ``objects``)."""
-    if obs_mode == "objects":
+def sensor_rig(cfg):
+    """The :class:`~.sensors.SensorRig` a config's observation mode needs (``None`` for
+    ``objects``; for ``sensors``, configured by the config's ``SENSOR_FIELDS``)."""
+    if cfg.obs_mode == "objects":
         return None
-    return _rig(obs_mode)
+    return _rig_of(cfg)
 
 
-@functools.lru_cache(maxsize=4)
-def _rig(obs_mode: str):
+def _rig_of(cfg):
+    if cfg.obs_mode == "bev":
+        return _rig("bev")
+    return _rig("sensors", tuple(cfg.camera_size), tuple(cfg.camera_images), float(cfg.lidar_scale))
+
+
+@functools.lru_cache(maxsize=16)
+def _rig(obs_mode: str, camera_size: tuple = (), images: tuple = (), lidar_scale: float = 1.0):
     from .sensors import SensorConfig, SensorRig
+    from .sensors.lidar import scaled_lidar_specs
 
     if obs_mode == "bev":
         return SensorRig(SensorConfig(ego_cameras=(), rsu_camera_size=None, ego_lidar=None, rsu_lidar=None,
                                       calibration=False, groundtruth=False))
-    return SensorRig(SensorConfig(bev=None, calibration=False, groundtruth=False))
+    ego_lidar, rsu_lidar = scaled_lidar_specs(lidar_scale)
+    return SensorRig(SensorConfig(camera_size=camera_size, rsu_camera_size=camera_size,
+                                  ego_lidar=ego_lidar, rsu_lidar=rsu_lidar, bev=None,
+                                  calibration=False, groundtruth=False, images=images))
 
 
-def _sensor_spaces(obs_mode: str) -> spaces.Dict:
-    return _rig(obs_mode).observation_space()
+def _sensor_spaces(cfg) -> spaces.Dict:
+    return _rig_of(cfg).observation_space()
 
 
 def _v2x_info_box(max_payload_floats: int) -> spaces.Box:
@@ -126,11 +141,13 @@ def ego_space(cfg) -> spaces.Dict:
     if cfg.obs_mode == "objects":
         d["objects"] = _box(m, len(OBJECT_FEATURES))
     elif cfg.obs_mode == "sensors":
-        s = _sensor_spaces("sensors")
-        d["cameras"] = spaces.Dict({k: v for k, v in s["cameras"].spaces.items() if k != "rsu_cam"})
+        s = _sensor_spaces(cfg)
+        if cfg.camera_images:
+            d["cameras"] = spaces.Dict({k: v for k, v in s["cameras"].spaces.items()
+                                        if k != "rsu_cam"})
         d["lidar"] = s["lidars"]["lidar"]
     else:
-        d["bev"] = _sensor_spaces("bev")["bev"]
+        d["bev"] = _sensor_spaces(cfg)["bev"]
     return spaces.Dict(d)
 
 
@@ -142,8 +159,9 @@ def rsu_space(cfg) -> spaces.Dict:
         "objects": _box(cfg.max_objects, len(OBJECT_FEATURES)),
     }
     if cfg.obs_mode == "sensors":
-        s = _sensor_spaces("sensors")
-        d["camera"] = s["cameras"]["rsu_cam"]
+        s = _sensor_spaces(cfg)
+        if cfg.camera_images:
+            d["camera"] = s["cameras"]["rsu_cam"]
         d["lidar"] = s["lidars"]["rsu_lidar"]
     return spaces.Dict(d)
 
@@ -153,7 +171,7 @@ def sensor_observation(world) -> dict:
     key = (id(world.table), world.tick)
     cached = getattr(world, "_sensor_obs", None)
     if cached is None or cached[0] != key:
-        rig = _rig(world.config.obs_mode)
+        rig = _rig_of(world.config)
         if world.config.obs_mode == "bev":
             obs = {"bev": rig.capture_bev(world)}
         else:
@@ -270,7 +288,8 @@ def _sensor_keys(world, out: dict) -> dict:
     """Add the ``sensors`` / ``bev`` mode keys to ``out``."""
     if world.config.obs_mode == "sensors":
         s = sensor_observation(world)
-        out["cameras"] = {k: v for k, v in s["cameras"].items() if k != "rsu_cam"}
+        if world.config.camera_images:
+            out["cameras"] = {k: v for k, v in s["cameras"].items() if k != "rsu_cam"}
         out["lidar"] = s["lidars"]["lidar"]
     else:
         out["bev"] = sensor_observation(world)["bev"]
@@ -380,10 +399,12 @@ def rsu_observation(world, slot: int = 0) -> dict[str, np.ndarray]:
     obs = {k: np.zeros(s.shape, np.float32) for k, s in rsu_space(cfg).spaces.items() if k in _RSU_BASE}
     if cfg.obs_mode == "sensors":  # the rig captures slot 0's unit; further slots get blank sensors
         s = sensor_observation(world)
-        obs["camera"], obs["lidar"] = s["cameras"]["rsu_cam"], s["lidars"]["rsu_lidar"]
+        obs["lidar"] = s["lidars"]["rsu_lidar"]
+        if cfg.camera_images:
+            obs["camera"] = s["cameras"]["rsu_cam"]
         if slot > 0:
-            obs["camera"] = {k: np.zeros_like(v) for k, v in obs["camera"].items()}
-            obs["lidar"] = {k: np.zeros_like(v) for k, v in obs["lidar"].items()}
+            obs.update({k: {n: np.zeros_like(v) for n, v in obs[k].items()}
+                        for k in ("camera", "lidar") if k in obs})
     if u < 0:
         return obs
     x, y, z, yaw = world.rsus.pose[u]

@@ -135,11 +135,14 @@ def register(sub) -> None:
     co.add_argument("--max-episodes", type=_int_in(1), default=None,
                     help="stop after N new episodes (resume later)")
     co.add_argument("--sensors", default=None,
-                    help="comma list stored every tick, of rgb,depth,semantic,lidar,bev (default rgb,bev)")
+                    help="comma list stored every tick, of rgb,depth,semantic,lidar,bev (default "
+                    "rgb,bev); its images are EnvConfig.camera_images in the manifest's "
+                    "sensor_config")
     co.add_argument("--camera-size", type=_camera_size, default=None,
-                    help="WxH of the 7 cameras (default 128x64)")
+                    help="WxH of the 7 cameras (default 128x64; EnvConfig.camera_size)")
     co.add_argument("--lidar-scale", type=float, default=None,
-                    help="fraction of the default LiDAR channels/azimuths (faster, coarser GT visibility)")
+                    help="fraction of the default LiDAR channels/azimuths (EnvConfig.lidar_scale; "
+                    "< 1: faster, coarser GT visibility)")
     co.add_argument("--val-fraction", type=float, default=None,
                     help="share of train-suite routes held out as the val split (default 0.1)")
     co.add_argument("--no-perturb", action="store_true", help="no recovery noise")

@@ -81,7 +81,10 @@ def register(sub) -> None:
                     help="run again the selected routes whose result is a failure (error or "
                     "timeout); the fingerprint must be the same")
     ev.add_argument("--set", action="append", metavar="KEY=VALUE",
-                    help="environment config override, e.g. --set num_vehicles=10 (repeatable)")
+                    help="environment config override, e.g. --set num_vehicles=10 (repeatable); "
+                    "sensors: --set camera_size=[256,128] --set camera_images=rgb,depth --set "
+                    "lidar_scale=0.5 (an agent's declared sensors configure the env by "
+                    "default; a --set that differs from them is refused)")
     ev.add_argument("--agent-name", default=None, help="display name in the summary and leaderboard")
     ev.add_argument("--isolate-agent", action="store_true",
                     help="run the agent in a separate process that receives only route_info and its "

@@ -14,6 +14,10 @@ Outputs (:func:`render_camera`), ``H x W``:
   ``depth * |K^-1 (u, v, 1)|``;
 - ``semantic`` uint8 ``(H, W)``: :mod:`.semantics` ids; ``instance`` int32 ``(H, W)``.
 
+``images`` (a subset of :data:`IMAGES`, ``config.CAMERA_IMAGES``) picks the outputs: only those
+are returned, and what no asked-for image needs is not computed (no shading without ``rgb``,
+``semantic`` or ``instance``; no colours without ``rgb``).
+
 How rays are cast: every camera goes through :func:`..raycast.first_hit_fan`, a fan of vertical
 planes (azimuths) times slopes from the camera centre.
 
@@ -40,6 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..config import CAMERA_IMAGES
 from ..geometry import T_BODY_OPTICAL, camera_intrinsics, memo_matrix, pose_matrix
 from ..jit import HAVE_JIT
 from ..raycast import GROUND, NO_HIT, first_hit_fan
@@ -64,6 +69,8 @@ EGO_CAMERA_FOV, EGO_CAMERA_Z = 110.0, 1.8  # deg, m
 RSU_CAMERA_FOV = 90.0  # deg
 DEFAULT_SIZE = (128, 64)  # (width, height) pixels
 DEFAULT_FAR = 150.0  # m, farthest depth rendered
+IMAGES = CAMERA_IMAGES  # ("rgb", "depth", "semantic", "instance"): what a camera can render
+_SHADED = frozenset(("rgb", "semantic", "instance"))  # the images that need shading
 
 
 @dataclass(frozen=True)
@@ -222,6 +229,7 @@ def render_cameras(
     poses: list[np.ndarray],
     exclude: np.ndarray | None = None,
     oversample: float = 1.0,
+    images: tuple[str, ...] = IMAGES,
 ) -> list[dict[str, np.ndarray]]:
     """Render several cameras of one scene (rays cast per camera, shaded in one batch).
 
@@ -233,20 +241,26 @@ def render_cameras(
             parent's pose).
         exclude: box indices the cameras do not see (e.g. ``[0]``, the ego's own box).
         oversample: virtual-fan density for pitched cameras (see module docstring).
+        images: the images to render (subset of :data:`IMAGES`; module docstring).
 
     Returns:
-        One dict per camera: ``{"rgb": (H, W, 3) uint8, "depth": (H, W) float32 m,
-        "semantic": (H, W) uint8, "instance": (H, W) int32}``.
+        One dict per camera with the ``images`` of ``{"rgb": (H, W, 3) uint8, "depth": (H, W)
+        float32 m, "semantic": (H, W) uint8, "instance": (H, W) int32}``.
     """
-    return render_camera_jobs(scene, ground, [(sp, po, exclude, oversample) for sp, po in zip(specs, poses)])
+    jobs = [(sp, po, exclude, oversample) for sp, po in zip(specs, poses)]
+    return render_camera_jobs(scene, ground, jobs, images)
 
 
-def render_camera_jobs(scene: Scene, ground: GroundRaster, jobs: list) -> list[dict[str, np.ndarray]]:
+def render_camera_jobs(scene: Scene, ground: GroundRaster, jobs: list,
+                       images: tuple[str, ...] = IMAGES) -> list[dict[str, np.ndarray]]:
     """:func:`render_cameras` with each camera's own ``exclude`` and ``oversample``: ``jobs`` is
     ``[(spec, t_world_body, exclude, oversample), ...]`` (e.g. the ego cameras and the RSU
-    camera of a rig, shaded in one batch)."""
-    if not jobs:
-        return []
+    camera of a rig, shaded in one batch); ``images``: the images to render."""
+    bad = set(images) - set(IMAGES)
+    if bad:
+        raise ValueError(f"render_cameras: unknown images {sorted(bad)}; known: {IMAGES}")
+    if not jobs or not images:
+        return [{} for _ in jobs]
     specs = [j[0] for j in jobs]
     if HAVE_JIT:
         n = sum(sp.height * sp.width for sp in specs)
@@ -261,19 +275,16 @@ def render_camera_jobs(scene: Scene, ground: GroundRaster, jobs: list) -> list[d
     else:
         casts = [_cast(scene, *job) for job in jobs]
         p, dz, dist, idx, depth, sky = (np.concatenate(x) for x in zip(*casts))
-    rgb, sem, inst = shade(scene, ground, p, dz, dist, idx, sky)
+    shaded = {}
+    if _SHADED.intersection(images):
+        rgb, sem, inst = shade(scene, ground, p, dz, dist, idx, sky, rgb="rgb" in images)
+        shaded = {"rgb": rgb, "semantic": sem, "instance": inst}
+    shaded["depth"] = depth
     out, a = [], 0
     for sp in specs:
         h, w = sp.height, sp.width
         b = a + h * w
-        out.append(
-            {
-                "rgb": rgb[a:b].reshape(h, w, 3),
-                "depth": depth[a:b].reshape(h, w),
-                "semantic": sem[a:b].reshape(h, w),
-                "instance": inst[a:b].reshape(h, w),
-            }
-        )
+        out.append({k: shaded[k][a:b].reshape((h, w, 3) if k == "rgb" else (h, w)) for k in images})
         a = b
     return out
 
@@ -285,26 +296,30 @@ def render_camera(
     t_world_body: np.ndarray,
     exclude: np.ndarray | None = None,
     oversample: float = 1.0,
+    images: tuple[str, ...] = IMAGES,
 ) -> dict[str, np.ndarray]:
     """Render one camera (:func:`render_cameras` with one camera)."""
-    return render_cameras(scene, ground, [spec], [t_world_body], exclude, oversample)[0]
+    return render_cameras(scene, ground, [spec], [t_world_body], exclude, oversample, images)[0]
 
 
-def blank_camera(spec: CameraSpec) -> dict[str, np.ndarray]:
-    """Outputs of a camera that sees nothing (no active RSU): black, ``far``, sky, none."""
+def blank_camera(spec: CameraSpec, images: tuple[str, ...] = IMAGES) -> dict[str, np.ndarray]:
+    """Outputs of a camera that sees nothing (no active RSU): black, ``far``, sky, none (the
+    ``images`` of them)."""
     h, w = spec.height, spec.width
-    return {
-        "rgb": np.zeros((h, w, 3), np.uint8),
-        "depth": np.full((h, w), spec.far, np.float32),
-        "semantic": np.full((h, w), SKY, np.uint8),
-        "instance": np.zeros((h, w), np.int32),
+    make = {
+        "rgb": lambda: np.zeros((h, w, 3), np.uint8),
+        "depth": lambda: np.full((h, w), spec.far, np.float32),
+        "semantic": lambda: np.full((h, w), SKY, np.uint8),
+        "instance": lambda: np.zeros((h, w), np.int32),
     }
+    return {k: make[k]() for k in images}
 
 
 __all__ = [
     "DEFAULT_FAR",
     "DEFAULT_SIZE",
     "EGO_CAMERA_NAMES",
+    "IMAGES",
     "CameraSpec",
     "blank_camera",
     "ego_camera_specs",

@@ -95,7 +95,8 @@ def lidar_returns_kernel(p, d, idx, geo, normals, sem_box, inst_box, class_refl,
 @_njit
 def shade_kernel(p, dz, keep, idx, sky, geo, style, colors, light, sem_box, inst_box, repeat, storey_a, storey_b,
                  tex_n, fixed, emissive, atlas_rgb, atlas_mode, code, ground_rgb, xmin, ymin, inv, terrain,
-                 terrain_rgb, material_sem, haze, sky_sem, terrain_sem, ground_id, inst_none):  # pragma: no cover
+                 terrain_rgb, material_sem, haze, sky_sem, terrain_sem, ground_id, inst_none,
+                 want_rgb=True):  # pragma: no cover
     """``shade``'s colours, semantic and instance ids (see :func:`.shading.shade`).
 
     Args:
@@ -105,9 +106,10 @@ def shade_kernel(p, dz, keep, idx, sky, geo, style, colors, light, sem_box, inst
         code, ground_rgb, xmin, ymin, inv: the ground raster (``ground_rgb (H * W, 3)``, float32
             ``xmin``, ``ymin``, ``inv = 1 / mpp``). terrain, terrain_rgb: material outside it.
         material_sem, haze, sky_sem, terrain_sem: lookups. ground_id: ``raycast.GROUND``.
+        want_rgb: compute the colours (``False``: only the ids; ``rgb`` comes back ``(0, 3)``).
     """
     m = idx.shape[0]
-    rgb_out = np.empty((m, 3), np.uint8)
+    rgb_out = np.empty((m if want_rgb else 0, 3), np.uint8)
     sem = np.empty(m, np.uint8)
     inst = np.full(m, inst_none, np.int32)
     h, w = code.shape
@@ -120,6 +122,16 @@ def shade_kernel(p, dz, keep, idx, sky, geo, style, colors, light, sem_box, inst
     for i in range(m):
         j = idx[i]
         k = keep[i]
+        if not want_rgb:  # the ids only
+            if j >= 0:
+                sem[i] = sem_box[j]
+                inst[i] = inst_box[j]
+            elif j == ground_id:
+                ry, cx = _ground_cell(p[i, 0], p[i, 1], xmin, ymin, inv, h, w)
+                sem[i] = material_sem[code[ry, cx] if ry >= 0 else terrain]
+            else:
+                sem[i] = sky_sem if dz[i] >= zero else terrain_sem
+            continue
         if j >= 0:
             z = p[i, 2]
             u, v, wz, face, xf, yf = _face(geo, j, p[i, 0], p[i, 1], z)

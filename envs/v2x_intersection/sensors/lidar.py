@@ -103,6 +103,13 @@ def rsu_lidar_spec(
     return LidarSpec("rsu_lidar", channels, azimuth_steps, 120.0, (-45.0, 15.0), max_range, z=0.0)
 
 
+def scaled_lidar_specs(scale: float = 1.0) -> tuple[LidarSpec, LidarSpec]:
+    """The ego and the RSU LiDAR at ``scale`` x the default channels and azimuths
+    (``EnvConfig.lidar_scale``; at least 4 channels and 16 azimuths; ``1.0``: the defaults)."""
+    return (ego_lidar_spec(max(4, round(32 * scale)), max(16, round(360 * scale))),
+            rsu_lidar_spec(max(4, round(64 * scale)), max(16, round(240 * scale))))
+
+
 def capture_lidar(
     scene: Scene,
     ground: GroundRaster,
@@ -191,5 +198,6 @@ __all__ = [
     "blank_lidar",
     "capture_lidar",
     "ego_lidar_spec",
+    "scaled_lidar_specs",
     "rsu_lidar_spec",
 ]

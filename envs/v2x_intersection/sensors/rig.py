@@ -12,14 +12,17 @@ Frame layout (:meth:`SensorRig.capture`)::
 
     {
       "tick": int, "rsu_unit": int (-1: no active RSU),
-      "cameras": {name: {"rgb", "depth", "semantic", "instance"}}  (ego cameras + "rsu_cam"),
+      "cameras": {name: {"rgb", "depth", "semantic", "instance"}}  (ego cameras + "rsu_cam";
+                  the images of ``SensorConfig.images``, no cameras when it is empty),
       "lidars": {"lidar": {...}, "rsu_lidar": {...}}  (:mod:`.lidar`),
       "bev": (C, H, W) uint8  (:mod:`.bev`),
       "calibration": {...}  (:mod:`.calibration`; absent with ``calibration=False``),
       "gt": {"boxes", "ego", "rsu", "fused", "joint"}  (:mod:`.groundtruth`),
     }
 
-Sensors switched off in the config are absent from the frame. Every capture method can be called
+Sensors switched off in the config are absent from the frame, and so are images not in
+``SensorConfig.images`` (they are not rendered either: ``camera.render_camera_jobs``). Every
+capture method can be called
 alone (for per-sensor timing); each takes an optional :class:`.scene.Scene` so that one capture
 builds the scene once. The RSU sensors use the active unit of slot 0 (``world.active_rsu[0]``);
 without one they return blank outputs of the same shapes. :meth:`SensorRig.observation_space` and
@@ -37,6 +40,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..config import MAX_CAMERA_SIDE, MIN_CAMERA_SIDE
 from ..world import EGO_LENGTH, EGO_WIDTH
 from .bev import BEV_CHANNELS, BevSpec, capture_bev
 from .calibration import active_unit, calibration, ego_pose, rsu_lidar_pose, rsu_pose
@@ -44,6 +48,7 @@ from .camera import (
     DEFAULT_FAR,
     DEFAULT_SIZE,
     EGO_CAMERA_NAMES,
+    IMAGES,
     CameraSpec,
     blank_camera,
     ego_camera_specs,
@@ -59,7 +64,6 @@ from .lidar import LidarSpec, blank_lidar, capture_lidar, ego_lidar_spec, rsu_li
 from .scene import Scene, build_scene
 from .semantics import NUM_SEMANTIC
 
-MAX_CAMERA_SIDE = 4096  # pixels: a camera's width and height (each sizes its image buffers)
 _EGO = np.array([0])  # the ego's own box: ego sensors look through it
 
 
@@ -78,6 +82,8 @@ class SensorConfig:
         calibration: put the sensors' calibration in the frame.
         groundtruth: compute the three box sets.
         ground_mpp: ground raster resolution (m per pixel).
+        images: the images every camera renders (subset of ``camera.IMAGES``; ``()``: no
+            camera is rendered). ``groundtruth`` needs ``instance``.
     """
 
     camera_size: tuple[int, int] = DEFAULT_SIZE
@@ -91,6 +97,7 @@ class SensorConfig:
     calibration: bool = True
     groundtruth: bool = True
     ground_mpp: float = GROUND_MPP
+    images: tuple[str, ...] = IMAGES
 
     def __post_init__(self) -> None:
         unknown = set(self.ego_cameras) - set(EGO_CAMERA_NAMES)
@@ -102,10 +109,17 @@ class SensorConfig:
             v = getattr(self, name)
             ok = isinstance(v, (tuple, list)) and len(v) == 2 and all(
                 isinstance(x, (int, np.integer)) and not isinstance(x, bool)
-                and 2 <= x <= MAX_CAMERA_SIDE for x in v)
+                and MIN_CAMERA_SIDE <= x <= MAX_CAMERA_SIDE for x in v)
             if v is not None and not ok:
                 raise ValueError(f"SensorConfig: {name}={v!r} must be (width, height), "
-                                 f"ints in [2, {MAX_CAMERA_SIDE}] pixels")
+                                 f"ints in [{MIN_CAMERA_SIDE}, {MAX_CAMERA_SIDE}] pixels")
+        bad = [k for k in self.images if k not in IMAGES]
+        if isinstance(self.images, str) or bad or len(set(self.images)) != len(self.images):
+            raise ValueError(f"SensorConfig: images={self.images!r} must be distinct names of "
+                             f"{IMAGES}")
+        if self.groundtruth and "instance" not in self.images:
+            raise ValueError("SensorConfig: groundtruth needs the cameras' instance images; add "
+                             "'instance' to images or set groundtruth=False")
 
 
 class SensorRig:
@@ -132,12 +146,13 @@ class SensorRig:
 
     # ----------------------------------------------------------------- single sensors
     def capture_camera(self, world, name: str, scene: Scene | None = None) -> dict:
-        """One camera (an ego camera name or ``"rsu_cam"``): rgb, depth, semantic, instance."""
+        """One camera (an ego camera name or ``"rsu_cam"``): its images (``config.images``)."""
         scene = scene or self.scene(world)
+        images = self.config.images
         if self.rsu_camera is not None and name == self.rsu_camera.name:
             unit = active_unit(world)
             if unit < 0:
-                return blank_camera(self.rsu_camera)
+                return blank_camera(self.rsu_camera, images)
             pose = rsu_pose(world, unit) @ self.rsu_camera.T_parent_body()
             return render_camera(
                 scene,
@@ -145,19 +160,21 @@ class SensorRig:
                 self.rsu_camera,
                 pose,
                 oversample=self.config.rsu_oversample,
+                images=images,
             )
         spec = {s.name: s for s in self.ego_cameras}.get(name)
         if spec is None:
             raise KeyError(f"capture_camera: no camera {name!r} in this rig")
         pose = ego_pose(world) @ spec.T_parent_body()
-        return render_camera(scene, self.ground(world), spec, pose, exclude=_EGO)
+        return render_camera(scene, self.ground(world), spec, pose, exclude=_EGO, images=images)
 
     def capture_ego_cameras(self, world, scene: Scene | None = None) -> dict[str, dict]:
         """All configured ego cameras (shaded in one batch)."""
         scene = scene or self.scene(world)
         t_we = ego_pose(world)
         poses = [t_we @ s.T_parent_body() for s in self.ego_cameras]
-        outs = render_cameras(scene, self.ground(world), list(self.ego_cameras), poses, _EGO)
+        outs = render_cameras(scene, self.ground(world), list(self.ego_cameras), poses, _EGO,
+                              images=self.config.images)
         return {s.name: o for s, o in zip(self.ego_cameras, outs)}
 
     def capture_rsu_camera(self, world, scene: Scene | None = None) -> dict:
@@ -228,21 +245,24 @@ class SensorRig:
         """Typed, fixed Gymnasium space of :meth:`observation` (for a ``sensors`` obs mode).
 
         ``Dict(cameras: Dict(name: Dict(rgb, depth, semantic, instance)), lidars: Dict(name:
-        Dict(points (L, 6) padded, count ())), bev (C, H, W))``.
+        Dict(points (L, 6) padded, count ())), bev (C, H, W))``; a camera's ``Dict`` has only
+        the images of ``config.images`` (no camera at all when it is empty).
         """
         from gymnasium import spaces
 
         cams = {}
+        images = self.config.images
         for spec in self.ego_cameras + ((self.rsu_camera,) if self.rsu_camera else ()):
+            if not images:
+                break
             h, w = spec.height, spec.width
-            cams[spec.name] = spaces.Dict(
-                {
-                    "rgb": spaces.Box(0, 255, (h, w, 3), np.uint8),
-                    "depth": spaces.Box(0.0, spec.far, (h, w), np.float32),
-                    "semantic": spaces.Box(0, NUM_SEMANTIC - 1, (h, w), np.uint8),
-                    "instance": spaces.Box(0, 2**24 - 1, (h, w), np.int32),
-                }
-            )
+            every = {
+                "rgb": spaces.Box(0, 255, (h, w, 3), np.uint8),
+                "depth": spaces.Box(0.0, spec.far, (h, w), np.float32),
+                "semantic": spaces.Box(0, NUM_SEMANTIC - 1, (h, w), np.uint8),
+                "instance": spaces.Box(0, 2**24 - 1, (h, w), np.int32),
+            }
+            cams[spec.name] = spaces.Dict({k: every[k] for k in images})
         lidars = {}
         for spec in (self.config.ego_lidar, self.config.rsu_lidar):
             if spec is not None:
@@ -267,10 +287,7 @@ class SensorRig:
 
     def observation(self, frame: dict) -> dict:
         """The arrays of a captured frame laid out as :meth:`observation_space`."""
-        cams = {
-            n: {k: c[k] for k in ("rgb", "depth", "semantic", "instance")}
-            for n, c in frame["cameras"].items()
-        }
+        cams = {n: {k: c[k] for k in self.config.images} for n, c in frame["cameras"].items()}
         lidars = {
             n: {"points": d["padded"], "count": np.array(d["count"], np.int64)}
             for n, d in frame["lidars"].items()
@@ -287,14 +304,17 @@ class SensorRig:
         unit = active_unit(world)
         frame: dict = {"tick": int(world.tick), "rsu_unit": unit}
         t_we = ego_pose(world)
+        images = self.config.images
         jobs = [(s, t_we @ s.T_parent_body(), _EGO, 1.0) for s in self.ego_cameras]
         rc = self.rsu_camera
         if rc is not None and unit >= 0:  # shaded in the ego cameras' batch
             jobs.append((rc, rsu_pose(world, unit) @ rc.T_parent_body(), None, self.config.rsu_oversample))
-        shots = render_camera_jobs(scene, self.ground(world), jobs)
+        if not images:  # no image asked for: no camera is rendered
+            jobs = []
+        shots = render_camera_jobs(scene, self.ground(world), jobs, images)
         cams = {job[0].name: shot for job, shot in zip(jobs, shots)}
-        if rc is not None and unit < 0:
-            cams[rc.name] = blank_camera(rc)
+        if rc is not None and unit < 0 and images:
+            cams[rc.name] = blank_camera(rc, images)
         frame["cameras"] = cams
         lidars = {}
         if self.config.ego_lidar is not None:

@@ -111,6 +111,7 @@ def shade(
     dist: np.ndarray,
     idx: np.ndarray,
     sky: np.ndarray | None = None,
+    rgb: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Colour, semantic and instance ids of camera rays.
 
@@ -122,14 +123,20 @@ def shade(
         dist: ``(M,)`` distance from the camera to the hit (m; anything for misses).
         idx: ``(M,)`` box index, ``raycast.GROUND`` or ``raycast.NO_HIT``.
         sky: ``(M, 3)`` precomputed :func:`sky_colors` of the rays (computed when ``None``).
+        rgb: compute the colours (``False``: only the ids, for cameras asked for no ``rgb``; the
+            colours come back ``(0, 3)``).
 
     Returns:
         ``rgb (M, 3)`` uint8, ``semantic (M,)`` uint8, ``instance (M,)`` int32.
     """
     m = len(idx)
+    if not rgb and not HAVE_JIT:
+        return _ids(ground, p, dz, idx, scene)
     if HAVE_JIT:
-        keep = np.exp(dist * _F32(-1.0 / FOG_DIST))
-        if sky is None:
+        keep = np.exp(dist * _F32(-1.0 / FOG_DIST)) if rgb else dist
+        if not rgb:
+            sky = np.zeros((0, 3), np.float32)
+        elif sky is None:
             sky = np.zeros((m, 3), np.float32)
             miss = np.flatnonzero(idx == NO_HIT)
             sky[miss] = sky_colors(dz[miss])
@@ -138,7 +145,8 @@ def shade(
             scene.colors.reshape(-1, 3), scene.light.ravel(), scene.sem, scene.inst, REPEAT, _F32(STOREY[0]),
             _F32(STOREY[1]), T, FIXED, EMISSIVE, _ATLAS_RGB, _ATLAS_MODE, ground.code, ground.rgb.reshape(-1, 3),
             _F32(ground.xmin), _F32(ground.ymin), _F32(1.0 / ground.mpp), M_TERRAIN,
-            MATERIAL_RGB[M_TERRAIN].astype(np.uint8), MATERIAL_SEMANTIC, HAZE, SKY, TERRAIN, GROUND, INSTANCE_NONE)
+            MATERIAL_RGB[M_TERRAIN].astype(np.uint8), MATERIAL_SEMANTIC, HAZE, SKY, TERRAIN, GROUND,
+            INSTANCE_NONE, rgb)
     rgb = np.empty((m, 3), np.float32)
     sem = np.empty(m, np.uint8)
     inst = np.full(m, INSTANCE_NONE, np.int32)
@@ -164,6 +172,19 @@ def shade(
     rgb += HAZE * (1.0 - keep)[:, None]
     np.minimum(rgb, 255.0, out=rgb)
     return rgb.astype(np.uint8), sem, inst
+
+
+def _ids(ground: GroundRaster, p: np.ndarray, dz: np.ndarray, idx: np.ndarray, scene: Scene
+         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`shade` without colours (NumPy path): ``((0, 3) uint8, semantic, instance)``."""
+    sem = np.where(dz >= 0, SKY, TERRAIN).astype(np.uint8)
+    inst = np.full(len(idx), INSTANCE_NONE, np.int32)
+    box, gnd = np.flatnonzero(idx >= 0), np.flatnonzero(idx == GROUND)
+    sem[box] = scene.sem[idx[box]]
+    inst[box] = scene.inst[idx[box]]
+    if len(gnd):
+        sem[gnd] = MATERIAL_SEMANTIC[ground.lookup(p[gnd, 0], p[gnd, 1])]
+    return np.zeros((0, 3), np.uint8), sem, inst
 
 
 def lidar_returns(

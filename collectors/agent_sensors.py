@@ -1,0 +1,48 @@
+"""An agent's declared sensors against the evaluation's env overrides (``v2xbench eval``).
+
+An agent declares the sensor configuration it needs as ``sensors = {...}``
+(``agents/interface.py``, "Sensors"; keys of ``config.SENSOR_FIELDS``). The evaluation takes the
+declared values as env overrides (so the env renders exactly the images the agent needs, at its
+resolution) and refuses a ``--set`` of a declared field with another value: an agent fed other
+images than it was trained on fails silently, so the mismatch is an error before any route runs.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from v2xbench.envs.v2x_intersection.config import make_config, sensor_config
+
+
+def apply_agent_sensors(overrides: dict[str, Any], declared: dict[str, Any],
+                        label: str) -> dict[str, Any]:
+    """``overrides`` with the agent's ``declared`` sensor fields (``interface.declared_sensors``)
+    filled in, as JSON values.
+
+    Args:
+        overrides: the run's env overrides (``--set``).
+        declared: what the agent declares (already checked: JSON values of ``sensor_config``).
+        label: the agent's spec, for messages.
+
+    Raises:
+        ValueError: an override of a declared field differs from the declaration (the message
+            names the field, both values and what to do), or is no valid value of the field.
+    """
+    out = dict(overrides)
+    for key, need in declared.items():
+        if key in overrides:
+            try:
+                have = sensor_config(make_config(**{key: overrides[key]}))[key]
+            except ValueError as e:
+                raise ValueError(f"--set {key}: {e}") from None
+            if have != need:
+                raise ValueError(
+                    f"agent {label!r} declares sensors {key}={need!r} (what it was trained on), "
+                    f"but the env is configured with {key}={have!r} (--set); the agent would get "
+                    f"observations it does not expect. Drop --set {key} (the env then takes the "
+                    "agent's value) or change the agent's sensors declaration")
+        out[key] = need
+    return out
+
+
+__all__ = ["apply_agent_sensors"]

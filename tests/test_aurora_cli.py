@@ -43,8 +43,10 @@ def test_train_resume_and_eval_perception(tiny_dataset, tmp_path, capsys):
 
 def test_bad_input_is_named(tiny_dataset, tmp_path, capsys):
     run = tmp_path / "run"
-    assert _train(tiny_dataset, run, "--stage", "3") == 2
-    assert "unknown AURORA stage 3" in capsys.readouterr().err
+    assert _train(tiny_dataset, run, "--stage", "6") == 2
+    assert "unknown AURORA stage 6" in capsys.readouterr().err
+    assert _train(tiny_dataset, run, "--stage", "3") == 2  # stages 3-5 need stages 1 and 2
+    assert "has no trained stage 1" in capsys.readouterr().err
     assert _train(tiny_dataset, run, "--stage", "1", "--scale", "huge") == 2
     assert "unknown AURORA scale 'huge'" in capsys.readouterr().err
     assert _train(tmp_path / "nodata", run, "--stage", "1") == 2

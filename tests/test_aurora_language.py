@@ -200,7 +200,7 @@ def test_placeholders_must_match_the_tokens(tok):
     b["map_tokens"] = torch.randn(2, CFG.num_map_queries, CFG.lm_width + 8)
     assert other(**b)["h_wp"].shape == (2, CFG.lm_width)
     with pytest.raises(ValueError, match="exceed lm_max_len"):
-        encode_qa(tok, DET * 300, "x", CFG.lm_max_len)
+        encode_qa(tok, DET * CFG.lm_max_len, "x", CFG.lm_max_len)
 
 
 def test_adapters_round_trip(tok, tmp_path):

@@ -106,8 +106,10 @@ def test_scales_and_errors():
         AuroraConfig.for_scale("huge")
     with pytest.raises(ValueError, match="unknown fields"):
         AuroraConfig.for_scale("tiny", vit_dpeth=3)
-    with pytest.raises(ValueError, match="unknown stage 3"):
-        default.stage_hparams(3)
+    with pytest.raises(ValueError, match="unknown stage 6"):
+        default.stage_hparams(6)
+    assert (paper.stage3.lr, paper.stage4.epochs, paper.stage5.batch_size) == (4e-5, 6, 6)
+    assert not paper.freeze_backbone(3) and paper.freeze_backbone(4) and paper.freeze_backbone(5)
     with pytest.raises(ValueError, match="branch 'car'"):
         PerceptionBranch(default, "car")
     with pytest.raises(ValueError, match="patch_size"):

@@ -4,13 +4,17 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
+from v2xbench.agents.aurora.cqaf import rsu_to_ego
+from v2xbench.agents.aurora.prompt import context_from_record, runtime_context
 from v2xbench.agents.expert import Expert
-from v2xbench.collectors.chat.export import build, load_items, stats
+from v2xbench.collectors.chat import templates
+from v2xbench.collectors.chat.export import build, is_hint_free, load_items, split_items, stats
 from v2xbench.collectors.chat.facts import TREND_EPS, keyframe_facts
-from v2xbench.collectors.chat.generate import keyframe_qa
+from v2xbench.collectors.chat.generate import keyframe_id, keyframe_qa
 from v2xbench.collectors.chat.scoring import closed_label, coordinates, score, slots
 from v2xbench.collectors.dataset.collect import _rig
 from v2xbench.collectors.dataset.record import light_info
@@ -49,9 +53,12 @@ def test_four_levels_and_stats(qa, tiny_dataset, capsys):
     assert main(["qa", "stats", str(tiny_dataset)]) == 0
     out = capsys.readouterr().out
     assert "alignment" in out and "speed_trend" in out and "ControlLoss" in out
-    for it in qa:  # every prompt carries the GT object hints and the RSU pose
-        assert "Nearby objects (ground truth, ego frame" in it["context"]
-        assert "Roadside camera" in it["context"]
+    for it in qa:  # the GT object hints are an annotation; the context is the run-time one
+        assert "Nearby objects (ground truth, ego frame" in it["hints"]
+        assert "Roadside camera" in it["hints"]
+        assert it["context"].startswith("Ego speed: ") and "ground truth" not in it["context"]
+        assert "Roadside unit" in it["context"] and it["split"] in ("train", "val")
+    assert {it["split"] for it in qa} == {"train", "val"}  # TINY holds out one of its 2 routes
 
 
 def test_spatial_alignment_transforms_back_within_1cm(qa, tiny_dataset):
@@ -178,6 +185,64 @@ def test_llava_export(qa, tiny_dataset):
         assert all("<image>" not in c["value"] for c in conv[1:])
 
 
+def test_default_llava_prompts_hold_no_ground_truth_object(qa, tiny_dataset, tmp_path):
+    facts = {keyframe_id(f): f for sid in ("train_000_s0", "train_001_s0")
+             for f in map(json.loads, (shards_dir(tiny_dataset) / sid / "keyframes.jsonl")
+                          .read_text().splitlines())}
+    by_kf: dict = {}
+    for it in qa:
+        by_kf.setdefault(it["keyframe"], []).append(it)
+    llava = (tiny_dataset / "chat" / "llava.jsonl").read_text().splitlines()
+    rows = [json.loads(line) for line in llava]
+    objects = 0
+    for r in rows:
+        f, items = facts[r["id"]], by_kf[r["id"]]
+        humans = [c["value"] for c in r["conversations"] if c["from"] == "human"]
+        assert items[0]["context"] in humans[0]
+        # what the prompts carry besides the questions: camera tokens and the run-time context
+        rest = "\n".join(h.replace(it["question"], "") for h, it in zip(humans, items, strict=True))
+        low = rest.lower()
+        assert "ground truth" not in low and "#" not in rest and "objects" not in low
+        for o in f["objects"]:
+            objects += 1
+            for v in (f"{o['x']:.2f}", f"{o['y']:.2f}", f"{o['x']:.1f}, {o['y']:.1f}",
+                      f"#{o['id']}"):
+                assert v not in rest, (v, rest)
+            assert templates.CLASS.get(o["class"], o["class"]) not in low and o["class"] not in low
+            # ... but the annotation beside the conversation keeps them
+            assert f"#{o['id']} at ({o['x']:.2f}, {o['y']:.2f})" in r["hints"]
+        assert r["hints"] == items[0]["hints"]
+    assert objects > 0
+    # the context is the run-time prompt's, rebuilt from the recorded frame
+    it = qa[0]
+    td = _shard(tiny_dataset, it["episode"])[it["tick"]]
+    assert it["context"] == context_from_record(td)
+    e = rsu_to_ego(td["calib", "T_world_ego"].numpy(), td["calib", "T_world_rsu"].numpy())
+    assert it["context"] == runtime_context(float(td["ego_speed"]), int(td["command"]),
+                                            e if int(td["calib", "rsu_unit"]) >= 0 else None)
+    # the labelling form puts the hints in the prompt; qa.jsonl is the same either way
+    res = build(tiny_dataset, seed=0, out=tmp_path / "hinted", hints_in_prompt=True)
+    first = json.loads(Path(res["llava"]).read_text().splitlines()[0])
+    assert "Nearby objects (ground truth" in first["conversations"][0]["value"]
+    assert Path(res["qa"]).read_text() == (tiny_dataset / "chat" / "qa.jsonl").read_text()
+
+
+def test_files_without_hints_still_load(qa, tmp_path, capsys):
+    old = [{k: v for k, v in it.items() if k not in ("hints", "split")} for it in qa]
+    path = tmp_path / "qa.jsonl"
+    path.write_text("".join(json.dumps(it) + "\n" for it in old))
+    items = load_items(path)
+    assert len(items) == len(qa) and not is_hint_free(items) and is_hint_free(qa)
+    assert split_items(items, "all") == items
+    with pytest.raises(ValueError, match="no 'split' field"):
+        split_items(items, "train")
+    with pytest.raises(ValueError, match=r"no QA item of split 'test'.*\['train', 'val'\]"):
+        split_items(qa, "test")
+    path.write_text(json.dumps(dict(qa[0], hints=3)) + "\n")
+    assert main(["qa", "stats", str(path)]) == 2
+    assert "field 'hints' must be a str, got 3" in capsys.readouterr().err
+
+
 def test_scoring(qa, tiny_dataset, tmp_path, capsys):
     perfect = score(qa, {it["id"]: it["answer"] for it in qa})
     assert perfect["closed"]["accuracy"] == 1.0 and perfect["descriptive"]["f1"] == 1.0
@@ -204,6 +269,20 @@ def test_scoring(qa, tiny_dataset, tmp_path, capsys):
     assert main(["qa", "score", str(tiny_dataset), str(pred)]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["missing"] == len(qa) - 5
+    assert set(out["per_level"]) == {"scene", "perception", "alignment", "planning"}
+    assert sum(v["n"] for v in out["per_level"].values()) == len(qa)
+    # per level: the same groups over the level's items
+    lv = perfect["per_level"]
+    assert lv["alignment"]["coordinate"]["n"] == perfect["coordinate"]["n"]
+    assert lv["alignment"]["closed"]["n"] == 0 and lv["scene"]["closed"]["accuracy"] == 1.0
+    assert s["per_level"]["planning"]["closed"]["accuracy"] < 1.0  # speed_trend is wrong
+    val = [it for it in qa if it["split"] == "val"]
+    pred.write_text("".join(json.dumps({"id": it["id"], "answer": it["answer"]}) + "\n"
+                            for it in val))
+    assert main(["qa", "score", str(tiny_dataset), str(pred), "--split", "val"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["missing"] == 0 and out["answered"] == len(val) < len(qa)
+    assert out["closed"]["accuracy"] == 1.0
 
 
 def test_show_keyframe(qa, tiny_dataset, tmp_path, capsys):

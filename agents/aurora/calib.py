@@ -128,6 +128,34 @@ def rig_calib(cal: Mapping) -> dict:
     }
 
 
+def spec_calib(camera_size: tuple[int, int], t_world_rsu: np.ndarray | None = None,
+               rsu_unit: int = -1) -> dict:
+    """The record's ``calib`` layout of the closed-loop sensor rig built from the cameras'
+    specifications alone (no world): what an agent, which observes images but no calibration,
+    knows about its own rig. ``camera_size`` is the env's ``(width, height)``; the ego frame is
+    the identity and ``t_world_rsu`` (``(4, 4)``, e.g. ``calibration[0]`` of the roadside unit's
+    observation) places the unit's camera. Gives the same matrices as :func:`rig_calib` of the
+    rig's calibration (``tests/test_aurora_policy.py``)."""
+    from v2xbench.envs.v2x_intersection.sensors.camera import ego_camera_specs, rsu_camera_spec
+    from v2xbench.envs.v2x_intersection.world import EGO_LENGTH, EGO_WIDTH
+
+    w, h = (int(v) for v in camera_size)
+    specs = {s.name: s for s in ego_camera_specs(w, h, EGO_LENGTH, EGO_WIDTH)}
+    t_wr = np.eye(4) if t_world_rsu is None else np.asarray(_np(t_world_rsu), np.float64)
+    if t_wr.shape != (4, 4):
+        raise ValueError(f"spec_calib: t_world_rsu has shape {t_wr.shape}; expected (4, 4)")
+    rsu = rsu_camera_spec(w, h)
+    cams = [specs[n] for n in EGO_CAMERA_NAMES]
+    return {
+        "T_world_ego": np.eye(4), "T_world_rsu": t_wr, "T_ego_rsu": t_wr.copy(),
+        "rsu_unit": np.array(int(rsu_unit), np.int64),
+        "cam_intrinsics": np.stack([c.intrinsics for c in cams] + [rsu.intrinsics]),
+        "T_ego_cam": np.stack([c.T_parent_optical() for c in cams]
+                              + [t_wr @ rsu.T_parent_optical()]),
+        "image_size": {n: (w, h) for n in (*EGO_CAMERA_NAMES, RSU_CAMERA)},
+    }
+
+
 def boxes_to_frame(boxes: np.ndarray, t_frame_ego: np.ndarray) -> np.ndarray:
     """Ego-frame boxes ``(M, 9)`` ``x, y, z, l, w, h, yaw, vx, vy`` in another frame
     (:func:`~v2xbench.envs.v2x_intersection.sensors.boxes_in_frame`: centres transformed,
@@ -153,4 +181,4 @@ def project_points(points: np.ndarray, intrinsics: np.ndarray,
 
 __all__ = ["CAMERA_NAMES", "CAMERA_ROWS", "RSU_CAMERA", "boxes_to_frame", "camera_tensors",
            "ego_frame_pose", "frame_camera_tensors", "project_points", "rig_calib",
-           "rsu_ground_pose", "scale_intrinsics", "world_frame_pose"]
+           "rsu_ground_pose", "scale_intrinsics", "spec_calib", "world_frame_pose"]

@@ -23,14 +23,18 @@ from v2xbench.files import atomic_write_json
 from .config import AuroraConfig
 from .eval_perception import RUN_CONFIG, STAGE_BRANCH
 
-STAGES = tuple(STAGE_BRANCH)
+STAGES = (0, *STAGE_BRANCH, 3, 4, 5)  # 0: agents/aurora/stage0.py; 3-5: stages.py
 
 
 def check_stage(stage) -> int:
-    """``stage`` as an int if it is 1 (ego branch) or 2 (roadside branch); else ``ValueError``."""
+    """``stage`` as an int if it is 0 (LM pre-training), 1 (ego branch), 2 (roadside branch),
+    3 (fusion + QA),
+    4 (planning) or 5 (joint QA + planning); else ``ValueError``."""
     if isinstance(stage, bool) or stage not in STAGES:
-        raise ValueError(f"unknown AURORA stage {stage!r}; known: 1 (ego branch), "
-                         "2 (roadside branch)")
+        raise ValueError(f"unknown AURORA stage {stage!r}; known: 0 (language-model "
+                         "pre-training), 1 (ego branch), "
+                         "2 (roadside branch), 3 (fusion + QA), 4 (planning), "
+                         "5 (joint QA + planning)")
     return int(stage)
 
 
@@ -63,6 +67,9 @@ def train_stage(data: str | Path, out: str | Path, stage: int, *, scale: str = "
     from .trainer import fit
 
     stage = check_stage(stage)
+    if stage not in STAGE_BRANCH:
+        raise ValueError(f"train_stage trains stages 1 and 2; stage {stage} is "
+                         "agents.aurora.stages.train_late_stage")
     cfg = AuroraConfig.for_scale(scale)
     if not Path(data).is_dir():
         raise FileNotFoundError(f"aurora train: data directory {data} does not exist (collect "

@@ -145,6 +145,7 @@ class AuroraConfig:
     lm_vocab: int = 384  # BPE vocabulary size, special tokens included
     lm_max_len: int = 256  # positions: visual placeholders + prompt + answer
     lm_tie_embeddings: bool = True
+    lm_pretrain_block: int = 64  # stage 0: tokens per packed pre-training block (<= lm_max_len)
     lora_rank: int = 4
     lora_alpha: float = 8.0
     lora_dropout: float = 0.0
@@ -183,9 +184,19 @@ class AuroraConfig:
     map_cls_weight: float = 2.0
     map_pts_weight: float = 5.0  # L1 on points normalized to the range
     light_weight: float = 1.0
+    # --- stage 0 (part 2, :mod:`.stage0`): LM pre-training on the Chat-V2XBench text of the
+    #     train split; its ``frame_stride`` keeps every k-th QA item
+    stage0: StageHParams = field(default_factory=StageHParams)
     # --- stages: 1 = ego branch, 2 = roadside branch
     stage1: StageHParams = field(default_factory=StageHParams)
     stage2: StageHParams = field(default_factory=StageHParams)
+    # --- stages 3-5 (part 2, :mod:`.stages`; :data:`STAGE_TABLE`): 3 = CQAF + fused heads +
+    #     LoRA on the QA loss, 4 = planner (backbones frozen), 5 = mixed QA and planning (frozen).
+    #     Their ``frame_stride`` keeps every k-th planning frame and every k-th QA item.
+    stage3: StageHParams = field(default_factory=StageHParams)
+    stage4: StageHParams = field(default_factory=StageHParams)
+    stage5: StageHParams = field(default_factory=StageHParams)
+    stage3_freeze_backbone: bool = False  # the paper fine-tunes the branches in stage 3
 
     def __post_init__(self) -> None:
         if self.scale not in SCALES:
@@ -243,6 +254,10 @@ class AuroraConfig:
                              "names such as 'q_proj'")
         if not 0 <= self.lora_dropout < 1:
             raise ValueError(f"AuroraConfig: lora_dropout={self.lora_dropout!r} must be in [0, 1)")
+        if (isinstance(self.lm_pretrain_block, bool) or not isinstance(self.lm_pretrain_block, int)
+                or not 2 <= self.lm_pretrain_block <= self.lm_max_len):
+            raise ValueError(f"AuroraConfig: lm_pretrain_block={self.lm_pretrain_block!r} must be "
+                             f"an int in [2, lm_max_len={self.lm_max_len}]")
         if self.planner not in PLANNERS:
             raise ValueError(f"AuroraConfig: planner={self.planner!r}; known planners: {PLANNERS}")
         for name in ("lora_alpha", "cqaf_temperature", "cqaf_match_radius", "plan_dt"):
@@ -257,6 +272,9 @@ class AuroraConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"AuroraConfig: {name}={v!r} must be a number >= 0")
+        if not isinstance(self.stage3_freeze_backbone, bool):
+            raise ValueError(f"AuroraConfig: stage3_freeze_backbone={self.stage3_freeze_backbone!r}"
+                             " must be true or false")
         if len(self.plan_traj_scale) != 2 or min(self.plan_traj_scale) <= 0:
             raise ValueError(f"AuroraConfig: plan_traj_scale={self.plan_traj_scale!r} must be two "
                              "positive numbers (m)")
@@ -275,12 +293,25 @@ class AuroraConfig:
         return self.ego_depth_far if check_branch(branch) == "ego" else self.rsu_depth_far
 
     def stage_hparams(self, stage: int) -> StageHParams:
-        """Training settings of stage 1 (ego branch) or 2 (roadside branch)."""
+        """Training settings of stage 0 (LM pre-training), 1 (ego branch), 2 (roadside branch),
+        3-5."""
+        if stage == 0:
+            return self.stage0
         if stage == 1:
             return self.stage1
         if stage == 2:
             return self.stage2
-        raise ValueError(f"AuroraConfig: unknown stage {stage!r}; this part trains stages 1 and 2")
+        if stage in (3, 4, 5):
+            return getattr(self, f"stage{stage}")
+        raise ValueError(f"AuroraConfig: unknown stage {stage!r}; known: 0-5")
+
+    def freeze_backbone(self, stage: int) -> bool:
+        """Whether stage 3, 4 or 5 keeps the perception branches frozen (:data:`STAGE_TABLE`)."""
+        if stage == 3:
+            return self.stage3_freeze_backbone
+        if stage in (4, 5):
+            return True
+        raise ValueError(f"AuroraConfig: freeze_backbone: stage {stage!r} is not 3, 4 or 5")
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -305,7 +336,7 @@ class AuroraConfig:
         ``d`` (a file written before a field existed, e.g. part 1's runs) take the values of
         ``d["scale"]``."""
         d = dict(d)
-        for k in ("stage1", "stage2"):
+        for k in ("stage0", "stage1", "stage2", "stage3", "stage4", "stage5"):
             if isinstance(d.get(k), dict):
                 d[k] = StageHParams.from_dict(d[k])
         for k, v in _SCALE_FIELDS.get(d.get("scale"), {}).items():
@@ -343,8 +374,26 @@ _DEFAULT_STAGE1 = StageHParams(batch_size=8, epochs=4, lr=3e-4, warmup_iters=500
 _DEFAULT_STAGE2 = StageHParams(batch_size=8, epochs=4, lr=3e-4, warmup_iters=500,
                                frame_stride=5, num_workers=1)
 
+#: Stages 3-5 at the default scale: sized by measurement (docs/aurora.md, "Closed loop").
+_DEFAULT_STAGE3 = StageHParams(batch_size=8, epochs=1, lr=3e-4, warmup_iters=200,
+                               frame_stride=5, num_workers=1)
+_DEFAULT_STAGE4 = StageHParams(batch_size=8, epochs=2, lr=3e-4, warmup_iters=200,
+                               frame_stride=5, num_workers=1)
+_DEFAULT_STAGE5 = StageHParams(batch_size=8, epochs=1, lr=1e-4, warmup_iters=100,
+                               frame_stride=10, num_workers=1)
+
+#: The seed paper's stage table (appendix, "Training Configuration"): what each of stages 3-5
+#: trains and supervises, and whether the perception backbones are frozen.
+STAGE_TABLE = {
+    3: "CQAF + fused heads (gt/fused) + LoRA on the QA next-token loss; planner off",
+    4: "planner on (waypoint losses) + LoRA; perception branches frozen",
+    5: "mixed QA and planning samples (waypoint loss only with <wp>); branches frozen",
+}
+
 _SCALE_FIELDS: dict[str, dict[str, Any]] = {
-    "tiny": dict(stage1=_TINY_STAGE, stage2=_TINY_STAGE),
+    "tiny": dict(lm_max_len=512,  # a long QA item is ~350 tokens with the tiny vocabulary
+                 stage1=_TINY_STAGE, stage2=_TINY_STAGE, stage3=_TINY_STAGE,
+                 stage4=_TINY_STAGE, stage5=_TINY_STAGE),
     "default": dict(
         patch_size=16, vit_depth=4, vit_width=128, vit_heads=4, mlp_ratio=2.0,
         depth_bins=16, dec_width=128, dec_heads=4, dec_ffn=256, det_layers=3, map_layers=2,
@@ -352,7 +401,8 @@ _SCALE_FIELDS: dict[str, dict[str, Any]] = {
         lm_layers=4, lm_heads=4, lm_kv_heads=4, lm_ffn=688, lm_vocab=4096, lm_max_len=512,
         lora_rank=8, lora_alpha=16.0, lora_targets=_LORA_ALL,
         cqaf_det_topk=32, cqaf_map_topk=10, plan_hidden=128, plan_latent=32, plan_anchors=20,
-        stage1=_DEFAULT_STAGE1, stage2=_DEFAULT_STAGE2,
+        stage1=_DEFAULT_STAGE1, stage2=_DEFAULT_STAGE2, stage3=_DEFAULT_STAGE3,
+        stage4=_DEFAULT_STAGE4, stage5=_DEFAULT_STAGE5, stage3_freeze_backbone=True,
     ),
     "paper": dict(
         ego_image_size=(1024, 512), rsu_image_size=(1024, 512), patch_size=16,
@@ -367,5 +417,25 @@ _SCALE_FIELDS: dict[str, dict[str, Any]] = {
         plan_hidden=256, plan_latent=32, plan_anchors=20,
         stage1=StageHParams(batch_size=12, epochs=4, lr=5e-5),
         stage2=StageHParams(batch_size=12, epochs=4, lr=5e-5),
+        stage3=StageHParams(batch_size=8, epochs=4, lr=4e-5),
+        stage4=StageHParams(batch_size=8, epochs=6, lr=8e-5),
+        stage5=StageHParams(batch_size=6, epochs=4, lr=8e-5),
     ),
 }
+
+#: Stage 0 (LM pre-training, :mod:`.stage0`) per scale. Default: sized by measurement on the
+#: 2-core CPU (docs/aurora.md, "Stage 0"): the 4.2 M-parameter LM trains ~3.5k tokens/s with
+#: one torch thread; every 3rd QA item of the train split (~15.8k documents, ~1.5 M tokens) in
+#: one epoch of 8 x 256-token blocks (~730 steps, ~8 min).
+_STAGE0_FIELDS: dict[str, dict[str, Any]] = {
+    "tiny": dict(stage0=StageHParams(batch_size=4, epochs=1, lr=3e-3, warmup_iters=0),
+                 lm_pretrain_block=64),
+    "default": dict(stage0=StageHParams(batch_size=8, epochs=1, lr=1e-3, warmup_iters=50,
+                                        frame_stride=3, grad_clip=1.0),
+                    lm_pretrain_block=256),
+    "paper": dict(stage0=StageHParams(batch_size=32, epochs=1, lr=3e-4, warmup_iters=500,
+                                      grad_clip=1.0),
+                  lm_pretrain_block=2048),
+}
+for _name, _fields in _STAGE0_FIELDS.items():
+    _SCALE_FIELDS[_name].update(_fields)

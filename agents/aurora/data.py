@@ -51,11 +51,12 @@ CALIB_KEYS = ("T_world_ego", "T_world_rsu", "T_ego_rsu", "rsu_unit", "cam_intrin
 GT_SET = {"ego": "ego", "rsu": "rsu"}
 
 
-def _keys(branch: str) -> list:
+def _keys(branch: str, images: bool = True) -> list:
     gt = GT_SET[branch]
     keys: list = [("calib", k) for k in CALIB_KEYS]
     keys += [("gt", gt, k) for k in ("boxes", "class", "mask")]
-    keys += [("cameras", c, "rgb") for c in CAMERA_NAMES[branch]]
+    if images:
+        keys += [("cameras", c, "rgb") for c in CAMERA_NAMES[branch]]
     if branch == "ego":
         keys.append("light_state")
     return keys
@@ -65,6 +66,18 @@ def encode_targets(boxes: np.ndarray) -> np.ndarray:
     """``(M, 9)`` ``x, y, z, l, w, h, yaw, vx, vy`` -> ``(M, 10)`` with ``sin, cos`` of yaw."""
     b = np.asarray(boxes, np.float64).reshape(-1, 9)
     return np.c_[b[:, :6], np.sin(b[:, 6]), np.cos(b[:, 6]), b[:, 7:9]].astype(np.float32)
+
+
+def model_images(rgb: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+    """Camera images ``(N, H, W, 3)`` uint8 -> the model's ``(N, 3, h, w)`` float32 in [0, 1]
+    at ``size = (w, h)`` (bilinear with antialiasing when the size differs): the one conversion
+    of the data set's frames and of closed-loop observations."""
+    images = rgb.permute(0, 3, 1, 2).float().div_(255.0)
+    if (int(rgb.shape[2]), int(rgb.shape[1])) != tuple(size):
+        w, h = size
+        images = F.interpolate(images, size=(h, w), mode="bilinear", align_corners=False,
+                               antialias=True).clamp_(0.0, 1.0)
+    return images
 
 
 def in_range(points: np.ndarray, pc_range: Sequence[float]) -> np.ndarray:
@@ -82,6 +95,8 @@ class AuroraFrames(Dataset):
         branch: ``"ego"`` or ``"rsu"``.
         cfg: model configuration (image size, range, map points and queries).
         stride: keep frames whose index in their episode is a multiple of ``stride``.
+        images: read and return the camera images (``False``: targets and calibration only,
+            e.g. when the branch's outputs come from a feature cache).
 
     Raises:
         FileNotFoundError: ``root`` does not exist or holds no data set.
@@ -91,15 +106,16 @@ class AuroraFrames(Dataset):
     """
 
     def __init__(self, root: str | Path, split: str, branch: str, cfg: AuroraConfig,
-                 stride: int = 1) -> None:
+                 stride: int = 1, images: bool = True) -> None:
         self.branch, self.cfg = check_branch(branch), cfg
+        self.images = bool(images)
         if not isinstance(stride, int) or isinstance(stride, bool) or stride < 1:
             raise ValueError(f"AuroraFrames: stride={stride!r} must be an int >= 1")
         root = Path(root)
         if not root.is_dir():
             raise FileNotFoundError(f"AuroraFrames: data directory {root} does not exist "
                                     "(collect one with `v2xbench collect --out DIR`)")
-        self.ds = V2XDataset(root, split, keys=_keys(branch))
+        self.ds = V2XDataset(root, split, keys=_keys(branch, self.images))
         self.pc_range = tuple(float(v) for v in cfg.pc_range(branch))
         self.image_size = tuple(cfg.image_size(branch))
         frames = []
@@ -127,6 +143,16 @@ class AuroraFrames(Dataset):
     def __len__(self) -> int:
         return len(self.frame_ids)
 
+    @property
+    def recorded_size(self) -> tuple[int, int]:
+        """``(width, height)`` of the branch's recorded camera images (the data set's schema)."""
+        key = ("cameras", CAMERA_NAMES[self.branch][0], "rgb")
+        if key not in self.ds.schema:
+            raise ValueError(f"AuroraFrames: the data set {self.ds.root} has no camera images "
+                             f"({'/'.join(key)}); collect with `--sensors rgb,...`")
+        h, w = self.ds.schema[key][1][:2]
+        return int(w), int(h)
+
     def town(self, frame_id: int) -> str:
         """Town name of a global frame index."""
         return str(self.ds.meta[self.ds.locate(int(frame_id))[0]]["town"])
@@ -148,13 +174,13 @@ class AuroraFrames(Dataset):
     def sample(self, td, calib: dict, frame_id: int) -> dict[str, torch.Tensor]:
         """The sample of a frame's TensorDict ``td`` (keys of this branch) and its ``calib``."""
         branch, cfg = self.branch, self.cfg
-        imgs = torch.stack([td["cameras", c, "rgb"] for c in CAMERA_NAMES[branch]])
-        src = (int(imgs.shape[2]), int(imgs.shape[1]))  # (W, H)
-        images = imgs.permute(0, 3, 1, 2).float().div_(255.0)  # (N, 3, H, W)
-        if src != self.image_size:
-            w, h = self.image_size
-            images = F.interpolate(images, size=(h, w), mode="bilinear", align_corners=False,
-                                   antialias=True).clamp_(0.0, 1.0)
+        images = None
+        if self.images:
+            imgs = torch.stack([td["cameras", c, "rgb"] for c in CAMERA_NAMES[branch]])
+            src = (int(imgs.shape[2]), int(imgs.shape[1]))  # (W, H)
+            images = model_images(imgs, self.image_size)  # (N, 3, H, W)
+        else:  # the recorded images' size, from the data set's schema
+            src = self.recorded_size
         k, c2f = frame_camera_tensors(calib, branch, src, self.image_size)
         gt = GT_SET[branch]
         mask = td["gt", gt, "mask"].numpy().astype(bool)
@@ -179,7 +205,6 @@ class AuroraFrames(Dataset):
         map_points[:len(mv)], map_labels[:len(mv)], map_closed[:len(mv)] = (
             mv.points, mv.labels, mv.closed)
         out = {
-            "images": images,
             "intrinsics": k,
             "cam_to_frame": c2f,
             "det_boxes": torch.from_numpy(det_boxes),
@@ -191,6 +216,8 @@ class AuroraFrames(Dataset):
             "map_closed": torch.from_numpy(map_closed),
             "frame_id": torch.tensor(frame_id, dtype=torch.int64),
         }
+        if images is not None:
+            out["images"] = images
         if branch == "ego":
             out["light"] = (td["light_state"].to(torch.int64) + 1).reshape(())
         return out
@@ -219,4 +246,4 @@ def make_loader(dataset: Dataset, batch_size: int, *, shuffle: bool = True, seed
                       persistent_workers=num_workers > 0)
 
 
-__all__ = ["AuroraFrames", "collate", "encode_targets", "in_range", "make_loader"]
+__all__ = ["AuroraFrames", "collate", "encode_targets", "in_range", "make_loader", "model_images"]

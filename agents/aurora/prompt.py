@@ -4,9 +4,11 @@ A prompt is the visual placeholders (one ``<det>`` per fused detection token, on
 fused map token), the run-time context, the question and ``Answer:``; a planning prompt ends
 with ``<wp>``. The context holds the ego's speed, its navigation command and the roadside unit's
 pose relative to the ego as its message gives it (``E_{r->e}``; "no message" when none arrived).
-It never holds ground-truth objects: unlike Chat-V2XBench's ``context`` field (whose object
-hints served to auto-label the answers), :func:`prompt_from_record` reads only
-:data:`RUNTIME_KEYS` of a recorded frame.
+It never holds ground-truth objects: :func:`context_from_record` and :func:`prompt_from_record`
+read only :data:`RUNTIME_KEYS` of a recorded frame. Chat-V2XBench's export
+(``collectors/chat/export.py``) writes this same text as each item's ``context`` (the hint-free
+form); the ground-truth object hints that auto-labelled the answers are its separate ``hints``
+annotation, never part of a prompt.
 """
 
 from __future__ import annotations
@@ -69,15 +71,28 @@ def runtime_context(speed: float, command: int | str, e_rsu_to_ego=None) -> str:
     return "\n".join(lines)
 
 
+def prompt_text(context: str, question: str, *, num_det: int, num_map: int,
+                waypoint: bool = False) -> str:
+    """The prompt of a run-time ``context`` (:func:`runtime_context`'s text, e.g. a Chat-V2XBench
+    item's hint-free ``context``) and a question; ``num_det`` / ``num_map`` placeholders (0: none,
+    the text-only prompt of stage 0); ``waypoint``: end with ``<wp>``."""
+    if not isinstance(question, str) or not question.strip():
+        raise ValueError("prompt: the question is empty")
+    if not isinstance(context, str) or not context.strip():
+        raise ValueError("prompt: the context is empty")
+    for name, n in (("num_det", num_det), ("num_map", num_map)):
+        if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+            raise ValueError(f"prompt: {name}={n!r} must be an int >= 0")
+    visual = DET * num_det + MAP * num_map
+    text = f"{visual}\n{context.strip()}\nQuestion: {question.strip()}\nAnswer:"
+    return text + f" {WP}" if waypoint else text
+
+
 def build_prompt(speed: float, command: int | str, e_rsu_to_ego, question: str, *,
                  num_det: int, num_map: int, waypoint: bool = False) -> str:
     """The model's prompt (module docstring); ``waypoint``: end with ``<wp>``."""
-    if not isinstance(question, str) or not question.strip():
-        raise ValueError("prompt: the question is empty")
-    visual = DET * int(num_det) + MAP * int(num_map)
-    text = f"{visual}\n{runtime_context(speed, command, e_rsu_to_ego)}\n" \
-           f"Question: {question.strip()}\nAnswer:"
-    return text + f" {WP}" if waypoint else text
+    return prompt_text(runtime_context(speed, command, e_rsu_to_ego), question,
+                       num_det=int(num_det), num_map=int(num_map), waypoint=waypoint)
 
 
 def _get(record: Mapping, key):
@@ -93,9 +108,8 @@ def _get(record: Mapping, key):
         raise ValueError(f"prompt: the frame has no {name!r}") from None
 
 
-def prompt_from_record(record: Mapping, question: str = PLAN_QUESTION, *, num_det: int,
-                       num_map: int, waypoint: bool = False, rsu_pose="record") -> str:
-    """:func:`build_prompt` of a recorded frame (nested dict or TensorDict of the data set),
+def context_from_record(record: Mapping, rsu_pose="record") -> str:
+    """:func:`runtime_context` of a recorded frame (nested dict or TensorDict of the data set),
     reading only :data:`RUNTIME_KEYS`.
 
     ``rsu_pose``: ``"record"`` rebuilds the pose the frame's active roadside unit sends
@@ -111,9 +125,16 @@ def prompt_from_record(record: Mapping, question: str = PLAN_QUESTION, *, num_de
         if int(_array(_get(record, ("calib", "rsu_unit")))) >= 0:
             rsu_pose = rsu_to_ego(_array(_get(record, ("calib", "T_world_ego"))),
                                   _array(_get(record, ("calib", "T_world_rsu"))))
-    return build_prompt(float(_array(_get(record, "ego_speed"))),
-                        int(_array(_get(record, "command"))), rsu_pose, question,
-                        num_det=num_det, num_map=num_map, waypoint=waypoint)
+    return runtime_context(float(_array(_get(record, "ego_speed"))),
+                           int(_array(_get(record, "command"))), rsu_pose)
+
+
+def prompt_from_record(record: Mapping, question: str = PLAN_QUESTION, *, num_det: int,
+                       num_map: int, waypoint: bool = False, rsu_pose="record") -> str:
+    """:func:`build_prompt` of a recorded frame, reading only :data:`RUNTIME_KEYS`
+    (``rsu_pose``: as :func:`context_from_record`)."""
+    return prompt_text(context_from_record(record, rsu_pose), question, num_det=int(num_det),
+                       num_map=int(num_map), waypoint=waypoint)
 
 
 def template_texts() -> list[str]:
@@ -125,4 +146,5 @@ def template_texts() -> list[str]:
 
 
 __all__ = ["NO_MESSAGE", "PLAN_QUESTION", "RUNTIME_KEYS", "build_prompt", "command_phrase",
-           "prompt_from_record", "runtime_context", "template_texts"]
+           "context_from_record", "prompt_from_record", "prompt_text", "runtime_context",
+           "template_texts"]

@@ -10,8 +10,10 @@ leaves it out.
 
 Training text (:func:`qa_texts`): the questions and answers of ``<data>/chat/qa.jsonl``
 (``v2xbench qa build``) of one split's episodes (the split comes from the data set's manifest),
-never the items' ``context`` (it carries ground-truth object hints), plus the fixed phrases of
-the run-time prompt (:func:`.prompt.template_texts`).
+never the items' ``context`` (in files written before the hint-free export it carries the
+ground-truth object hints that are now the separate ``hints`` field), plus the fixed phrases of
+the run-time prompt (:func:`.prompt.template_texts`). Stage 0 (:mod:`.stage0`) trains its
+tokenizer on whole hint-free documents (run-time prompt and answer) instead.
 """
 
 from __future__ import annotations

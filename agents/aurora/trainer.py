@@ -86,7 +86,14 @@ def save_checkpoint(model: nn.Module, path: str | Path,
     """Write the model's state dict (weights and buffers) to a safetensors file atomically."""
     from safetensors.torch import save
 
-    tensors = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
+    tensors, seen = {}, set()
+    for k, v in model.state_dict().items():
+        t = v.detach().cpu().contiguous()
+        ptr = t.untyped_storage().data_ptr() if t.numel() else None
+        if ptr is not None and ptr in seen:  # tied weights (e.g. an LM's embeddings and head):
+            t = t.clone()  # safetensors refuses shared storage; each key gets its own copy
+        seen.add(ptr)
+        tensors[k] = t
     meta = {"format": FORMAT, **(metadata or {})}
     return atomic_write_bytes(path, save(tensors, metadata=meta))
 

@@ -23,12 +23,16 @@ planning    speed_trend         closed       logged speeds at tick and tick - 10
 An item (our schema, one JSON line each)::
 
     {"id", "keyframe", "episode", "route_id", "town", "scenarios", "tick", "level", "type",
-     "kind", "question", "answer", "label", "context", "images"}
+     "kind", "question", "answer", "label", "context", "hints", "split", "images"}
+
+(:func:`keyframe_qa` gives all but ``context`` and ``split``, which the export adds.)
 
 ``label`` is the machine-readable answer: a canonical string (closed), ``[x, y, z]`` metres
-(coordinate) or a dict of slots (descriptive). ``context`` is the text every prompt carries:
-the ego's speed and navigation command, the nearby ground-truth objects (ego frame) and the
-RSU camera's pose relative to the ego.
+(coordinate) or a dict of slots (descriptive). :func:`keyframe_qa` gives every item ``hints``:
+the auto-labelling annotation (the ego's speed and navigation command, the nearby ground-truth
+objects in the ego frame and the RSU camera's exact pose relative to the ego; the paper
+conditions its prompts on it). It is not a prompt: the export (:mod:`.export`) adds the
+hint-free ``context`` (only what the car has at run time) that prompts carry by default.
 """
 
 from __future__ import annotations
@@ -58,7 +62,7 @@ def keyframe_id(facts: dict) -> str:
 
 
 def context_text(f: dict) -> str:
-    """The prompt context: ego state, GT object hints (ego frame) and the RSU camera pose."""
+    """The ``hints`` annotation: ego state, GT object hints (ego frame), the RSU camera pose."""
     e = f["ego"]
     lines = [f"Ego speed: {e['speed']:.1f} m/s; navigation command: {T.COMMAND[e['command']]}.",
              "Nearby objects (ground truth, ego frame: x forward, y left, metres):"]
@@ -203,7 +207,7 @@ def keyframe_qa(f: dict, seed: int = 0) -> list[dict]:
     ctx = context_text(f)
     images = [f["images"][c] for c in CAMERA_ORDER if c in f.get("images", {})]
     base = {"keyframe": kid, "episode": f["episode"], "route_id": f["route_id"], "town": f["town"],
-            "scenarios": f["scenarios"], "tick": f["tick"], "context": ctx, "images": images}
+            "scenarios": f["scenarios"], "tick": f["tick"], "hints": ctx, "images": images}
     out = []
     for i, (kind, q, a, label) in enumerate(items):
         level, qkind = TYPES[kind]

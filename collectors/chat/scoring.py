@@ -152,7 +152,10 @@ def score(items: list[dict], predictions: dict[str, str]) -> dict:
     Returns:
         ``{"answered": n, "missing": n, "closed": {"accuracy", "n", "per_type"},
         "coordinate": {"mean_error_m", "median_error_m", "within_0.5m", "n"},
-        "descriptive": {"f1", "n", "per_type"}}``; missing predictions score as wrong answers.
+        "descriptive": {"f1", "n", "per_type"}, "per_level": {level: {"n", "closed",
+        "coordinate", "descriptive"}}}`` (``per_level``: the same three groups over the items of
+        each level, e.g. ``scene``, ``perception``, ``alignment``, ``planning``); missing
+        predictions score as wrong answers.
 
     Raises:
         ValueError: a prediction that is not a string (its id named).
@@ -161,9 +164,7 @@ def score(items: list[dict], predictions: dict[str, str]) -> dict:
         if not isinstance(v, str):
             raise ValueError(f"score: the answer for {k!r} is {type(v).__name__} {v!r}, "
                              "not a string")
-    acc: dict[str, list[float]] = {}
-    desc: dict[str, list[float]] = {}
-    errs: list[float] = []
+    scored = []  # (item, value): accuracy, F1 or error (m)
     missing = 0
     for it in items:
         pred = predictions.get(it["id"])
@@ -171,17 +172,36 @@ def score(items: list[dict], predictions: dict[str, str]) -> dict:
             missing += 1
             pred = ""
         if it["kind"] == "closed":
-            acc.setdefault(it["type"], []).append(float(closed_label(it["type"], pred) == it["label"]))
+            v = float(closed_label(it["type"], pred) == it["label"])
         elif it["kind"] == "coordinate":
             xyz = coordinates(pred)
-            errs.append(math.inf if xyz is None else float(np.linalg.norm(xyz - np.asarray(it["label"]))))
+            v = math.inf if xyz is None else float(np.linalg.norm(xyz - np.asarray(it["label"])))
         else:
-            desc.setdefault(it["type"], []).append(f1(slots(pred), slots(it["answer"])))
+            v = f1(slots(pred), slots(it["answer"]))
+        scored.append((it, v))
+    levels = dict.fromkeys(it["level"] for it in items)
+    return {"answered": len(items) - missing, "missing": missing, **_groups(scored),
+            "per_level": {lv: {"n": sum(it["level"] == lv for it, _ in scored),
+                               **_groups([(it, v) for it, v in scored if it["level"] == lv])}
+                          for lv in levels}}
+
+
+def _groups(scored: list[tuple[dict, float]]) -> dict:
+    """The closed / coordinate / descriptive summaries of scored items."""
+    acc: dict[str, list[float]] = {}
+    desc: dict[str, list[float]] = {}
+    errs: list[float] = []
+    for it, v in scored:
+        if it["kind"] == "closed":
+            acc.setdefault(it["type"], []).append(v)
+        elif it["kind"] == "coordinate":
+            errs.append(v)
+        else:
+            desc.setdefault(it["type"], []).append(v)
     all_acc = [x for v in acc.values() for x in v]
     all_f1 = [x for v in desc.values() for x in v]
     finite = [e for e in errs if math.isfinite(e)]
     return {
-        "answered": len(items) - missing, "missing": missing,
         "closed": {"accuracy": float(np.mean(all_acc)) if all_acc else None, "n": len(all_acc),
                    "per_type": {k: float(np.mean(v)) for k, v in sorted(acc.items())}},
         "coordinate": {"mean_error_m": float(np.mean(finite)) if finite else None,

@@ -24,7 +24,7 @@ def pick_keyframe(items: list[dict]) -> str:
         a, c, r = score.get(k, (0, 0, 0))
         a += it["type"] == "rsu_to_ego"
         c += it["type"] == "critical_objects" and bool(it["label"]["objects"])
-        r = r or ("no roadside unit" not in it["context"])
+        r = r or ("no roadside unit" not in it.get("hints", it["context"]))
         score[k] = (a, c, r)
     if not score:
         raise ValueError("no QA items")
@@ -61,7 +61,11 @@ def keyframe_markdown(items: list[dict]) -> str:
     first = items[0]
     lines = [f"**Keyframe `{first['keyframe']}`** (route `{first['route_id']}`, {first['town']}, "
              f"scenarios: {', '.join(first['scenarios']) or 'none'})", "", "Prompt context:", "", "```",
-             first["context"], "```", "", "| level | type | question | answer |", "|---|---|---|---|"]
+             first["context"], "```", ""]
+    if "hints" in first:
+        lines += ["Hints (ground truth, an annotation that is not in the prompt):", "", "```",
+                  first["hints"], "```", ""]
+    lines += ["| level | type | question | answer |", "|---|---|---|---|"]
     for it in items:
         q = it["question"].replace("|", "\\|")
         a = it["answer"].replace("|", "\\|")

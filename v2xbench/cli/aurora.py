@@ -15,13 +15,65 @@ def _threads(n: int | None) -> None:
 
 
 def _train(args: argparse.Namespace) -> int:
-    from v2xbench.agents.aurora.cli import format_summary, train_stage
+    from v2xbench.agents.aurora.cli import check_stage, format_summary, train_stage
 
     _threads(args.threads)
-    s = train_stage(args.data, args.out, args.stage, scale=args.scale, device=args.device,
-                    max_steps=args.max_steps, stride=args.stride, seed=args.seed,
-                    progress=not args.quiet, num_workers=args.workers)
+    if check_stage(args.stage) == 0:  # stage 0: agents/aurora/stage0.py
+        return _train_stage0(args)
+    if args.stage >= 3:  # stages 3-5: agents/aurora/stages.py
+        from v2xbench.agents.aurora.stages import format_late_summary, train_late_stage
+
+        s = train_late_stage(args.data, args.out, args.stage, scale=args.scale,
+                             device=args.device, max_steps=args.max_steps, stride=args.stride,
+                             seed=args.seed, progress=not args.quiet, num_workers=args.workers,
+                             lm=args.lm, fusion=not args.no_fusion, cache=not args.no_cache)
+        print(format_late_summary(s))
+        return 0
+    if args.lm is not None or args.no_fusion or args.no_cache:
+        raise ValueError("--lm, --no-fusion and --no-cache apply to stages 3-5")
+    s = train_stage(args.data, args.out, args.stage, scale=args.scale or "default",
+                    device=args.device, max_steps=args.max_steps, stride=args.stride,
+                    seed=args.seed, progress=not args.quiet, num_workers=args.workers)
     print(format_summary(s))
+    return 0
+
+
+def _train_stage0(args: argparse.Namespace) -> int:
+    from v2xbench.agents.aurora.stage0 import format_stage0_summary, train_stage0
+
+    if args.lm is not None or args.no_fusion or args.no_cache:
+        raise ValueError("--lm, --no-fusion and --no-cache apply to stages 3-5 (--lm replaces "
+                         "stage 0's model)")
+    s = train_stage0(args.data, args.out, scale=args.scale or "default", chat=args.chat,
+                     device=args.device, max_steps=args.max_steps, stride=args.stride,
+                     seed=args.seed, progress=not args.quiet)
+    print(format_stage0_summary(s))
+    return 0
+
+
+def _ask(args: argparse.Namespace) -> int:
+    from v2xbench.agents.aurora.answer import ask
+
+    _threads(args.threads)
+    r = ask(args.run, args.data, args.keyframe, args.question, lm=args.lm,
+            max_new_tokens=args.max_new_tokens, device=args.device)
+    print(r["note"])
+    print(f"prompt:\n{r['prompt']}")
+    print(f"answer: {r['answer']}")
+    return 0
+
+
+def _answer(args: argparse.Namespace) -> int:
+    from v2xbench.agents.aurora.answer import answer_split
+
+    _threads(args.threads)
+    r = answer_split(args.run, args.data, args.split, args.out, chat=args.chat, lm=args.lm,
+                     max_new_tokens=args.max_new_tokens, batch_size=args.batch_size,
+                     device=args.device, progress=not args.quiet)
+    print(r["note"])
+    print(f"answered {r['items']} items of split {args.split!r} in {r['wall_s']:.0f} s "
+          f"({r['items_per_s']:.1f}/s) -> {r['out']}")
+    print(f"score: v2xbench qa score {r['qa']} {r['out']} --split {args.split}")
     return 0
 
 
@@ -42,13 +94,21 @@ def register(sub) -> None:
     p = sub.add_parser("aurora", help="AURORA perception: train the ego / roadside branches, "
                        "evaluate them", description=__doc__)
     asub = p.add_subparsers(dest="aurora_command", required=True)
-    t = asub.add_parser("train", help="train stage 1 (ego branch) or 2 (roadside branch)",
-                        description="Train one AURORA perception stage on the train split of a "
-                        "data set (resumes RUN/stage<N> when present).")
-    t.add_argument("--stage", type=int, required=True, help="1: ego branch, 2: roadside branch")
+    t = asub.add_parser("train", help="train one stage (1 ego branch, 2 roadside branch, "
+                        "3 fusion + QA, 4 planning, 5 joint)",
+                        description="Train one AURORA stage on the train split of a data set "
+                        "(resumes RUN/stage<N> when present). Stages 3-5 need stages 1-2 in RUN "
+                        "and the data set's QA items (v2xbench qa build).")
+    t.add_argument("--chat", default=None,
+                   help="stage 0: folder (or file) of the hint-free qa.jsonl (default DATA/chat; "
+                   "v2xbench qa build DATA --out DIR)")
+    t.add_argument("--stage", type=int, required=True,
+                   help="0: language-model pre-training, 1: ego branch, 2: roadside branch, "
+                   "3: fusion + QA (CQAF, LoRA), 4: planning, 5: joint QA + planning")
     t.add_argument("--data", required=True, help="data set folder (v2xbench collect --out)")
     t.add_argument("--out", required=True, help="run folder RUN (the stage trains in RUN/stage<N>)")
-    t.add_argument("--scale", default="default", help="tiny | default | paper (default: default)")
+    t.add_argument("--scale", default=None,
+                   help="tiny | default | paper (default: default; stages 3-5: the run's)")
     t.add_argument("--device", default="cpu", help="torch device (default: cpu)")
     t.add_argument("--max-steps", type=_int_in(1), default=None,
                    help="stop after N optimizer steps in total (the same command resumes)")
@@ -60,6 +120,12 @@ def register(sub) -> None:
     t.add_argument("--threads", type=_int_in(1), default=None,
                    help="torch threads (default: torch's, one per core)")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
+    t.add_argument("--lm", default=None, help="stage 3: a local Hugging Face causal-LM folder "
+                   "as the base LM (default: RUN/stage0, else a freshly built LM)")
+    t.add_argument("--no-fusion", action="store_true", help="stages 3-5: train the No Fusion "
+                   "model (roadside messages dropped)")
+    t.add_argument("--no-cache", action="store_true", help="stages 3-5: run the frozen "
+                   "branches every step instead of caching their outputs")
     t.set_defaults(func=_train)
     e = asub.add_parser("eval-perception", help="detection metrics (paper's perception table) "
                         "and pictures of a trained run",
@@ -77,3 +143,41 @@ def register(sub) -> None:
     e.add_argument("--threads", type=_int_in(1), default=None, help="torch threads")
     e.add_argument("--quiet", action="store_true")
     e.set_defaults(func=_eval)
+    _register_answering(asub)
+
+
+def _register_answering(asub) -> None:
+    """``aurora ask`` and ``aurora answer`` (:mod:`v2xbench.agents.aurora.answer`)."""
+    a = asub.add_parser("ask", help="answer a question about a recorded frame with the run's "
+                        "language model", description="Generate an answer (greedy) from the "
+                        "run-time prompt of one recorded frame: speed, navigation command, the "
+                        "roadside unit's pose and the question; never ground-truth objects. The "
+                        "model is RUN/stage0 (or --lm) on the text prompt alone.")
+    a.add_argument("question", help="the question, e.g. \"Should the ego stop?\"")
+    a.add_argument("--run", default=None, help="run folder (v2xbench aurora train --out)")
+    a.add_argument("--data", required=True, help="data set folder holding the frame")
+    a.add_argument("--keyframe", required=True,
+                   help="<episode>_t<tick>, e.g. train_000_s0_t00120 (any recorded tick)")
+    a.add_argument("--lm", default=None,
+                   help="a local Hugging Face causal-LM folder instead of RUN/stage0")
+    a.add_argument("--max-new-tokens", type=_int_in(1), default=192)
+    a.add_argument("--device", default="cpu")
+    a.add_argument("--threads", type=_int_in(1), default=None, help="torch threads")
+    a.set_defaults(func=_ask)
+    w = asub.add_parser("answer", help="answer every Chat-V2XBench item of a split (JSONL for "
+                        "`v2xbench qa score`)", description="Answer the hint-free QA items of a "
+                        "split with the run's language model; writes {id, answer} lines to score "
+                        "with `v2xbench qa score QA PRED --split SPLIT` (per kind, type, level).")
+    w.add_argument("--run", default=None, help="run folder (v2xbench aurora train --out)")
+    w.add_argument("--data", required=True, help="data set folder (its chat/qa.jsonl)")
+    w.add_argument("--chat", default=None, help="folder or file of qa.jsonl (default DATA/chat)")
+    w.add_argument("--split", default="test", help="train | val | test | all (default: test)")
+    w.add_argument("--out", required=True, help="predictions file (JSONL)")
+    w.add_argument("--lm", default=None,
+                   help="a local Hugging Face causal-LM folder instead of RUN/stage0")
+    w.add_argument("--batch-size", type=_int_in(1), default=32)
+    w.add_argument("--max-new-tokens", type=_int_in(1), default=192)
+    w.add_argument("--device", default="cpu")
+    w.add_argument("--threads", type=_int_in(1), default=None, help="torch threads")
+    w.add_argument("--quiet", action="store_true", help="no progress bar")
+    w.set_defaults(func=_answer)

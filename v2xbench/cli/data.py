@@ -83,7 +83,7 @@ def _data_validate(args: argparse.Namespace) -> int:
 def _qa_build(args: argparse.Namespace) -> int:
     from v2xbench.collectors.chat.export import build, stats_text
 
-    res = build(args.root, seed=args.seed, out=args.out)
+    res = build(args.root, seed=args.seed, out=args.out, hints_in_prompt=args.with_hints)
     print(stats_text(res["stats"]))
     print(f"wrote {res['qa']} and {res['llava']}")
     return 0
@@ -106,10 +106,10 @@ def _qa_show(args: argparse.Namespace) -> int:
 
 
 def _qa_score(args: argparse.Namespace) -> int:
-    from v2xbench.collectors.chat.export import load_items
+    from v2xbench.collectors.chat.export import load_items, split_items
     from v2xbench.collectors.chat.scoring import load_predictions, score
 
-    items = load_items(args.reference)
+    items = split_items(load_items(args.reference), args.split, "qa score")
     preds = load_predictions(args.predictions)
     print(json.dumps(score(items, preds), indent=1))
     return 0
@@ -161,6 +161,9 @@ def register(sub) -> None:
     qb.add_argument("root", help="data set folder")
     qb.add_argument("--seed", type=_int_in(0, 2**63 - 1), default=0, help="paraphrase seed")
     qb.add_argument("--out", default=None, help="output folder (default ROOT/chat)")
+    qb.add_argument("--with-hints", action="store_true",
+                    help="LLaVA prompts carry the ground-truth object hints (the auto-labelling "
+                    "form) instead of the hint-free run-time context")
     qb.set_defaults(func=_qa_build)
     qs = qas.add_parser("stats", help="counts per level, question type and scenario")
     qs.add_argument("path", help="data set folder or qa.jsonl")
@@ -175,4 +178,6 @@ def register(sub) -> None:
     qc = qas.add_parser("score", help="score predicted answers (JSONL of {id, answer}) against the reference")
     qc.add_argument("reference", help="data set folder or qa.jsonl")
     qc.add_argument("predictions", help="JSONL with one {\"id\", \"answer\"} per line")
+    qc.add_argument("--split", default="all",
+                    help="score only the items of this split (train, val, test; default all)")
     qc.set_defaults(func=_qa_score)

@@ -81,7 +81,7 @@ class StageCriterion(nn.Module):
 
     def forward(self, out: dict, batch: dict) -> tuple[torch.Tensor, dict[str, float]]:
         """Total loss (scalar tensor) and its weighted parts."""
-        zero = out["h_wp"].sum() * 0.0
+        zero = (out["h_wp"].sum() * 0.0).abs()  # 0 in the graph (never a logged -0.0)
         terms: dict[str, torch.Tensor] = {}
         report: dict[str, float] = {}
         if self.stage == 3:

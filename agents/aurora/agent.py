@@ -1,10 +1,11 @@
 """The registered AURORA agents: ``aurora`` (with its roadside unit as a learned agent) and
 ``no_fusion`` (the roadside input switched off: the paper's No Fusion row).
 
-``v2xbench eval --agent aurora --agent-config '{"run": "runs/aurora"}' --set
-max_payload_floats=5680`` drives with a trained run (its latest stage of 3-5; ``"stage": 4``
-picks another). The agent observes in ``sensors`` mode and declares the sensors of its training
-data (``camera_size`` of the data set, ``rgb`` only: ``agents/interface.py``, "Sensors"). Its
+``v2xbench eval --agent aurora --agent-config aurora.json --set max_payload_floats=5680``
+with ``aurora.json`` = ``{"run": "runs/aurora"}`` drives with a trained run (its latest stage of
+3-5; ``"stage": 4`` picks another). The agent observes in ``sensors`` mode and declares the
+sensors of its training data (``camera_size`` of the data set, ``rgb`` only:
+``agents/interface.py``, "Sensors"). Its
 ``rsu_policy`` is :class:`~.rsu_agent.AuroraRoadside` (the roadside branch of the same
 checkpoint, its message a raw payload over the channel), whose size at the default scale (5,680
 floats; :func:`~.rsu_agent.message_floats`) is above the env's default ``max_payload_floats``

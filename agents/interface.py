@@ -14,6 +14,7 @@ An agent is any object with::
     checkpoint: str | list[str]   # optional: weight files / folders it loads (hashed, see below)
     def fingerprint(self) -> str  # optional: anything else its behaviour depends on
     sensors: dict                 # optional: the sensor configuration it needs (see below)
+    channel: dict                 # optional: {"max_payload_floats": N} its messages need
 
 **One observation contract.** ``obs`` is exactly the observation the Gymnasium env
 (``gym.make("v2xbench:V2XIntersection-v0", obs_mode=...)``) returns for the agent's
@@ -67,6 +68,12 @@ agent gets exactly those images and only those are rendered; a ``--set`` of a de
 with another value is refused before any route runs, naming both values (an agent fed other
 images than it was trained on would fail silently). The declaration is part of the run's env
 overrides: the fingerprint, the summary and the leaderboard's sensors column record it.
+
+**Channel**. An agent whose own roadside policy sends larger messages than the env's default
+payload limit declares the limit it needs, ``channel = {"max_payload_floats": N}`` (the only
+key; a positive int within the field's bound in ``config.FIELD_RULES``; checked when the agent
+is built, :func:`declared_channel`). ``eval`` sets the env's ``max_payload_floats`` from it, and
+refuses a ``--set max_payload_floats`` with another value before any route runs, naming both.
 
 **Fingerprint** (what ``eval`` keys its results by, ``collectors/agent_fingerprint.py``): the
 agent's code, its configuration, and what it declares: ``checkpoint`` (a path or a list of paths;
@@ -183,6 +190,7 @@ def complete_agent(agent: Any, label: str, privileged: bool) -> Any:
         raise ValueError(f"agent {label!r} lacks method(s) {', '.join(missing)} (see agents/interface.py)")
     _check_rsu_policy(agent.rsu_policy, label)
     declared_sensors(agent, label)
+    declared_channel(agent, label)
     if getattr(agent, "privileged", False) and not privileged:
         raise ValueError(
             f"agent {label!r} declares privileged = True, but only the built-in agents "
@@ -219,6 +227,38 @@ def declared_sensors(agent: Any, label: str = "agent") -> dict[str, Any]:
     except ValueError as e:
         raise ValueError(f"agent {label!r}: sensors: {e}") from None
     return {k: values[k] for k in SENSOR_FIELDS if k in decl}
+
+
+#: The keys an agent's ``channel`` declaration may hold (module docstring, "Channel").
+CHANNEL_FIELDS = ("max_payload_floats",)
+
+
+def declared_channel(agent: Any, label: str = "agent") -> dict[str, int]:
+    """The channel settings ``agent`` declares it needs (its optional ``channel`` dict; module
+    docstring, "Channel"); ``{}`` when it declares none.
+
+    Raises:
+        ValueError: ``channel`` is not a dict, names a key other than ``max_payload_floats``, or
+            holds a value outside the field's rule (the message names the agent and the bound).
+    """
+    from v2xbench.envs.v2x_intersection.config import FIELD_RULES
+
+    decl = getattr(agent, "channel", None)
+    if decl is None:
+        return {}
+    if not isinstance(decl, dict):
+        raise ValueError(f"agent {label!r}: channel must be a dict like "
+                         f"{{'max_payload_floats': N}}, got {type(decl).__name__}")
+    unknown = sorted(str(k) for k in decl if k not in CHANNEL_FIELDS)
+    if unknown:
+        raise ValueError(f"agent {label!r}: channel has unknown key(s) {unknown}; known: "
+                         f"{', '.join(CHANNEL_FIELDS)}")
+    out = {}
+    for key in CHANNEL_FIELDS:
+        if key in decl:
+            FIELD_RULES[key].check(decl[key], f"agent {label!r}: channel {key}")
+            out[key] = int(decl[key])
+    return out
 
 
 def _check_rsu_policy(policy: Any, label: str) -> None:

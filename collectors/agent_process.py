@@ -95,6 +95,7 @@ def serve(conn: Connection) -> None:
         build_agent,
         call_act,
         complete_agent,
+        declared_channel,
         declared_sensors,
         granted_privilege,
         load_agent,
@@ -121,7 +122,8 @@ def serve(conn: Connection) -> None:
         hello = {"ok": True, "obs_mode": str(agent.obs_mode), "rsu_policy": policy_label(agent),
                  "name": type(agent).__name__, "takes_info": style is not None,
                  "declared": declared(agent, label), "roadside": roadside_component(agent),
-                 "sensors": declared_sensors(agent, label)}
+                 "sensors": declared_sensors(agent, label),
+                 "channel": declared_channel(agent, label)}
     except BaseException as e:  # noqa: BLE001  (reported to the harness)
         answer(_error(e))
         return
@@ -177,6 +179,7 @@ class IsolatedAgent:
         takes_info: whether the agent's ``act`` takes the step's ``info``.
         declared: its declared checkpoint digests and fingerprint (``agent_fingerprint.declared``).
         sensors: the sensor configuration it declares (``interface.declared_sensors``).
+        channel: the channel settings it declares (``interface.declared_channel``).
         roadside: its roadside policy's fingerprint component (``roadside.roadside_component``;
             ``None`` for a built-in policy).
 
@@ -201,6 +204,7 @@ class IsolatedAgent:
         self.obs_mode, self.rsu_policy, self.name = hello["obs_mode"], hello["rsu_policy"], hello["name"]
         self.takes_info, self.declared = bool(hello["takes_info"]), hello["declared"]
         self.sensors = dict(hello.get("sensors") or {})
+        self.channel = dict(hello.get("channel") or {})
         self.roadside = hello.get("roadside")
         if self.roadside is not None:
             self.rsu_policy = RemoteRoadside(self, str(hello["rsu_policy"]))

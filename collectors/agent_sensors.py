@@ -1,4 +1,5 @@
-"""An agent's declared sensors against the evaluation's env overrides (``v2xbench eval``).
+"""An agent's declared sensors and channel against the evaluation's env overrides
+(``v2xbench eval``).
 
 An agent declares the sensor configuration it needs as ``sensors = {...}``
 (``agents/interface.py``, "Sensors"; keys of ``config.SENSOR_FIELDS``). The evaluation takes the
@@ -45,4 +46,23 @@ def apply_agent_sensors(overrides: dict[str, Any], declared: dict[str, Any],
     return out
 
 
-__all__ = ["apply_agent_sensors"]
+def apply_agent_channel(overrides: dict[str, Any], declared: dict[str, int],
+                        label: str) -> dict[str, Any]:
+    """``overrides`` with the agent's declared channel settings (``interface.declared_channel``,
+    e.g. ``max_payload_floats``) filled in.
+
+    Raises:
+        ValueError: a ``--set`` of a declared field has another value (naming both).
+    """
+    out = dict(overrides)
+    for key, need in declared.items():
+        if key in overrides and overrides[key] != need:
+            raise ValueError(
+                f"agent {label!r} declares channel {key}={need!r} (what its messages need), "
+                f"but --set {key}={overrides[key]!r}; drop the --set (the env then takes the "
+                "agent's value) or set the same value")
+        out[key] = need
+    return out
+
+
+__all__ = ["apply_agent_channel", "apply_agent_sensors"]

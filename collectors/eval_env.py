@@ -216,12 +216,15 @@ class EvalEnv(EnvBase):
         if bad:
             raise ValueError(f"EvalEnv: config keys {sorted(bad)} are chosen by the job queue")
         if self.agent is not None:  # its declared sensors configure the env (agent_sensors.py)
-            from v2xbench.agents.interface import declared_sensors
+            from v2xbench.agents.interface import declared_channel, declared_sensors
 
-            from .agent_sensors import apply_agent_sensors
+            from .agent_sensors import apply_agent_channel, apply_agent_sensors
 
             needs = declared_sensors(self.agent, self.agent_spec)
             overrides = apply_agent_sensors(overrides, needs, self.agent_spec)
+            overrides = apply_agent_channel(overrides, declared_channel(self.agent,
+                                                                        self.agent_spec),
+                                            self.agent_spec)
         self.overrides = dict(overrides)
         if self.agent is not None:  # the agent's declarations choose the mode and the RSU policy
             overrides.setdefault("obs_mode", self.agent.obs_mode)

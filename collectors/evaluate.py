@@ -85,7 +85,7 @@ from .agent_fingerprint import (
     make_fingerprint,
     policy_digest,
 )
-from .agent_sensors import apply_agent_sensors
+from .agent_sensors import apply_agent_channel, apply_agent_sensors
 from .eval_env import agent_label, copy_policy, instantiate_agent, make_env_factory
 from .eval_summary import per_scenario, summarize, summary_markdown, write_summary
 from .eval_workers import DEFAULT_ROUTE_TIMEOUT_S, check_route_timeout, run_jobs
@@ -204,7 +204,7 @@ def _probe_agent(agent: Any, spec: str, isolate: bool, config: dict | None) -> d
     fingerprint needs of it: ``obs_mode``, ``rsu_policy`` (``custom:<ClassName>`` for its own
     roadside policy), its declarations, its roadside policy's (``roadside.py``) and the sensors
     it declares (``interface.declared_sensors``)."""
-    from v2xbench.agents.interface import declared_sensors
+    from v2xbench.agents.interface import declared_channel, declared_sensors
 
     try:
         probe = instantiate_agent(agent, isolate, config)
@@ -216,7 +216,8 @@ def _probe_agent(agent: Any, spec: str, isolate: bool, config: dict | None) -> d
     else:
         decl, roadside = declared(probe, spec), roadside_component(probe)
     return {"obs_mode": str(probe.obs_mode), "rsu_policy": policy_label(probe), "declared": decl,
-            "roadside": roadside, "sensors": declared_sensors(probe, spec)}
+            "roadside": roadside, "sensors": declared_sensors(probe, spec),
+            "channel": declared_channel(probe, spec)}
 
 
 def evaluate(
@@ -341,6 +342,7 @@ def evaluate(
         identity, code = agent_identity(agent), code_digests(agent)
         # the agent's declared sensors configure the env; a --set that differs is refused
         cfg = apply_agent_sensors(cfg, facts["sensors"], spec)
+        cfg = apply_agent_channel(cfg, facts["channel"], spec)  # its declared payload limit
     obs_mode = cfg.get("obs_mode", facts["obs_mode"])
     rsu_policy = cfg.get("rsu_policy", facts["rsu_policy"])
     if facts.get("roadside") is not None and "rsu_policy" in cfg:

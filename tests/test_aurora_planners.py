@@ -116,6 +116,7 @@ def two_samples(cfg: AuroraConfig) -> tuple[torch.Tensor, torch.Tensor, dict]:
     command = torch.tensor([3, 1])  # straight, left
     gt = torch.stack([straight(6.0), turn(5.0, 12.0)])
     batch = {"expert_waypoints": torch.cat([gt, gt[:, -2:] * 1.1], 1),  # 8 rows like the data
+             "ego_speed": torch.tensor([6.0, 5.0]),
              "agent_future": torch.zeros(2, 0, T, 2),
              "agent_future_mask": torch.zeros(2, 0, T, dtype=torch.bool),
              **road(2, half=15.0)}  # a wide junction: both trajectories are drivable

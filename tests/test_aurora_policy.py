@@ -162,6 +162,7 @@ def _batch(tok, b: int = 2, with_msg: bool = True) -> dict:
             "has_rsu": torch.tensor([with_msg] * b), "rsu_to_ego": torch.eye(4).expand(b, 4, 4),
             "input_ids": enc["input_ids"], "attention_mask": enc["attention_mask"],
             "command": torch.zeros(b, dtype=torch.long), "plan_mask": torch.ones(b, dtype=bool),
+            "ego_speed": torch.full((b,), 4.0),
             "expert_waypoints": torch.linspace(0, 10, 16).view(1, 8, 2).expand(b, 8, 2).clone(),
             "map_points": torch.zeros(b, CFG.num_map_queries, CFG.map_points, 2),
             "map_labels": torch.zeros(b, CFG.num_map_queries, dtype=torch.long),

@@ -14,8 +14,9 @@ from v2xbench.agents.aurora.config import AuroraConfig
 from v2xbench.agents.aurora.language import build_lm, load_lm
 from v2xbench.agents.aurora.stage0 import (
     CausalLMTrainee,
+    base_lm_dir,
+    find_base_lm,
     item_prompt,
-    lm_path,
     split_qa_items,
     train_stage0,
 )
@@ -81,7 +82,7 @@ def test_resumed_run_equals_an_uninterrupted_one(run, data, tmp_path):
 def test_from_pretrained_round_trip(run):
     st = run / "stage0"
     lm, tok = load_lm(st)  # AutoModelForCausalLM.from_pretrained(RUN/stage0) + tokenizer
-    assert lm_path(run) == st
+    assert base_lm_dir(run, find_base_lm(run)) == st
     trainee = CausalLMTrainee(build_lm(CFG, load_tokenizer(st)))
     load_weights(trainee, st / "checkpoint.safetensors")  # the trainer's own checkpoint
     ids = torch.tensor([tok("Ego speed: 3.0 m/s; navigation command: turn left.")["input_ids"]])
@@ -96,7 +97,29 @@ def test_from_pretrained_round_trip(run):
     with torch.no_grad():
         assert not torch.allclose(fresh(input_ids=ids).logits, a)
     with pytest.raises(FileNotFoundError, match="no stage-0 language model"):
-        lm_path(run / "elsewhere")
+        find_base_lm(run / "elsewhere")
+
+
+def test_one_place_resolves_the_base_lm(run, tmp_path):
+    """``find_base_lm``: --lm wins over RUN/stage0; a run without stage 0 gives None only when
+    not required; stage 3's ``base_lm`` and ``load_stage0`` go through it."""
+    from v2xbench.agents.aurora.stage0 import load_stage0
+    from v2xbench.agents.aurora.stages import base_lm
+    from v2xbench.agents.aurora.system import resolve_lm_path
+
+    st = run / "stage0"
+    assert find_base_lm(run) == {"source": "stage0", "path": "stage0"}
+    given = find_base_lm(tmp_path, st)
+    assert given == {"source": "given", "path": str(st.resolve())}
+    assert find_base_lm(tmp_path, required=False) is None
+    with pytest.raises(FileNotFoundError, match="config.json missing"):
+        find_base_lm(run, tmp_path)
+    with pytest.raises(ValueError, match="run folder or --lm"):
+        find_base_lm(None)
+    assert base_lm(run, tmp_path, CFG, None, 0) == find_base_lm(run)
+    assert base_lm(tmp_path, tmp_path, CFG, st, 0) == given
+    assert resolve_lm_path(run, {"lm": find_base_lm(run)}) == st
+    assert load_stage0(None, st)[2] == st.resolve()
 
 
 def test_stage0_refuses_hinted_files_and_other_settings(run, data, tmp_path):
@@ -146,7 +169,8 @@ def test_answers_file_scores_with_qa_score(run, data, tmp_path, capsys):
     assert main(["qa", "score", str(data), str(preds), "--split", "val"]) == 0
     s = json.loads(capsys.readouterr().out)
     assert s["answered"] == len(val) and s["missing"] == 0
-    assert set(s["per_level"]) == {"scene", "perception", "alignment", "planning"}
+    levels = {it["level"] for it in val}  # every level the split holds is scored on its own
+    assert set(s["per_level"]) == levels and len(levels) >= 3
     assert main(["aurora", "answer", "--run", str(run), "--data", str(data), "--split", "test",
                  "--out", str(preds), "--quiet"]) == 2
     assert "no QA item of split 'test'" in capsys.readouterr().err

@@ -80,8 +80,8 @@ def test_towns_table_matches_v2xbench_towns(capsys):
         assert (got["template"], got["seed"], got["lanes"], got["junctions"], got["crosswalks"],
                 got["buildings"]) == (template, seed, lanes, junctions, crosswalks, buildings)
     town12 = next(r for r in doc_rows if r[0] == "Town12")
-    assert town12[1:3] == ["test", "metro"]
-    assert "Town12 is a `metro` town" in text
+    assert town12[1:3] == ["test", "metro2"]
+    assert "Town12 is a `metro2` town" in text
 
 
 def test_check_mode_finds_a_stale_table(tmp_path, capsys):

@@ -350,3 +350,50 @@ def test_scenario_config_and_make_seed():
     assert env.unwrapped.world.scenarios[0].conflict_s == a
     with pytest.raises(ValueError, match="unknown scenario 'Ghost'"):
         gym.make("v2xbench:V2XIntersection-v0", scenario="Ghost")
+
+
+def test_instances_get_their_own_parameters_in_range(route_dict):
+    """Each scenario instance carries parameters drawn from PARAM_RANGES, different per instance,
+    and the scenario built from the file uses them."""
+    from v2xbench.envs.v2x_intersection.scenarios.param_ranges import PARAM_RANGES
+
+    lo, hi = PARAM_RANGES["DynamicObjectCrossing"]["speed"]
+    speeds = [inst["params"]["speed"] for inst in route_dict["scenarios"]]
+    assert all(lo <= v <= hi for v in speeds) and speeds[0] != speeds[1]
+    _, scenarios = build_episode_from_spec(parse_route(route_dict))
+    assert [sc.params["speed"] for sc in scenarios] == speeds
+
+
+def test_param_ranges_name_real_parameters():
+    """Every ranged parameter exists in its type's defaults, ints stay ints, a bad range is refused."""
+    from v2xbench.envs.v2x_intersection.route_schema import check_params
+    from v2xbench.envs.v2x_intersection.scenarios import SCENARIOS
+    from v2xbench.envs.v2x_intersection.scenarios.param_ranges import PARAM_RANGES, draw_params
+
+    rng = np.random.default_rng(0)
+    for name in PARAM_RANGES:
+        for _ in range(10):  # every draw passes the route schema's bounds
+            check_params(name, draw_params(name, SCENARIOS[name].defaults, rng),
+                         SCENARIOS[name].defaults, f"{name}.params")
+        params = draw_params(name, SCENARIOS[name].defaults, rng)
+        for key, value in params.items():
+            assert isinstance(value, int) == isinstance(SCENARIOS[name].defaults[key], int), key
+    with pytest.raises(ValueError, match="not a parameter"):
+        draw_params("DynamicObjectCrossing", {"other": 1.0}, rng)
+
+
+def test_a_route_starting_scenario_must_come_first():
+    """ParkingExit cuts the route to start in its parking slot: the builder never places it
+    after another scenario, and a route file that does is refused naming the scenario."""
+    from v2xbench.envs.v2x_intersection.route_files import load_suite
+
+    for name in ("train", "val", "test50"):
+        for spec in load_suite(name)[1]:
+            assert all(s.type != "ParkingExit" for s in spec.scenarios[1:]), spec.id
+    town = get_town("Town01")
+    assert compose_route(town, np.random.default_rng(0), ["Accident", "ParkingExit"], "r", 1) is None
+    d = next(d for seed in range(40) if (d := compose_route(
+        town, np.random.default_rng(seed), ["ParkingExit", "Accident"], "r", 1)) is not None)
+    d["scenarios"] = d["scenarios"][::-1]
+    with pytest.raises(ValueError, match=r"scenarios\[1\]: ParkingExit starts the route"):
+        parse_route(d)

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from v2xbench.envs.v2x_intersection import rsu as rsu_module
 from v2xbench.envs.v2x_intersection.geometry import transform_points, world_to_local_2d, wrap_angle
+from v2xbench.envs.v2x_intersection.jit_perception import SELECT_M_PER_RAD
 from v2xbench.envs.v2x_intersection.routes import random_route
 from v2xbench.envs.v2x_intersection.rsu import (
     KIND_JUNCTION,
@@ -50,7 +51,8 @@ def test_unit_at_every_junction_the_route_crosses(deployments, case):
     crossed = np.unique(jl[jl >= 0])
     assert len(crossed) >= 1
     units = np.flatnonzero(rsus.kind == KIND_JUNCTION)
-    assert len(units) == len(crossed)
+    # one unit per junction, two where the route turns left there (see test_left_turn_unit...)
+    assert len(crossed) <= len(units) <= 2 * len(crossed)
     for jid in crossed:
         j = town.junctions[jid]
         d = np.linalg.norm(rsus.pose[units, :2] - j.center, axis=1)
@@ -69,11 +71,12 @@ def test_junction_unit_on_the_far_right_corner(deployments, case):
     units = np.flatnonzero(rsus.kind == KIND_JUNCTION)
     for jid in np.unique(jl[jl >= 0]):
         j = town.junctions[jid]
-        u = units[np.argmin(np.linalg.norm(rsus.pose[units, :2] - j.center, axis=1))]
+        d = np.linalg.norm(rsus.pose[units, :2] - j.center, axis=1)
+        mine = units[d <= j.radius + 3.0 + SNAP + 1e-6]
         # far-right corner as seen when arriving (on one of the route's visits of the junction)
         corners = [
             world_to_local_2d(rsus.pose[u, :2], j.center, h)
-            for h in _entry_headings(town, route, jid)
+            for u in mine for h in _entry_headings(town, route, jid)
         ]
         assert any(x > 0.0 and y < 0.0 for x, y in corners), f"junction {jid}: unit at {corners}"
 
@@ -126,7 +129,10 @@ def test_min_spacing_height_and_order(deployments, case):
     d = np.linalg.norm(rsus.pose[:, None, :2] - rsus.pose[None, :, :2], axis=2)
     d[np.diag_indices(len(rsus))] = np.inf
     same_kind = rsus.kind[:, None] == rsus.kind[None, :]
-    assert d[same_kind].min() >= MIN_SPACING  # street and junction units may stand closer
+    # street and junction units may stand closer, and so may a junction's two units of a left turn
+    # (placed for the same route station, 1 mm apart)
+    same_junction = np.abs(rsus.route_s[:, None] - rsus.route_s[None, :]) < 0.01
+    assert d[same_kind & ~same_junction].min() >= MIN_SPACING
     np.testing.assert_array_equal(rsus.pose[:, 2], RSU_HEIGHT)
     assert np.all(np.diff(rsus.route_s) >= 0.0)
     assert rsus.pose.shape == (len(rsus), 4) and rsus.kind.shape == rsus.route_s.shape == (
@@ -186,6 +192,8 @@ def test_select_active_hand_cases():
     ego, yaw = np.zeros(2), 0.0
     assert select_active(rsus, ego, yaw, 75.0).tolist() == [4]
     np.testing.assert_array_equal(select_active(rsus, ego, yaw, 75.0, slots=3), [4, 0, -1])
+    # unit 3 looks most directly at the road 12 m ahead of the ego (4.8 deg off its axis, unit 4:
+    # 11.6 deg, unit 0: 13.3 deg) but stands 108 m from it (unit 4: 12 m, unit 0: 39 m)
     np.testing.assert_array_equal(select_active(rsus, ego, yaw, 200.0, slots=3), [4, 0, 3])
     # ego driving the other way: only unit 2 (now ahead, looking +x at the ego) qualifies
     np.testing.assert_array_equal(select_active(rsus, ego, np.pi, 200.0, slots=2), [2, -1])
@@ -218,21 +226,56 @@ def test_select_active_along_a_route(deployments, case):
         ok = ahead & facing & (dist < 75.0)
         look = ego + rsu_module.LOOKAHEAD_M * np.array([np.cos(yaw), np.sin(yaw)]) - rsus.pose[:, :2]
         d_look = np.linalg.norm(look, axis=1)
-        sees = ok & (d_look < 75.0) & (
-            np.abs(wrap_angle(np.arctan2(look[:, 1], look[:, 0]) - rsus.pose[:, 3]))
-            < rsu_module.VIEW_HALF_ANGLE
-        )
+        off = np.abs(wrap_angle(np.arctan2(look[:, 1], look[:, 0]) - rsus.pose[:, 3]))
+        sees = ok & (d_look < 75.0) & (off < rsu_module.VIEW_HALF_ANGLE)
         if ok.any():
             n_ok += 1
             assert ok[u], "the active unit must be ahead of the ego and facing it"
-            if sees.any():  # a unit watching the road ahead: the one nearest to that point
-                assert sees[u] and d_look[u] == pytest.approx(d_look[sees].min())
+            if sees.any():  # a unit watching the road ahead: the one looking most directly at it
+                key = off + d_look / SELECT_M_PER_RAD  # (unless it stands much farther away)
+                assert sees[u] and key[u] == pytest.approx(key[sees].min())
             else:
                 assert dist[u] == dist[ok].min()  # else the nearest forward-facing unit
         else:
             assert u == int(np.argmin(dist))  # fallback: the nearest unit
     # route-adaptive deployment: most of the time a forward-facing unit is in range
     assert n_ok >= 0.7 * len(steps)
+
+
+def test_left_turn_gets_a_unit_watching_the_oncoming_approach():
+    """Where the route turns left through a junction, a second unit stands on the near-right
+    corner looking across the centre; it holds the oncoming lanes 20-40 m out in its view and is
+    the active unit while the ego waits at the stop line (the far-right unit has them behind)."""
+    from v2xbench.envs.v2x_intersection.routes import route_from_lanes
+    from v2xbench.envs.v2x_intersection.town.model import LEFT
+
+    town = get_town("Town01")
+    ix = town.index
+    lefts = [lane for lane in range(len(town.lanes))
+             if town.lanes[lane].turn == LEFT and town.lanes[lane].predecessors]
+    assert lefts
+    conn = lefts[0]
+    before = town.lanes[conn].predecessors[0]
+    after = town.lanes[conn].successors[0]
+    route = route_from_lanes(town, [before, conn, after])
+    rsus = deploy(town, route)
+    j = town.junctions[ix.junction[conn]]
+    units = np.flatnonzero((rsus.kind == KIND_JUNCTION)
+                           & (np.linalg.norm(rsus.pose[:, :2] - j.center, axis=1) < j.radius + 12))
+    assert len(units) == 2
+    h_in = float(route.headings[int(np.flatnonzero(ix.junction[route.lane_ids] >= 0)[0]) - 1])
+    local = np.array([world_to_local_2d(rsus.pose[u, :2], j.center, h_in) for u in units])
+    near = units[int(np.argmin(local[:, 0]))]
+    assert local.min(0)[0] < 0.0 and np.all(local[:, 1] < 0.0)  # near-right and far-right
+    # the oncoming lanes (ahead of the centre, left of the ego's axis) are in its view
+    fwd, left = np.array([np.cos(h_in), np.sin(h_in)]), np.array([-np.sin(h_in), np.cos(h_in)])
+    for d in (20.0, 30.0, 40.0):
+        p = j.center + d * fwd + 2.0 * left - rsus.pose[near, :2]
+        off = wrap_angle(np.arctan2(p[1], p[0]) - rsus.pose[near, 3])
+        assert abs(float(off)) < rsu_module.VIEW_HALF_ANGLE, d
+    # at the stop line the active unit is that one
+    k = int(np.flatnonzero(ix.junction[route.lane_ids] >= 0)[0]) - 3
+    assert int(select_active(rsus, route.points[k], float(route.headings[k]), 75.0)[0]) == near
 
 
 def test_deployment_is_remembered_per_route_and_read_only():

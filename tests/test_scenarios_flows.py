@@ -23,8 +23,8 @@ from v2xbench.envs.v2x_intersection.scenarios import (  # noqa: F401  (importing
     junctions,
 )
 from v2xbench.envs.v2x_intersection.scenarios.probe import probe
-from v2xbench.envs.v2x_intersection.signals import GREEN, RED
-from v2xbench.envs.v2x_intersection.town.model import RAMP
+from v2xbench.envs.v2x_intersection.signals import GREEN, RED, YELLOW
+from v2xbench.envs.v2x_intersection.town.model import RAMP, SIGNAL
 from v2xbench.envs.v2x_intersection.traffic import STOP_LINE_SETBACK
 
 SMALL = dict(num_vehicles=6, num_parked=4, num_pedestrians=4, num_bicycles=1)
@@ -146,23 +146,27 @@ def check_taking_priority(world, memo) -> bool:
 
 
 def check_priority(world, memo) -> bool:
-    """Minor-road vehicles reach their stop line as the ego (major road) passes the conflict
-    point, and none crosses its line before the ego has passed."""
+    """Crossing vehicles reach their (forced red) stop line as the ego (forced green) passes the
+    conflict point, and none crosses its line before the ego has passed."""
     sc, t = world.scenarios[0], world.table
     ix = world.town.index
     if "lanes" not in memo:
         memo["lanes"] = {r: int(t.lane[r]) for r in sc.hazard_rows}
         memo["violations"] = 0
+        memo["ego_light"] = set()
     to_line = {}
     for r, lane in memo["lanes"].items():
         if t.lane[r] != lane:
             to_line[r] = -1.0
         else:
             to_line[r] = float(ix.length[lane] - STOP_LINE_SETBACK - t.s[r] - 0.5 * t.length[r])
+    if sc.triggered and world.tick > sc.trigger_tick + 1 and sc.ego_s(world) < sc.conflict_s:
+        memo["ego_light"].add(int(world.lane_signal[sc.site.lanes[0]]))
     if sc.ego_s(world) < sc.conflict_s:
         memo["violations"] += sum(d < 0.0 for d in to_line.values())
         return False
     memo["at_pass"] = to_line
+    memo["cross_light"] = {r: int(world.lane_signal[lane]) for r, lane in memo["lanes"].items()}
     return True
 
 
@@ -252,14 +256,24 @@ def test_opposite_vehicle_takes_priority_without_stopping():
     assert memo.get("min_v", np.inf) > 3.0  # ... and did not stop there
 
 
-def test_priority_vehicles_arrive_and_yield():
-    world, memo = watch("PriorityAtJunction", 0, "Town01", check_priority, 250)
+def test_priority_at_junction_forces_the_ego_green_and_crossers_stop_at_red():
+    """CARLA's PriorityAtJunction: from the trigger on the ego's light is green at a signalized
+    junction, the crossing vehicles arrive as the ego does and stop at their red line; the
+    override ends once the ego has passed."""
+    world, memo = watch("PriorityAtJunction", 0, "Town01", check_priority, 600)
     assert world is not None
     sc = world.scenarios[0]
     j = world.town.junctions[world.town.index.junction_ahead[sc.site.lanes[0]]]
-    assert len(memo["lanes"]) >= 1 and all(lane in j.stop_lanes for lane in memo["lanes"].values())
+    assert j.control == SIGNAL
+    assert memo["ego_light"] == {GREEN}  # green all the way from the trigger to the junction
+    assert len(memo["lanes"]) >= 1 and set(memo["cross_light"].values()) <= {RED, YELLOW}
     assert memo["violations"] == 0  # none crossed its line before the ego passed
     assert all(0.0 <= d < 10.0 for d in memo["at_pass"].values()), memo["at_pass"]
+    for _ in range(80):  # the plan runs on once the ego is through
+        world.step(np.zeros(3))
+        if not sc.forced:
+            break
+    assert not sc.forced and world.signals._forced is None
 
 
 def test_invading_turn_intrudes_into_ego_lane():

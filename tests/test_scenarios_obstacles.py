@@ -331,7 +331,7 @@ CASES = {
     "ParkedObstacle": (
         check_multi_lane,
         {"ticks": 260, "until": stopped_after_trigger},
-        (2, "Town12"),
+        (1, "Town12"),
     ),
     "AccidentTwoWays": (
         check_two_way,
@@ -358,7 +358,7 @@ CASES = {
         (4, "Town01"),
     ),
     "HardBreakRoute": (check_hard_brake, {"ticks": 320}, (3, "Town12")),
-    "ParkingCutIn": (check_cut_in, {"ticks": 300, "until": "moving"}, (1, "Town12")),
+    "ParkingCutIn": (check_cut_in, {"ticks": 300, "until": "moving"}, (2, "Town12")),
     "StaticCutIn": (check_cut_in, {"ticks": 300, "until": "moving"}, (2, "Town03")),
     "ParkingExit": (check_parking_exit, {"ticks": 200, "until_passed": False}, (0, "Town03")),
 }
@@ -395,12 +395,24 @@ def test_all_own_scenarios_fit_the_test_town():
 
 
 def test_scenario_ending_at_the_route_end_is_passed_when_the_route_completes():
-    """test50_030 ends right after its AccidentTwoWays: the scenario counts as passed on the tick
-    the route is completed (its end used to lie beyond the completing progress, and the world
-    updates progress after the scenarios' tick)."""
-    from v2xbench.envs.v2x_intersection.route_files import load_suite_cached
+    """A route that ends right after its AccidentTwoWays (test50's instance, its route cut after
+    the key lane and the accident moved 4 m before that lane's end): the scenario counts as
+    passed on the tick the route is completed (its end used to lie beyond the completing
+    progress, and the world updates progress after the scenarios' tick)."""
+    import json
 
-    spec = load_suite_cached("test50")[30]
+    from v2xbench.envs.v2x_intersection.route_files import SUITE_DIR, parse_route
+
+    raw = json.loads((SUITE_DIR / "test50.json").read_text())
+    d, inst = next((r, s) for r in raw["routes"] for s in r["scenarios"]
+                   if s["type"] == "AccidentTwoWays")
+    town = get_town(d["town"])
+    key = inst["site"]["lanes"][inst["site"]["key"]]
+    lanes = d["lanes"][: d["lanes"].index(key) + 1]
+    inst = {**inst, "site": {**inst["site"], "s_on_key": float(town.index.length[key]) - 4.0}}
+    inst.pop("trigger", None), inst.pop("conflict", None)
+    ends = [town.lanes[ln].points[i].tolist() for ln in (lanes[0], lanes[-1]) for i in (0, -1)]
+    spec = parse_route({**d, "lanes": lanes, "scenarios": [inst], "waypoints": ends})
     world = World(
         make_config(town=spec.town, num_vehicles=0, num_parked=0, num_pedestrians=0, num_bicycles=0)
     )

@@ -138,3 +138,46 @@ def test_valid_until_kernel_matches_numpy(town_plan):
                                        plan._offset, BOUNDARY_SLACK_S)
         assert t < got <= t + max(plan._period.max(), 1.0)
         assert got == pytest.approx(plan._valid_until(float(t)), rel=1e-12, abs=1e-9)
+
+
+def test_force_green_overrides_one_junction_until_released():
+    """A scenario override (CARLA's PriorityAtJunction): the given lanes green, the junction's
+    other lanes red (the ones green at that moment yellow first), other junctions untouched,
+    and the fixed-time plan back after ``release``."""
+    town = get_town("Town01")
+    plan, ref = SignalPlan(town), SignalPlan(town)
+    j = signal_junctions(town)[0]
+    mine = [lid for g in j.phase_groups for lid in g]
+    t0 = 1.0
+    green_now = [lid for lid in mine if ref.lane_states(t0)[lid] == GREEN]
+    target = next(g for g in j.phase_groups if not set(g) & set(green_now))  # red at t0
+    plan.force_green(target, t0)
+    others = [lid for lid in mine if lid not in target]
+    rest = np.setdiff1d(plan.lanes, mine)
+    for t in (t0, t0 + j.yellow_s - 0.1, t0 + j.yellow_s + 0.1, t0 + 200.0):
+        s = plan.lane_states(t)
+        assert (s[target] == GREEN).all()
+        want = YELLOW if t < t0 + j.yellow_s else RED
+        assert all(s[lid] == (want if lid in green_now else RED) for lid in others)
+        np.testing.assert_array_equal(s[rest], ref.lane_states(t)[rest])
+    assert (plan.lane_states(t0 - 0.5) == ref.lane_states(t0 - 0.5)).all()  # not before it starts
+    plan.release()
+    np.testing.assert_array_equal(plan.lane_states(t0 + 200.0), ref.lane_states(t0 + 200.0))
+    with pytest.raises(ValueError, match="not signal-controlled"):
+        plan.force_green([int(rest.max()) + 10_000], t0)
+    other = signal_junctions(town)[1]
+    with pytest.raises(ValueError, match="one junction at a time"):
+        plan.force_green([mine[0], other.phase_groups[0][0]], t0)
+
+
+def test_world_reset_ends_an_override():
+    from v2xbench.envs.v2x_intersection.config import make_config
+    from v2xbench.envs.v2x_intersection.world import World
+
+    world = World(make_config(town="Town01", num_vehicles=2, num_pedestrians=0, num_parked=0,
+                              num_bicycles=0))
+    world.reset(seed=0)
+    j = signal_junctions(world.town)[0]
+    world.signals.force_green(j.phase_groups[1], 0.0)
+    world.reset(seed=0)
+    assert world.signals._forced is None

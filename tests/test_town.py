@@ -29,6 +29,8 @@ from v2xbench.envs.v2x_intersection.town.model import (
     SIGNAL,
     STOP,
 )
+from v2xbench.envs.v2x_intersection.town.model import RIGHT as RIGHT_TURN
+from v2xbench.envs.v2x_intersection.town.model import STRAIGHT as STRAIGHT_TURN
 
 BASE_TEMPLATES = ("grid", "tjunction", "arterial", "highway")
 #: (template, seed) pairs: every registered template at seed 0, the base ones also at seed 5
@@ -429,5 +431,149 @@ def test_test_town_has_city_and_highway_sites():
     controls = {j.control for j in town.junctions}
     assert {SIGNAL, STOP, PRIORITY} <= controls or {SIGNAL, STOP} <= controls
     kinds = {ln.kind for ln in town.lanes}
-    if NAMED_TOWNS["Town12"][0] == "metro":  # a grid joined to a highway by ramps
-        assert MERGE in controls and RAMP in kinds
+    assert NAMED_TOWNS["Town12"][0] in ("metro", "metro2")  # a grid joined to a highway by ramps
+    assert MERGE in controls and RAMP in kinds
+
+
+# ------------------------------------------------------------------------------ the test town
+#: sha256 of ``json.dumps(get_town(name).to_dict(), sort_keys=True)`` of every training town,
+#: computed before the test town got its own template (``metro2``): the training towns must not
+#: change when the builder learns new road structures
+TRAINING_TOWN_SHA256 = {
+    "Town01": "9264e09f7a6ab2fc28392b0eb979927ff34791466e84b6b6e3ff357db0bd812c",
+    "Town02": "d2d9c68737cadafd3429a299c9be1194bf6ace8c772fdc1abc1fe1d58ac35f6b",
+    "Town03": "efd96bd9be3f500fc345d36d1aa2a2cead5ec0978a942befe7ca156557fb6aa7",
+    "Town04": "8421d5f396b32702721fa9f9b1b02cd036c5adca33db7d213b3d58b5dd3f2edb",
+    "Town05": "12b6295442d27e32bc35ecc96457e04576b9cdcce8402daf077b78e29ea074fa",
+    "Town06": "221722734f50e63963996ee4fd149224f5cf01fabd69bb01f4d3fc4f2a534e96",
+}
+
+
+def _sha(town: Town) -> str:
+    import hashlib
+
+    return hashlib.sha256(json.dumps(town.to_dict(), sort_keys=True).encode()).hexdigest()
+
+
+def _arm_angles(town: Town, j) -> np.ndarray:
+    """Sorted directions (deg, [0, 360)) from junction ``j``'s centre to each meeting road's
+    lane ends."""
+    ends: dict[int, list[np.ndarray]] = {}
+    for lid in j.incoming:
+        ends.setdefault(town.lanes[lid].road, []).append(town.lanes[lid].points[-1])
+    for c in j.connectors:
+        for lid in town.lanes[c].successors:
+            ends.setdefault(town.lanes[lid].road, []).append(town.lanes[lid].points[0])
+    d = [np.mean(p, 0) - j.center for p in ends.values()]
+    return np.sort([np.degrees(np.arctan2(v[1], v[0])) % 360.0 for v in d])
+
+
+def _min_arm_gap(town: Town, j) -> float:
+    a = _arm_angles(town, j)
+    return float(np.diff(np.append(a, a[0] + 360.0)).min())
+
+
+def _city_junctions(town: Town) -> list:
+    return [j for j in town.junctions if j.control != MERGE and arms(town, j) >= 3]
+
+
+def test_training_towns_are_unchanged():
+    assert set(TRAINING_TOWN_SHA256) == set(TRAIN_TOWNS)
+    for name in TRAIN_TOWNS:
+        assert _sha(get_town(name)) == TRAINING_TOWN_SHA256[name], name
+
+
+def test_test_town_has_its_own_lane_widths_and_speed_limits():
+    def profile(name: str) -> tuple[set, set]:
+        lanes = [ln for ln in get_town(name).lanes if ln.kind == DRIVING]
+        return {round(ln.width, 2) for ln in lanes}, {round(ln.speed_limit, 2) for ln in lanes}
+
+    train_w = set().union(*(profile(n)[0] for n in TRAIN_TOWNS))
+    train_v = set().union(*(profile(n)[1] for n in TRAIN_TOWNS))
+    widths, speeds = profile("Town12")
+    assert len(widths - train_w) >= 4 and min(widths) <= 3.0 and max(widths) >= 3.8
+    assert len(speeds - train_v) >= 2  # 30, 40 and 60 km/h where the training towns have 50
+    assert {round(v * 3.6) for v in speeds} >= {30, 40, 50, 60}
+
+
+def test_test_town_has_skewed_and_five_way_junctions_no_training_town_has():
+    train = [(get_town(n), j) for n in TRAIN_TOWNS for j in _city_junctions(get_town(n))]
+    assert max(arms(t, j) for t, j in train) == 4
+    assert min(_min_arm_gap(t, j) for t, j in train) > 80.0  # all close to square
+    town = get_town("Town12")
+    city = _city_junctions(town)
+    five = [j for j in city if arms(town, j) == 5]
+    assert len(five) == 2 and {j.control for j in five} == {SIGNAL, STOP}
+    skewed = [j for j in city if 55.0 <= _min_arm_gap(town, j) <= 75.0]
+    assert len(skewed) >= 3
+    # the skewed crossing: four arms, two roads meeting at 60 degrees
+    cross = [j for j in skewed if arms(town, j) == 4 and _min_arm_gap(town, j) < 65.0]
+    assert cross and cross[0].control == PRIORITY
+
+
+def test_skewed_arms_do_not_overlap_at_the_junction_mouth():
+    # the builder pushes the radius of junctions with close arms out (NARROW_ARM_GAP): the lane
+    # ends of different roads stay at least their half widths apart
+    town = get_town("Town12")
+    for j in _city_junctions(town):
+        ends = [(town.lanes[lid].road, town.lanes[lid].points[-1], town.lanes[lid].width)
+                for lid in j.incoming]
+        ends += [(town.lanes[s].road, town.lanes[s].points[0], town.lanes[s].width)
+                 for c in j.connectors for s in town.lanes[c].successors]
+        for r, p, w in ends:
+            for q_r, q, v in ends:
+                if r != q_r:
+                    assert np.linalg.norm(p - q) > 0.5 * (w + v), (j.id, r, q_r)
+
+
+def _ring(town: Town) -> list[int]:
+    """The roundabout's ring lanes in driving order (one-way driving lanes whose successors are
+    straight connectors to the next one-way lane), starting from the lowest id."""
+    one_way = {ln.id for ln in town.lanes if ln.kind == DRIVING and ln.opposite < 0
+               and ln.left < 0 and ln.right < 0 and ln.junction_ahead >= 0
+               and town.junctions[ln.junction_ahead].control == PRIORITY
+               and ln.id not in town.junctions[ln.junction_ahead].stop_lanes
+               and len(town.junctions[ln.junction_ahead].incoming) == 2}
+    assert one_way, "no roundabout"
+    ring = [min(one_way)]
+    while True:
+        nxt = [town.lanes[c].successors[0] for c in town.lanes[ring[-1]].successors
+               if town.lanes[c].turn == STRAIGHT_TURN and town.lanes[c].successors[0] in one_way]
+        assert len(nxt) == 1, f"ring lane {ring[-1]} has {len(nxt)} ring successors"
+        if nxt[0] == ring[0]:
+            return ring
+        assert nxt[0] not in ring and len(ring) < 16
+        ring.append(nxt[0])
+
+
+def test_roundabout_is_a_closed_counter_clockwise_one_way_ring_where_entries_yield():
+    town = get_town("Town12")
+    ring = _ring(town)
+    assert len(ring) == 4
+    pts = np.concatenate([town.lanes[lid].points for lid in ring])
+    centre = pts.mean(0)
+    radius = np.linalg.norm(pts - centre, axis=1)
+    assert radius.std() < 1.5 and 25.0 < radius.mean() < 40.0  # a circle
+    area = 0.5 * np.sum(pts[:, 0] * np.roll(pts[:, 1], -1) - np.roll(pts[:, 0], -1) * pts[:, 1])
+    assert area > 0  # counter-clockwise (right-hand traffic)
+    for lid in ring:
+        j = town.junctions[town.lanes[lid].junction_ahead]
+        entries = [e for e in j.incoming if e != town.lanes[lid].id]
+        assert len(entries) == 1 and entries == j.stop_lanes  # the entry stops and yields
+        assert not town.lanes[lid].stop_at_end  # circulating traffic does not
+        turns = {town.lanes[c].turn for c in j.connectors}
+        assert turns == {STRAIGHT_TURN, RIGHT_TURN}  # enter right, go round, leave right
+
+
+def test_every_scenario_type_finds_a_site_in_the_test_town():
+    from v2xbench.envs.v2x_intersection.scenarios import SCENARIOS
+
+    town = get_town("Town12")
+    assert len(SCENARIOS) == 38
+    missing = [name for name, cls in SCENARIOS.items() if not cls.find_sites(town)]
+    assert not missing
+
+
+def test_metro2_needs_interior_junctions():
+    with pytest.raises(ValueError, match="size must be >= 4"):
+        generate_town("metro2", 0, 3)

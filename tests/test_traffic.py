@@ -266,6 +266,32 @@ def test_leaders_hand_case():
     assert np.isinf(gap[0]) and who[0] == -1
 
 
+@pytest.mark.parametrize("jit", [True, False])
+def test_leaders_see_an_actor_across_the_path_by_its_footprint(jit, monkeypatch):
+    """A car standing or turning across a follower's path (a junction) is its leader when its box
+    reaches into the corridor, though its centre is beside it; one moving 145 deg off the
+    follower's heading (a left turn across it) is not taken for oncoming traffic."""
+    from v2xbench.envs.v2x_intersection import traffic
+
+    monkeypatch.setattr(traffic, "HAVE_JIT", jit)
+    t = ActorTable.empty(2)
+    t.active[:] = True
+    t.length[:], t.width[:] = 4.7, 1.9
+    # the follower drives along +x at 10 m/s; the other stands 20 m ahead, 2.6 m to the side,
+    # turned 138 deg: its centre is outside the 2.3 m half corridor, its nose is in it
+    t.pos[:] = [[0.0, 0.0], [20.0, 2.6]]
+    t.speed[:] = [10.0, 0.0]
+    t.yaw[1] = np.deg2rad(-138.0)
+    gap, _, who = traffic.leaders(t, np.array([0]))
+    assert who[0] == 1 and gap[0] == pytest.approx(20.0 - 4.7)
+    t.yaw[1] = 0.0  # the same place, parallel: beside the corridor, no leader
+    assert traffic.leaders(t, np.array([0]))[2][0] == -1
+    t.pos[1], t.yaw[1], t.speed[1] = [20.0, 1.0], np.deg2rad(145.0), 5.0  # turning across
+    assert traffic.leaders(t, np.array([0]))[2][0] == 1
+    t.yaw[1] = np.deg2rad(170.0)  # nearly head-on and moving: oncoming, ignored
+    assert traffic.leaders(t, np.array([0]))[2][0] == -1
+
+
 # ------------------------------------------------------------------------------ pedestrians
 
 

@@ -1,7 +1,7 @@
 """The registered AURORA agents: ``aurora`` (with its roadside unit as a learned agent) and
 ``no_fusion`` (the roadside input switched off: the paper's No Fusion row).
 
-``v2xbench eval --agent aurora --agent-config aurora.json --set max_payload_floats=5680``
+``v2xbench eval --agent aurora --agent-config aurora.json``
 with ``aurora.json`` = ``{"run": "runs/aurora"}`` drives with a trained run (its latest stage of
 3-5; ``"stage": 4`` picks another). The agent observes in ``sensors`` mode and declares the
 sensors of its training data (``camera_size`` of the data set, ``rgb`` only:
@@ -9,10 +9,13 @@ sensors of its training data (``camera_size`` of the data set, ``rgb`` only:
 ``rsu_policy`` is :class:`~.rsu_agent.AuroraRoadside` (the roadside branch of the same
 checkpoint, its message a raw payload over the channel), whose size at the default scale (5,680
 floats; :func:`~.rsu_agent.message_floats`) is above the env's default ``max_payload_floats``
-(320): the ``--set`` raises it (an agent cannot change the env's channel itself). ``no_fusion``
-sends nothing (``rsu_policy = "none"``) and ignores ``v2x_payload``; its default run is
-``runs/aurora_no_fusion`` (``v2xbench aurora train --no-fusion``). ``checkpoint`` declares the
-stage's weights and the base LM's folder, ``fingerprint()`` the stage, fusion and planner, so
+(320): the agent declares ``channel = {"max_payload_floats": <the message's floats>}``
+(``agents/interface.py``, "Channel") and ``eval`` sets the env's limit from it. ``no_fusion``
+sends nothing (``rsu_policy = "none"``) and ignores ``v2x_payload``; train its run with
+``--no-fusion``. Without a ``run`` both load exported weights (:mod:`.export`): ``weights``, else
+the repository's shipped ``agents/aurora/weights/aurora`` / ``no_fusion``, SHA-256 checked.
+``checkpoint`` declares the weights and the base LM's folder, ``fingerprint()`` the stage,
+fusion, planner and target-speed rule, so
 results of other weights never mix. Each step goes through the ``TensorDictModule`` of
 :mod:`.policy`; its waypoints go to the shared waypoint controller (``interface.to_control``).
 
@@ -26,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-DEFAULT_RUN = "runs/aurora"
-DEFAULT_NO_FUSION_RUN = "runs/aurora_no_fusion"
+#: Exported weights (:mod:`.export`) each agent loads when no run is given.
+SHIPPED_NAME = {True: "aurora", False: "no_fusion"}
 OBS_KEYS = ("cameras", "ego", "route", "v2x_info", "v2x_payload")
 
 
@@ -35,28 +38,51 @@ class AuroraAgent:
     """The learned AURORA driver (``v2xbench eval --agent aurora``; module docstring).
 
     Args:
-        run: the trained run folder (stages 3-5; its latest stage is used).
-        stage: a stage to use instead of the latest (3, 4 or 5).
+        run: a trained run folder (stages 3-5; its latest stage is used). Default: exported
+            weights (``weights``, else the repository's shipped ``agents/aurora/weights/aurora``;
+            SHA-256 checked).
+        stage: with ``run``: a stage to use instead of the latest (3, 4 or 5).
         device: torch device.
+        weights: a folder of exported weights (``v2xbench aurora export``) instead of a run.
     """
 
     obs_mode = "sensors"
     privileged = False
     fusion = True
 
-    def __init__(self, run: str = DEFAULT_RUN, stage: int | None = None,
-                 device: str = "cpu") -> None:
+    def __init__(self, run: str | None = None, stage: int | None = None,
+                 device: str = "cpu", weights: str | None = None) -> None:
+        from .export import SHIPPED, load_export
         from .policy import policy_module
         from .rsu_agent import AuroraRoadside
         from .system import load_system
 
-        system, tok, info = load_system(run, stage, device)
+        if run is not None and weights is not None:
+            raise ValueError("AURORA agent: give either run or weights, not both")
+        if run is not None:
+            system, tok, info = load_system(run, stage, device)
+        else:
+            if stage is not None:
+                raise ValueError("AURORA agent: stage chooses a stage of a run; exported weights "
+                                 "hold one stage (give run as well, or drop stage)")
+            src = Path(weights) if weights is not None else SHIPPED / SHIPPED_NAME[self.fusion]
+            if weights is None and not src.is_dir():
+                raise FileNotFoundError(
+                    f"AURORA agent: no run given and no shipped weights at {src}; pass a trained "
+                    'run (--agent-config with {"run": "runs/aurora"}) or export one with '
+                    f"`v2xbench aurora export --run RUN --out {src}`")
+            system, tok, info = load_export(src, device)
+            run = str(src)
         system.lm.lm.merge_adapter()  # inference only: LoRA folded into the base weights
         if not self.fusion:
             system.fusion = False
         self.run, self.info = str(Path(run)), info
         size = tuple(int(v) for v in info.get("camera_size", system.cfg.ego_image_size))
         self.sensors = {"camera_size": size, "camera_images": ("rgb",)}
+        if self.fusion:  # the roadside message's size: eval sets the env's payload limit from it
+            from .rsu_agent import message_floats
+
+            self.channel = {"max_payload_floats": message_floats(system.cfg)}
         self.checkpoint = [info["checkpoint"], info["lm_dir"]]
         self.policy = policy_module(system, tok, size)
         self.cfg = system.cfg
@@ -66,8 +92,11 @@ class AuroraAgent:
         self.ticks, self.infer_s = 0, 0.0
 
     def fingerprint(self) -> str:
-        """What else the behaviour depends on: the stage and whether fusion is on."""
-        return f"stage={self.info['stage']} fusion={self.fusion} planner={self.cfg.planner}"
+        """What else the behaviour depends on: the stage, fusion, planner and speed rule."""
+        from .policy import TARGET_SPEED_RULE
+
+        return (f"stage={self.info['stage']} fusion={self.fusion} planner={self.cfg.planner} "
+                f"speed={TARGET_SPEED_RULE}")
 
     def reset(self, route_info: dict) -> None:
         """A new route (the model keeps no state between ticks)."""
@@ -96,9 +125,9 @@ class NoFusionAgent(AuroraAgent):
 
     fusion = False
 
-    def __init__(self, run: str = DEFAULT_NO_FUSION_RUN, stage: int | None = None,
-                 device: str = "cpu") -> None:
-        super().__init__(run, stage, device)
+    def __init__(self, run: str | None = None, stage: int | None = None,
+                 device: str = "cpu", weights: str | None = None) -> None:
+        super().__init__(run, stage, device, weights)
 
 
-__all__ = ["DEFAULT_NO_FUSION_RUN", "DEFAULT_RUN", "AuroraAgent", "NoFusionAgent"]
+__all__ = ["SHIPPED_NAME", "AuroraAgent", "NoFusionAgent"]

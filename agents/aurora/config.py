@@ -174,6 +174,14 @@ class AuroraConfig:
     plan_cls_weight: float = 1.0  # diffusion: trajectory-mode classification
     plan_bound_margin: float = 1.0  # m, waypoints closer than this to a road boundary cost
     plan_col_radius: float = 2.5  # m, waypoints closer than this to an agent's centre cost
+    #: start-from-rest samples (ego slower than ``plan_start_speed`` m/s, the expert's last
+    #: planned waypoint farther than ``plan_start_dist`` m): their planning loss counts
+    #: ``plan_start_weight`` times (2.4 % of the default training frames; 43 % stand and stay)
+    plan_start_weight: float = 5.0
+    plan_start_speed: float = 0.5  # m/s
+    plan_start_dist: float = 1.0  # m
+    #: training only: share of planning prompts whose speed reads "unknown" (speed dropout)
+    plan_speed_dropout: float = 0.3
     # --- losses and matching costs (PETR / MapTR weights)
     focal_alpha: float = 0.25
     focal_gamma: float = 2.0
@@ -268,10 +276,15 @@ class AuroraConfig:
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"AuroraConfig: {name}={getattr(self, name)!r} must be in [0, 1]")
         for name in ("plan_l1_weight", "plan_bound_weight", "plan_col_weight", "plan_kl_weight",
-                     "plan_cls_weight", "plan_bound_margin", "plan_col_radius"):
+                     "plan_cls_weight", "plan_bound_margin", "plan_col_radius",
+                     "plan_start_weight", "plan_start_speed", "plan_start_dist"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"AuroraConfig: {name}={v!r} must be a number >= 0")
+        if not (isinstance(self.plan_speed_dropout, (int, float))
+                and 0 <= self.plan_speed_dropout <= 1):
+            raise ValueError(f"AuroraConfig: plan_speed_dropout={self.plan_speed_dropout!r} must "
+                             "be in [0, 1]")
         if not isinstance(self.stage3_freeze_backbone, bool):
             raise ValueError(f"AuroraConfig: stage3_freeze_backbone={self.stage3_freeze_backbone!r}"
                              " must be true or false")

@@ -22,6 +22,8 @@ key                        content
 ``input_ids``, ``labels``  (T,) the prompt (:func:`~.prompt.build_prompt`: run-time
                            context only) and the answer's labels (``-100`` elsewhere)
 ``command``                () int64 navigation command
+``ego_speed``              () float32 the ego's speed (m/s; the planning loss's
+                           start-from-rest weight reads it, whatever the prompt says)
 ``expert_waypoints``       (8, 2) the expert's future positions, ego frame, 0.5 s apart
 ``agent_future``           (M, T_plan, 2) ``gt/fused`` agents at constant velocity;
                            ``agent_future_mask`` (M, T_plan)
@@ -31,7 +33,10 @@ key                        content
 =========================  ==========================================================
 
 The prompt says "no message received" for frames without a unit and for a model without
-fusion (``fusion=False``), as at run time.
+fusion (``fusion=False``), as at run time. Speed dropout (training only, ``speed_dropout=p``):
+a planning prompt says "Ego speed: unknown" for a share ``p`` of the planning samples, chosen
+per sample by a generator seeded with ``(seed, index)`` (repeatable, and the same on resume);
+QA prompts and the default ``p = 0`` (evaluation) always carry the speed.
 """
 
 from __future__ import annotations
@@ -121,13 +126,18 @@ class AuroraPairs(Dataset):
         fusion: the model uses the roadside message (``False``: the prompt never has one).
         images: read the camera images (``False`` with a feature cache).
         cache: a :class:`~.feature_cache.FeatureCache` holding every item's frame.
+        speed_dropout: training only: the share of planning prompts whose speed reads
+            "unknown" (module docstring; 0: never). seed: seeds that choice.
     """
 
     def __init__(self, root: str | Path, split: str, cfg: AuroraConfig, tokenizer,
                  items: Sequence[Item], *, fusion: bool = True, images: bool = True,
-                 cache=None) -> None:
+                 cache=None, speed_dropout: float = 0.0, seed: int = 0) -> None:
         if not items:
             raise ValueError(f"AuroraPairs: no samples in split {split!r} of {root}")
+        if not 0 <= float(speed_dropout) <= 1:
+            raise ValueError(f"AuroraPairs: speed_dropout={speed_dropout!r} must be in [0, 1]")
+        self.speed_dropout, self.seed = float(speed_dropout), int(seed)
         self.cfg, self.tok, self.items = cfg, tokenizer, list(items)
         self.fusion, self.cache = bool(fusion), cache
         self.ego = AuroraFrames(root, split, "ego", cfg, images=images)
@@ -150,6 +160,13 @@ class AuroraPairs(Dataset):
     def frame_ids(self) -> list[int]:
         """The distinct frames of the samples, sorted."""
         return sorted({fid for fid, _, _ in self.items})
+
+    def drops_speed(self, index: int) -> bool:
+        """Whether sample ``index``'s prompt says "unknown" instead of the speed (a planning
+        sample, with probability ``speed_dropout``; module docstring)."""
+        if self.speed_dropout <= 0 or self.items[index][1] is not None:
+            return False
+        return bool(np.random.default_rng((self.seed, int(index))).random() < self.speed_dropout)
 
     def _rsu_sample(self, fid: int, calib: dict, like: dict) -> dict[str, torch.Tensor]:
         if self.rsu is not None and int(calib["rsu_unit"]) >= 0:
@@ -179,7 +196,8 @@ class AuroraPairs(Dataset):
         e = rsu_to_ego(calib["T_world_ego"], calib["T_world_rsu"]) if has else torch.eye(4)
         x = self.extra[fid]
         speed, command = float(x["ego_speed"]), int(x["command"])
-        prompt = build_prompt(speed, command, e if (has and self.fusion) else None,
+        said = None if self.drops_speed(index) else speed
+        prompt = build_prompt(said, command, e if (has and self.fusion) else None,
                               question or PLAN_QUESTION, num_det=cfg.num_det_queries,
                               num_map=cfg.num_map_queries, waypoint=question is None)
         ids, labels = encode_qa(self.tok, prompt, answer, cfg.lm_max_len)
@@ -194,6 +212,7 @@ class AuroraPairs(Dataset):
             input_ids=torch.tensor(ids, dtype=torch.long),
             labels=torch.tensor(labels, dtype=torch.long),
             command=torch.tensor(command, dtype=torch.long),
+            ego_speed=torch.tensor(speed, dtype=torch.float32),
             expert_waypoints=x["expert_waypoints"].float(),
             agent_future=fut[0], agent_future_mask=fmask[0],
             plan_mask=torch.tensor(question is None), frame_id=torch.tensor(fid))

@@ -2,7 +2,12 @@
 
 VAE / MLP: ``L = w_l1 L_reg + w_bound L_bound + w_col L_col (+ w_kl L_KL for the VAE)``;
 diffusion: ``L = w_cls L_cls + w_l1 L_reg + w_bound L_bound``. Per sample, then averaged over
-the samples that carry a planning target (``plan_mask``; stage 5 mixes QA-only samples):
+the samples that carry a planning target (``plan_mask``; stage 5 mixes QA-only samples),
+each weighted by :func:`start_weights`: a start-from-rest sample (the ego slower than
+``cfg.plan_start_speed``, the expert's last planned waypoint farther than
+``cfg.plan_start_dist``) counts ``cfg.plan_start_weight`` times, every other sample once. Of
+the default training frames 45 % stand (< 0.5 m/s) and 2.4 % start from rest: unweighted, the
+L1 median of a standing frame is "stay standing" (the planner learned "stopped stays stopped").
 
 - ``plan_l1``: command-conditioned L1: mean absolute error (m) of the given command's trajectory
   (the planners select it) against the first ``T`` expert waypoints.
@@ -125,9 +130,27 @@ def constant_velocity_futures(boxes: torch.Tensor, mask: torch.Tensor, steps: in
     return fut, mask.bool()[..., None].expand(*mask.shape, steps)
 
 
+def start_from_rest(ego_speed: torch.Tensor, expert: torch.Tensor, cfg: AuroraConfig
+                    ) -> torch.Tensor:
+    """``(B,)`` bool: the ego is slower than ``cfg.plan_start_speed`` (m/s) and the expert's
+    waypoint ``cfg.plan_waypoints`` (the last one planned) is farther than
+    ``cfg.plan_start_dist`` (m): the expert drives off from rest."""
+    far = expert[:, cfg.plan_waypoints - 1].float().norm(dim=-1) > cfg.plan_start_dist
+    return (ego_speed.float() < cfg.plan_start_speed) & far
+
+
+def start_weights(batch: dict, cfg: AuroraConfig) -> torch.Tensor:
+    """``(B,)`` per-sample planning-loss weights: ``cfg.plan_start_weight`` where
+    :func:`start_from_rest`, 1 elsewhere (``batch``: ``ego_speed``, ``expert_waypoints``)."""
+    start = start_from_rest(batch["ego_speed"], batch["expert_waypoints"], cfg)
+    one = torch.ones(start.shape, device=start.device)
+    return torch.where(start, one * cfg.plan_start_weight, one)
+
+
 def _masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Mean of ``x`` over the samples weighted by ``mask`` (bool or per-sample weights)."""
     m = mask.float()
-    return (x * m).sum() / m.sum().clamp_min(1.0)
+    return (x * m).sum() / m.sum().clamp_min(1e-9)  # 0 when no sample carries weight
 
 
 class PlanningCriterion(nn.Module):
@@ -135,7 +158,7 @@ class PlanningCriterion(nn.Module):
     docstring). ``batch``: ``expert_waypoints`` ``(B, >= T, 2)``, the ego-frame map targets
     (``map_points``, ``map_labels``, ``map_mask``, ``map_closed``), for VAE / MLP
     ``agent_future`` ``(B, A, T, 2)`` and ``agent_future_mask``, optional ``plan_mask``
-    ``(B,)``."""
+    ``(B,)``, and ``ego_speed`` ``(B,)`` (m/s) unless ``cfg.plan_start_weight`` is 1."""
 
     def __init__(self, cfg: AuroraConfig) -> None:
         super().__init__()
@@ -146,6 +169,8 @@ class PlanningCriterion(nn.Module):
         need = ("expert_waypoints",) + MAP_KEYS
         if self.cfg.planner != "diffusion":
             need += ("agent_future", "agent_future_mask")
+        if self.cfg.plan_start_weight != 1.0:
+            need += ("ego_speed",)
         missing = [k for k in need if k not in batch]
         if missing:
             raise ValueError(f"PlanningCriterion({self.cfg.planner}): batch has no {missing}")
@@ -164,6 +189,8 @@ class PlanningCriterion(nn.Module):
         gt = batch["expert_waypoints"][:, :cfg.plan_waypoints].float()
         b = gt.shape[0]
         mask = batch.get("plan_mask", torch.ones(b, dtype=torch.bool, device=gt.device)).bool()
+        if cfg.plan_start_weight != 1.0:
+            mask = mask.float() * start_weights(batch, cfg).to(gt.device)
         maps = [batch[k] for k in MAP_KEYS]
         terms: dict[str, torch.Tensor] = {}
         if cfg.planner == "diffusion":
@@ -197,4 +224,4 @@ class PlanningCriterion(nn.Module):
 
 __all__ = ["BOUNDARY", "PlanningCriterion", "boundary_loss", "boundary_segments",
            "collision_loss", "constant_velocity_futures", "kl_divergence",
-           "outside_drivable", "point_segment_distance"]
+           "outside_drivable", "point_segment_distance", "start_from_rest", "start_weights"]

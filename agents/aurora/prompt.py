@@ -29,6 +29,9 @@ RUNTIME_KEYS = ("ego_speed", "command", ("calib", "T_world_ego"), ("calib", "T_w
                 ("calib", "rsu_unit"))
 PLAN_QUESTION = "Plan the ego's waypoints for the next three seconds."
 NO_MESSAGE = "Roadside unit: no message received."
+#: The speed's text in a planning prompt whose speed was dropped in training (speed dropout,
+#: :class:`~.pairs.AuroraPairs`); never produced at run time.
+UNKNOWN_SPEED = "unknown"
 
 
 def _array(x) -> np.ndarray:
@@ -52,13 +55,18 @@ def command_phrase(command: int | str) -> str:
     return COMMAND_PHRASES[name]
 
 
-def runtime_context(speed: float, command: int | str, e_rsu_to_ego=None) -> str:
-    """Context lines: speed (m/s), navigation command, the roadside unit's relative pose from its
-    message (``E_{r->e}`` ``(4, 4)``; ``None``: no message)."""
-    speed = float(speed)
-    if not math.isfinite(speed):
-        raise ValueError(f"prompt: ego speed {speed!r} is not a finite number")
-    lines = [f"Ego speed: {speed:.1f} m/s; navigation command: {command_phrase(command)}."]
+def runtime_context(speed: float | None, command: int | str, e_rsu_to_ego=None) -> str:
+    """Context lines: speed (m/s; ``None``: "unknown", the speed dropout of training),
+    navigation command, the roadside unit's relative pose from its message (``E_{r->e}``
+    ``(4, 4)``; ``None``: no message)."""
+    if speed is None:
+        said = UNKNOWN_SPEED
+    else:
+        speed = float(speed)
+        if not math.isfinite(speed):
+            raise ValueError(f"prompt: ego speed {speed!r} is not a finite number")
+        said = f"{speed:.1f} m/s"
+    lines = [f"Ego speed: {said}; navigation command: {command_phrase(command)}."]
     if e_rsu_to_ego is None:
         lines.append(NO_MESSAGE)
     else:
@@ -88,7 +96,7 @@ def prompt_text(context: str, question: str, *, num_det: int, num_map: int,
     return text + f" {WP}" if waypoint else text
 
 
-def build_prompt(speed: float, command: int | str, e_rsu_to_ego, question: str, *,
+def build_prompt(speed: float | None, command: int | str, e_rsu_to_ego, question: str, *,
                  num_det: int, num_map: int, waypoint: bool = False) -> str:
     """The model's prompt (module docstring); ``waypoint``: end with ``<wp>``."""
     return prompt_text(runtime_context(speed, command, e_rsu_to_ego), question,
@@ -141,10 +149,12 @@ def template_texts() -> list[str]:
     """The fixed phrases of the run-time prompt (for training the tokenizer and stage 0)."""
     out = [NO_MESSAGE, PLAN_QUESTION, "Question:", "Answer:",
            "Roadside unit relative to the ego: position (12.3, -4.5) m, heading 90 deg."]
-    out += [runtime_context(v, c) for v in (0.0, 5.5, 12.5) for c in range(len(COMMAND_NAMES))]
+    out += [runtime_context(v, c) for v in (0.0, 5.5, 12.5, None)
+            for c in range(len(COMMAND_NAMES))]
     return out
 
 
-__all__ = ["NO_MESSAGE", "PLAN_QUESTION", "RUNTIME_KEYS", "build_prompt", "command_phrase",
+__all__ = ["NO_MESSAGE", "PLAN_QUESTION", "RUNTIME_KEYS", "UNKNOWN_SPEED", "build_prompt",
+           "command_phrase",
            "context_from_record", "prompt_from_record", "prompt_text", "runtime_context",
            "template_texts"]

@@ -26,7 +26,8 @@ floats                content
 
 At the default scale ``F = 6 + 32 * 132 + 10 * 145 = 5680`` floats (11,376 bytes on air, about
 0.91 Mbit/s at 10 Hz), above the env's default ``max_payload_floats`` (320): evaluate with
-``--set max_payload_floats=F`` (:func:`message_floats`; the config's bound is 65,535 floats).
+``max_payload_floats=F`` (:func:`message_floats`; the config's bound is 65,535 floats), which the
+``aurora`` agent declares as its ``channel`` so that ``eval`` sets it.
 A message longer than the limit is an error that fails the route, never cut.
 """
 

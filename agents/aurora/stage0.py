@@ -21,7 +21,8 @@ starts from Vicuna-7B): ``v2xbench aurora train --stage 0 --data DATA --out RUN`
    call (also when stopped by ``--max-steps``), so that ``from_pretrained(RUN/stage0)`` (
    :func:`~.language.load_lm`) loads it like any local Hugging Face causal LM.
 
-Later stages take their base LM from :func:`lm_path`: ``RUN/stage0``, or a local Hugging Face
+Later stages take their base LM from :func:`find_base_lm` (the one place that resolves it):
+``RUN/stage0``, or a local Hugging Face
 causal-LM folder given with ``--lm PATH`` (it must hold AURORA's special tokens; see
 :func:`~.language.load_lm`).
 """
@@ -188,27 +189,47 @@ class NextTokenLoss(nn.Module):
 
 
 # ---------------------------------------------------------------------- the stage
-def lm_path(run: str | Path | None, lm: str | Path | None = None) -> Path:
-    """The base LM of the later stages: ``lm`` (a local Hugging Face causal-LM folder, e.g.
-    ``--lm PATH``) or the run's stage-0 model ``RUN/stage0``.
+def find_base_lm(run: str | Path | None, lm: str | Path | None = None, *,
+                 required: bool = True) -> dict[str, str] | None:
+    """The one place that resolves the base LM of the later stages: ``lm`` (a local Hugging
+    Face causal-LM folder, ``--lm PATH``) or else the run's stage-0 model ``RUN/stage0``.
+
+    Returns:
+        ``{"source": "given", "path": <absolute folder>}`` or ``{"source": "stage0", "path":
+        "stage0"}`` (relative to the run, as stage files record it; :func:`base_lm_dir` gives
+        the folder), or ``None`` when the run has no stage-0 model and ``required`` is false
+        (stage 3 then builds a fresh LM).
 
     Raises:
-        FileNotFoundError: ``lm`` holds no model, or the run has no stage-0 model yet.
+        FileNotFoundError: ``lm`` holds no model; ``required`` and the run has no stage-0 model.
+        ValueError: neither ``run`` nor ``lm`` given.
     """
     if lm is not None:
         path = Path(lm)
         if not (path / "config.json").is_file():
             raise FileNotFoundError(f"--lm {path}: no Hugging Face causal-LM folder "
                                     "(config.json missing)")
-        return path
+        return {"source": "given", "path": str(path.resolve())}
     if run is None:
-        raise ValueError("lm_path: give a run folder or --lm PATH")
+        raise ValueError("find_base_lm: give a run folder or --lm PATH")
     path = Path(run) / f"stage{STAGE}"
-    if not (path / "config.json").is_file():
-        raise FileNotFoundError(f"{path} holds no stage-0 language model: train it with "
-                                f"`v2xbench aurora train --stage 0 --data DATA --out {run}` or "
-                                "pass --lm PATH (a local Hugging Face causal-LM folder)")
-    return path
+    if (path / "config.json").is_file():
+        return {"source": "stage0", "path": f"stage{STAGE}"}
+    if not required:
+        return None
+    raise FileNotFoundError(f"{path} holds no stage-0 language model: train it with "
+                            f"`v2xbench aurora train --stage 0 --data DATA --out {run}` or "
+                            "pass --lm PATH (a local Hugging Face causal-LM folder)")
+
+
+def base_lm_dir(run: str | Path | None, choice: dict[str, str]) -> Path:
+    """The folder of a :func:`find_base_lm` choice (relative paths are inside ``run``)."""
+    p = Path(choice["path"])
+    if p.is_absolute():
+        return p
+    if run is None:
+        raise ValueError(f"base_lm_dir: {p} is relative to a run folder; none given")
+    return Path(run) / p
 
 
 def _check_same_run(path: Path, info: dict) -> None:
@@ -322,13 +343,15 @@ def format_stage0_summary(s: dict) -> str:
 
 
 def load_stage0(run: str | Path | None, lm: str | Path | None = None):
-    """``(model, tokenizer, path)`` of :func:`lm_path` (``from_pretrained``), in eval mode."""
-    path = lm_path(run, lm)
+    """``(model, tokenizer, path)`` of :func:`find_base_lm` (``from_pretrained``), in eval
+    mode."""
+    path = base_lm_dir(run, find_base_lm(run, lm))
     model, tok = load_lm(path)
     return model.eval(), tok, path
 
 
 __all__ = ["CausalLMTrainee", "NextTokenLoss", "PackedText", "documents", "format_stage0_summary",
            "item_prompt",
-           "lm_path", "load_stage0", "pack", "split_qa_items", "tokenizer_corpus",
+           "base_lm_dir", "find_base_lm", "load_stage0", "pack", "split_qa_items",
+           "tokenizer_corpus",
            "train_stage0"]

@@ -113,19 +113,17 @@ class StageCriterion(nn.Module):
 # ---------------------------------------------------------------------- the base LM
 def base_lm(run: Path, data: Path, cfg: AuroraConfig, lm: str | Path | None, seed: int
             ) -> dict[str, str]:
-    """Stage 3's base LM: ``{"source", "path"}`` (module docstring); a fresh one is built and
-    saved in ``RUN/stage3/base_lm`` (once: a resumed stage reuses it)."""
-    from .language import build_lm, load_lm, save_lm
+    """Stage 3's base LM: ``{"source", "path"}``: :func:`~.stage0.find_base_lm`'s choice (``--lm
+    PATH``, else ``RUN/stage0``), else a fresh one built and saved in ``RUN/stage3/base_lm``
+    (once: a resumed stage reuses it)."""
+    from .language import build_lm, save_lm
     from .prompt import template_texts
+    from .stage0 import find_base_lm
     from .tokenizer import qa_texts, train_tokenizer
 
-    if lm is not None:
-        path = Path(lm).resolve()
-        load_lm(path)  # checked now: a folder with a model and AURORA's tokenizer
-        return {"source": "given", "path": str(path)}
-    stage0 = run / "stage0"
-    if (stage0 / "config.json").is_file():
-        return {"source": "stage0", "path": "stage0"}
+    chosen = find_base_lm(run, lm, required=False)
+    if chosen is not None:
+        return chosen
     out = stage_dir(run, 3) / BASE_LM_DIR
     if not (out / "config.json").is_file():
         texts = itertools.chain(qa_texts(data, "train"), template_texts())
@@ -277,7 +275,7 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
                                              num_workers=hp.num_workers, device=device,
                                              progress=progress)
     ds = AuroraPairs(data, "train", cfg, tok, items, fusion=fusion, images=not use_cache,
-                     cache=feature_cache)
+                     cache=feature_cache, speed_dropout=cfg.plan_speed_dropout, seed=seed)
     if stage == 4 and cfg.planner == "diffusion" and not bool(system.planner.anchors_set):
         wps = torch.stack([ds.extra[fid]["expert_waypoints"] for fid, _, _ in items])
         system.planner.set_anchors(fit_anchors(wps[:, :cfg.plan_waypoints], cfg.plan_anchors,

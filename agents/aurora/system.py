@@ -235,8 +235,9 @@ def latest_stage(run: str | Path) -> int | None:
 
 def resolve_lm_path(run: str | Path, info: Mapping) -> Path:
     """The base LM folder a stage's ``aurora.json`` names (relative paths: to the run)."""
-    p = Path(info["lm"]["path"])
-    return p if p.is_absolute() else Path(run) / p
+    from .stage0 import base_lm_dir
+
+    return base_lm_dir(run, info["lm"])
 
 
 def build_system(cfg: AuroraConfig, lm_dir: str | Path, fusion: bool = True

@@ -54,6 +54,11 @@ class Forecast:
         return len(self.owner)
 
 
+#: m/s^2: a follower needing less than this to stop at its sign is assumed to stop there; one
+#: needing more is assumed to stop only if it already brakes harder than SIGN_BRAKING
+SIGN_GENTLE, SIGN_BRAKING = 1.5, 0.5
+
+
 def will_stop(
     lmap: LaneMap,
     branch: np.ndarray,
@@ -79,6 +84,10 @@ def will_stop(
     departing = sign & (d < 4.0) & (v < 3.0) & (a > 0.2)
     rule = (sig == RED) | ((sig == YELLOW) & (req < 3.0)) | (sign & ~departing)
     behaving = (req < 3.0) | (a < -0.6 * req)
+    # at a sign only (no light): a follower cruising on without braking, still far from gentle,
+    # is taking priority (as the flows of the non-signalized junction scenarios)
+    sign_only = sign & (sig < 0) & ~departing
+    behaving &= ~sign_only | (req < SIGN_GENTLE) | (a < -SIGN_BRAKING)
     return ahead & rule & behaving
 
 

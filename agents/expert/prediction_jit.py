@@ -45,6 +45,8 @@ def lane_forecast_kernel(br, s0, lat0, v, accel, length, bike, taus, lat_decay, 
         departing = sign and d < 4.0 and vk < 3.0 and a > 0.2
         rule = sig == red or (sig == yellow and req < 3.0) or (sign and not departing)
         behaving = req < 3.0 or a < -0.6 * req
+        if sign and not departing and not (req < 1.5 or a < -0.5):  # prediction.SIGN_GENTLE
+            behaving = False
         st = ahead and rule and behaving
         stops[k] = st
         cap = _np_max(stop_s - half - 0.5 if st else np.inf, s0[k])

@@ -56,6 +56,10 @@ BROAD_PHASE_MARGIN = 0.05
 #: m added to both actors' half widths in the car-following corridor (``leaders_kernel`` and
 #: ``traffic.leaders``)
 CORRIDOR_MARGIN_M = 0.4
+#: |sine| of the heading difference above which an actor counts as crossing a follower's
+#: corridor (more than 30 deg off its axis): its footprint across the corridor is measured from
+#: its oriented box, and it is never taken for oncoming traffic in another lane
+CROSSING_SIN = 0.5
 #: rad: a field-of-view answer from the bearing's cosine is taken only this far from the edge
 FOV_SURE_RAD = 1e-7
 
@@ -476,9 +480,11 @@ def leaders_kernel(idx, others, pos, yaw, length, width, speed, lookahead):  # p
     # arrays without a branch (the CPU vectorizes it; the branchy test mispredicted about every
     # other pair); then only the few pairs in the corridor take the branchy part
     ox, oy, ow, ol = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    oc, osn = np.empty(n), np.empty(n)
     for q in range(n):
         o = others[q]
         ox[q], oy[q], ow[q], ol[q] = pos[o, 0], pos[o, 1], width[o], length[o]
+        oc[q], osn[q] = np.cos(yaw[o]), np.sin(yaw[o])
     inside = np.empty(n, np.bool_)
     for a in range(m):
         i = idx[a]
@@ -489,7 +495,10 @@ def leaders_kernel(idx, others, pos, yaw, length, width, speed, lookahead):  # p
             d1 = oy[q] - py
             dx = c * d0 + s * d1
             dy = -s * d0 + c * d1
-            half = 0.5 * (wi + ow[q]) + CORRIDOR_MARGIN_M
+            # a crossing actor's extent across the corridor is that of its oriented box
+            sr = abs(c * osn[q] - s * oc[q])
+            across = sr * ol[q] + abs(c * oc[q] + s * osn[q]) * ow[q]
+            half = 0.5 * (wi + (across if sr > CROSSING_SIN else ow[q])) + CORRIDOR_MARGIN_M
             reach = 0.5 * (li + ol[q])
             inside[q] = (dx > 0.0) & (dx < lookahead + reach) & (abs(dy) < half)
         best = np.inf
@@ -502,7 +511,8 @@ def leaders_kernel(idx, others, pos, yaw, length, width, speed, lookahead):  # p
             dx = c * (ox[q] - px) + s * (oy[q] - py)
             reach = 0.5 * (li + ol[q])
             cos_rel = np.cos(yaw[o] - yaw[i])
-            if not ((cos_rel < -0.5) and (speed[o] > 1.0)) and dx - reach < best:
+            crossing = abs(c * osn[q] - s * oc[q]) > CROSSING_SIN
+            if not ((cos_rel < -0.5) and (speed[o] > 1.0) and not crossing) and dx - reach < best:
                 best = dx - reach
                 bj = o
                 bcos = cos_rel

@@ -77,11 +77,17 @@ def object_rows_kernel(idx, pos, yaw, speed, kind, length, width, height, actor_
     return out
 
 
+#: m of distance to the watched point that weigh as much as 1 rad off a unit's axis when the
+#: active unit is chosen (``rsu.select_active``): the unit looking most directly at the road ahead
+#: wins unless it stands much farther from it
+SELECT_M_PER_RAD = 50.0
+
+
 @_njit
 def select_active_kernel(pose, ex, ey, eyaw, max_range, slots, max_angle, lookahead, view_half):  # pragma: no cover
     """``rsu.select_active``: among the units ahead, facing the ego and in range, the ``slots``
     best: units whose view (``view_half`` either side of their axis, within range) holds the
-    point ``lookahead`` m ahead of the ego, nearest to that point first, then the others by
+    point ``lookahead`` m ahead of the ego, smallest ``angle off the axis + distance / SELECT_M_PER_RAD`` first, then the others by
     their distance to the ego; -1 pads; slot 0 falls back to the nearest unit when none
     qualifies.
 
@@ -104,8 +110,9 @@ def select_active_kernel(pose, ex, ey, eyaw, max_range, slots, max_angle, lookah
             q0 = px - pose[u, 0]
             q1 = py - pose[u, 1]
             dq = np.sqrt(q0 * q0 + q1 * q1)
-            sees = dq < max_range and abs((np.arctan2(q1, q0) - pose[u, 3] + np.pi) % two_pi - np.pi) < view_half
-            key[u] = dq if sees else UNSEEN_KEY + dist[u]
+            off = abs((np.arctan2(q1, q0) - pose[u, 3] + np.pi) % two_pi - np.pi)
+            sees = dq < max_range and off < view_half
+            key[u] = off + dq / SELECT_M_PER_RAD if sees else UNSEEN_KEY + dist[u]
         else:
             key[u] = np.inf
     out = np.full(slots, -1, np.int64)

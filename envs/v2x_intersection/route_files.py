@@ -167,6 +167,9 @@ def _parse_route(d: Any, path: str) -> RouteSpec:
                                                                        inst.key)
             if same_site and abs(other.s_on_key - inst.s_on_key) < S.DUPLICATE_M:
                 raise ValueError(f"{w}: repeats {spath}[{j}] (same type, site and conflict point)")
+        if k > 0 and _starts_route(inst.type):
+            raise ValueError(f"{w}: {inst.type} starts the route at its site (the ego starts "
+                             "there), so it can only be the route's first scenario")
         if conflict_s < last:
             raise ValueError(f"{w}: its conflict point ({conflict_s:.1f} m along the route) comes "
                              f"before the previous scenario's ({last:.1f} m); list scenarios in "
@@ -180,6 +183,12 @@ def _parse_route(d: Any, path: str) -> RouteSpec:
     Choice(TIMES_OF_DAY).check(tod, S.join(path, "time_of_day"))
     S.SEED_RULE.check(d["seed"], S.join(path, "seed"))
     return RouteSpec(d["id"], town_name, list(lanes), wps, scen, weather, tod, int(d["seed"]))
+
+
+def _starts_route(name: str) -> bool:
+    from .scenarios import get_scenario
+
+    return get_scenario(name).starts_route
 
 
 def _parse_scenario(s: Any, path: str, town, lanes: list[int],

@@ -6,12 +6,18 @@ scenario list, so a unit's pose carries no information about where a hazard will
 
 Candidates are placed (1) every ~``STRAIGHT_SPACING`` m along the route's non-junction parts,
 beside the road and looking back at the approaching ego; (2) at every junction the route crosses,
-on a corner offset from the centre, looking back over the junction at the approach. Units closer
+on a corner offset from the centre: the far-right corner (as seen when arriving), looking back
+over the junction at the approach; where the route turns left there, a second unit on the
+near-right corner, looking across the junction centre at the oncoming approach and the left exit
+(the traffic a left turn crosses, behind the far-right unit). Units closer
 than ``MIN_SPACING`` m to an already kept unit of their kind are pruned (a street unit looks along
 the road, a junction unit over the junction: they do not replace each other). Each tick the
 active unit is chosen from the ego's pose only: among the forward-facing units in range, the one
-watching the road ``LOOKAHEAD_M`` m ahead of the ego (the point within its camera's view),
-nearest to that point; else the nearest forward-facing unit.
+watching the road ``LOOKAHEAD_M`` m ahead of the ego (the point within its camera's view) most
+directly (smallest angle off its axis plus distance to the point / ``SELECT_M_PER_RAD``: at a
+left turn the unit looking across the junction at
+the oncoming traffic, not the one looking back at the approach); else the nearest
+forward-facing unit.
 """
 
 from __future__ import annotations
@@ -23,7 +29,12 @@ import numpy as np
 from . import libm
 from .geometry import pose_matrix, row_norms, wrap_angle
 from .jit import HAVE_JIT
-from .jit_perception import UNSEEN_KEY, select_active_kernel, sidewalk_snap_kernel
+from .jit_perception import (
+    SELECT_M_PER_RAD,
+    UNSEEN_KEY,
+    select_active_kernel,
+    sidewalk_snap_kernel,
+)
 from .routes import Route
 from .town.model import Town
 
@@ -39,6 +50,8 @@ JUNCTION_SETBACK_M = 10.0
 #: rad: a junction unit looks this far from the junction centre, toward the approach it serves
 #: (from the far-right corner: the near-right corner, where hidden walkers wait, in view)
 JUNCTION_TURN = float(np.pi / 8)
+#: rad: a route whose heading turns left by more than this through a junction turns left there
+LEFT_TURN_MIN = float(np.pi / 4)
 SNAP_M = 8.0  # m: poles move to the nearest sidewalk point within this distance
 KIND_STRAIGHT, KIND_JUNCTION = 0, 1
 FACING_MAX_ANGLE = float(np.deg2rad(100.0))  # rad: a unit faces the ego within this angle
@@ -102,6 +115,7 @@ def _deploy(town: Town, route: Route) -> RSUSet:
     cands: list[tuple[float, float, float, int, float]] = []
     pts, hd, s = route.points, route.headings, route.s
     in_junction = town.index.junction[route.lane_ids] >= 0
+    turn_units: set[int] = set()  # the left-turn units (kept apart from the others)
     # junctions the route crosses
     for jid in np.unique(town.index.junction[route.lane_ids][in_junction]):
         j = town.junctions[jid]
@@ -109,9 +123,19 @@ def _deploy(town: Town, route: Route) -> RSUSet:
         k = int(inside[np.argmin(np.linalg.norm(pts[inside] - j.center, axis=1))])
         entry = int(inside[0])
         h_in = hd[max(entry - 1, 0)]
+        h_out = hd[min(int(inside[-1]) + 1, len(hd) - 1)]
         # far-right corner as seen when arriving, looking back over the junction at the approach
-        corner = j.center + (j.radius + 3.0) * np.array([np.cos(h_in - np.pi / 4), np.sin(h_in - np.pi / 4)])
+        corner = j.center + (j.radius + 3.0) * np.array([np.cos(h_in - np.pi / 4),
+                                                          np.sin(h_in - np.pi / 4)])
         yaw = np.arctan2(*(j.center - corner)[::-1]) + JUNCTION_TURN
+        if wrap_angle(h_out - h_in) > LEFT_TURN_MIN:
+            # a left turn: also the near-right corner, looking across the junction centre at the
+            # oncoming approach and the left exit (the far-right unit has them behind it)
+            near = j.center + (j.radius + 3.0) * np.array([np.cos(h_in - 0.75 * np.pi),
+                                                            np.sin(h_in - 0.75 * np.pi)])
+            yaw_n = np.arctan2(*(j.center - near)[::-1])
+            turn_units.add(len(cands))
+            cands.append((near[0], near[1], float(yaw_n), KIND_JUNCTION, float(s[k]) - 1e-3))
         cands.append((corner[0], corner[1], float(yaw), KIND_JUNCTION, float(s[k])))
     for sk in np.arange(STRAIGHT_SPACING / 2, route.length, STRAIGHT_SPACING):
         k = int(np.searchsorted(s, sk))
@@ -136,7 +160,7 @@ def _deploy(town: Town, route: Route) -> RSUSet:
         # a junction unit over the junction: both are kept where they stand close together)
         if all(
             np.hypot(cands[i][0] - cands[j][0], cands[i][1] - cands[j][1]) >= MIN_SPACING
-            for j in kept if cands[j][3] == cands[i][3]
+            for j in kept if cands[j][3] == cands[i][3] and (j in turn_units) == (i in turn_units)
         ):
             kept.append(i)
     kept.sort(key=lambda i: cands[i][4])
@@ -186,8 +210,9 @@ def select_active(rsus: RSUSet, ego_xy: np.ndarray, ego_yaw: float, max_range: f
     Forward-facing: the unit is ahead of the ego (positive longitudinal offset, allowing 10 m
     behind) and its optical axis points back toward the ego's side (angle to the ego < 100 deg).
     Best: units whose view (``VIEW_HALF_ANGLE`` either side of the axis, within range) holds the
-    point ``LOOKAHEAD_M`` m ahead of the ego come first, nearest to that point; then the other
-    forward-facing units, nearest to the ego. Without any, slot 0 is the nearest unit.
+    point ``LOOKAHEAD_M`` m ahead of the ego come first, smallest ``angle off the axis + distance
+    to the point / SELECT_M_PER_RAD`` first; then
+    the other forward-facing units, nearest to the ego. Without any, slot 0 is the nearest unit.
     """
     if len(rsus) == 0:
         return np.full(slots, -1, np.int64)
@@ -203,9 +228,9 @@ def select_active(rsus: RSUSet, ego_xy: np.ndarray, ego_yaw: float, max_range: f
     ok = ahead & facing & (dist < max_range)
     q = ego_xy + LOOKAHEAD_M * np.array([np.cos(ego_yaw), np.sin(ego_yaw)]) - rsus.pose[:, :2]
     dq = row_norms(q)
-    sees = (dq < max_range) & (np.abs(wrap_angle(libm.arctan2(q[:, 1], q[:, 0]) - rsus.pose[:, 3]))
-                               < VIEW_HALF_ANGLE)
-    key = np.where(sees, dq, UNSEEN_KEY + dist)
+    off = np.abs(wrap_angle(libm.arctan2(q[:, 1], q[:, 0]) - rsus.pose[:, 3]))
+    sees = (dq < max_range) & (off < VIEW_HALF_ANGLE)
+    key = np.where(sees, off + dq / SELECT_M_PER_RAD, UNSEEN_KEY + dist)
     order = np.argsort(np.where(ok, key, np.inf), kind="stable")
     out = np.where(ok[order][:slots], order[:slots], -1)
     if out[0] < 0:  # nothing forward-facing: fall back to the nearest unit

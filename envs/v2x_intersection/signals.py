@@ -3,6 +3,12 @@
 Each signalized junction runs one phase per approach (split phasing: one approach green at a time,
 then yellow, then all red), so no two signal-green flows cross. States: ``GREEN``, ``YELLOW``,
 ``RED``; lanes without a signal report ``NO_SIGNAL``.
+
+A scenario may override one junction's lights (CARLA's PriorityAtJunction sets the ego's light
+green): :meth:`SignalPlan.force_green` makes the given lanes green and the junction's other
+controlled lanes red (those green at that moment turn yellow for the junction's yellow time
+first) until :meth:`SignalPlan.release`. Every reader of the lights (traffic, agents,
+infractions, sensors) reads ``World.lane_signal``, so all see the override.
 """
 
 from __future__ import annotations
@@ -54,6 +60,9 @@ class SignalPlan:
         self._offset = np.array(offset)
         self.num_lanes = len(town.lanes)
         self._last: tuple[float, float, np.ndarray] | None = None  # (t, valid until, lane states)
+        self._yellow_of = {j.id: j.yellow_s for j in town.junctions if j.control == SIGNAL}
+        #: the active override: (green lanes, red lanes, lanes yellow first, from t, yellow until)
+        self._forced: tuple[np.ndarray, np.ndarray, np.ndarray, float, float] | None = None
 
     def states(self, t: float) -> np.ndarray:
         """``(K,)`` state of each controlled lane at time ``t`` (s)."""
@@ -64,13 +73,53 @@ class SignalPlan:
         state = np.where(within < self._green, GREEN, np.where(within < self._green + self._yellow, YELLOW, RED))
         return np.where(phase == self.group, state, RED)
 
+    def force_green(self, lanes: np.ndarray | list[int], t: float) -> None:
+        """From time ``t`` (s) on: ``lanes`` (signal-controlled incoming lanes of one junction)
+        green, the junction's other controlled lanes red, those that are green at ``t`` yellow for
+        the junction's yellow time first; until :meth:`release`.
+
+        Raises:
+            ValueError: a lane that no signal controls, or lanes of more than one junction.
+        """
+        lanes = np.asarray(lanes, np.int64).reshape(-1)
+        member = np.isin(lanes, self.lanes)
+        if len(lanes) == 0 or not member.all():
+            bad = lanes[~member].tolist() if len(lanes) else "none given"
+            raise ValueError(f"force_green: lanes {bad} are not signal-controlled")
+        juncs = np.unique(self.junction[np.isin(self.lanes, lanes)])
+        if len(juncs) != 1:
+            raise ValueError(f"force_green: lanes {lanes.tolist()} belong to junctions "
+                             f"{juncs.tolist()}; one junction at a time")
+        self.release()
+        others = self.lanes[(self.junction == juncs[0]) & ~np.isin(self.lanes, lanes)]
+        was_green = others[self.lane_states(t)[others] == GREEN]
+        self._forced = (lanes, others, was_green, float(t), float(t) + self._yellow_of[int(juncs[0])])
+
+    def release(self) -> None:
+        """End the override of :meth:`force_green` (the fixed-time plan runs on)."""
+        self._forced = None
+
     def lane_states(self, t: float) -> np.ndarray:
-        """``(num_lanes,)`` state per lane id (``NO_SIGNAL`` where uncontrolled).
+        """``(num_lanes,)`` state per lane id (``NO_SIGNAL`` where uncontrolled), the override of
+        :meth:`force_green` applied from its start time on.
 
         The states change only at phase boundaries, so the last answer is kept and returned
         again (the same array: read it, never write into it) for any later ``t`` before the
         next boundary (:meth:`_valid_until`); a tick's call then costs a comparison instead of a
         kernel call."""
+        base = self._plan_states(t)
+        if self._forced is None or t < self._forced[3]:
+            return base
+        green, red, was_green, _, yellow_until = self._forced
+        out = base.copy()
+        out[red] = RED
+        if t < yellow_until:
+            out[was_green] = YELLOW
+        out[green] = GREEN
+        return out
+
+    def _plan_states(self, t: float) -> np.ndarray:
+        """The fixed-time plan's lane states (cached until the next phase boundary)."""
         last = self._last
         if last is not None and last[0] <= t < last[1]:
             return last[2]

@@ -2,6 +2,7 @@
 
 Each route chains several scenario sites: it starts with a run-up before the first site, drives
 to the next site along the shortest lane path (no lane changes), and so on, then runs out 60 m.
+Every scenario instance gets its own parameters, drawn from ``scenarios/param_ranges.py``.
 ``test50`` uses only the held-out test town; ``train`` and ``val`` only training towns, so no
 town is shared between training and testing (as the paper's Town12 test split).
 """
@@ -25,6 +26,7 @@ from .route_files import (
 )
 from .routes import route_from_lanes, shortest_lane_path
 from .scenarios import SCENARIOS, get_scenario
+from .scenarios.param_ranges import draw_params
 from .scenarios.placement import extend_lanes, run_up
 from .town import TEST_TOWNS, TRAIN_TOWNS, get_town
 
@@ -44,6 +46,8 @@ def _sites(town, name):
 
 def compose_route(town, rng: np.random.Generator, types: list[str], route_id: str, seed: int) -> dict | None:
     """A route dict through one site of each type in ``types`` (in order), or ``None``."""
+    if any(get_scenario(n).starts_route for n in types[1:]):
+        return None  # such a type cuts the route to start at its site: it can only come first
     placed: list[tuple[str, object, int]] = []  # (type, site, index of the site's first lane)
     lanes: list[int] = []
     for name in types:
@@ -79,7 +83,7 @@ def compose_route(town, rng: np.random.Generator, types: list[str], route_id: st
     route = route_from_lanes(town, lanes)
     conflicts = []
     scen = []
-    for name, site, start in placed:
+    for i, (name, site, start) in enumerate(placed):
         key_lane = lanes[start + site.key]
         hits = np.flatnonzero(route.lane_ids == key_lane)
         cs = float(route.s[hits[0]] + site.s_on_key)
@@ -87,7 +91,9 @@ def compose_route(town, rng: np.random.Generator, types: list[str], route_id: st
         cls = get_scenario(name)
         k = int(np.searchsorted(route.s, cs))
         kt = int(np.searchsorted(route.s, max(cs - cls.trigger_distance, 0.0)))
-        scen.append({"type": name, "params": {},
+        # parameters from their own stream, so drawing them leaves the route's composition as it was
+        params = draw_params(name, cls.defaults, np.random.default_rng([seed, i]))
+        scen.append({"type": name, "params": params,
                      "site": {"lanes": [int(x) for x in site.lanes], "key": site.key, "s_on_key": site.s_on_key,
                               "extra": _to_json(site.extra)},
                      "trigger": route.points[min(kt, len(route.points) - 1)].round(3).tolist(),
@@ -120,8 +126,8 @@ def build_suite(name: str, towns: tuple[str, ...], n_routes: int, seed: int, per
             first, share = str(rng.choice([n for n in fits[town_name] if n in v2x])), 1.0
         types = [first]
         while len(types) < k:
-            pool = [n for n in fits[town_name] if (n in v2x) == (rng.random() < share) and n not in types]
-            pool = pool or [n for n in fits[town_name] if n not in types]
+            later = [n for n in fits[town_name] if n not in types and not SCENARIOS[n].starts_route]
+            pool = [n for n in later if (n in v2x) == (rng.random() < share)] or later
             if not pool:
                 break
             types.append(str(rng.choice(pool)))

@@ -12,7 +12,7 @@ from .classes import CAR, LARGE_VEHICLE
 from .draws import pick
 from .dynamics import IDMParams, idm_accel
 from .geometry import row_norms
-from .jit import CORRIDOR_MARGIN_M, HAVE_JIT, leaders_kernel
+from .jit import CORRIDOR_MARGIN_M, CROSSING_SIN, HAVE_JIT, leaders_kernel
 from .jit_rng import state_views
 from .jit_traffic import (
     followers_tick_kernel,
@@ -49,7 +49,10 @@ def leaders(t: ActorTable, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
     """Gap (m), approach rate (m/s) and row of the nearest actor in each follower's driving corridor.
 
     The corridor is the strip ahead of the follower along its heading, as wide as both actors
-    (+0.4 m); head-on actors moving faster than 1 m/s are ignored (they are in another lane).
+    (+0.4 m); an actor crossing it (more than 30 deg off its axis, e.g. a car standing or turning
+    across the follower's path in a junction) counts with its oriented box's extent across the
+    corridor, as CARLA's agents test bounding boxes against their path. Head-on actors moving
+    faster than 1 m/s and not crossing are ignored (they are in another lane).
 
     Returns:
         ``(gap (M,), dv (M,), leader (M,))`` for followers ``idx``; ``inf`` gap and leader ``-1``
@@ -64,10 +67,17 @@ def leaders(t: ActorTable, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
     dx = c * d[..., 0] + s * d[..., 1]
     dy = -s * d[..., 0] + c * d[..., 1]
     cos_rel = np.cos(t.yaw[others][None, :] - t.yaw[idx][:, None])
-    half = 0.5 * (t.width[idx][:, None] + t.width[others][None, :]) + CORRIDOR_MARGIN_M
+    # a crossing actor (more than 30 deg off the follower's axis) is measured across the corridor
+    # by its oriented box, and never taken for oncoming traffic in another lane
+    oc, osn = np.cos(t.yaw[others])[None, :], np.sin(t.yaw[others])[None, :]
+    sr = np.abs(c * osn - s * oc)
+    across = sr * t.length[others][None, :] + np.abs(c * oc + s * osn) * t.width[others][None, :]
+    crossing = sr > CROSSING_SIN
+    w_other = np.where(crossing, across, t.width[others][None, :])
+    half = 0.5 * (t.width[idx][:, None] + w_other) + CORRIDOR_MARGIN_M
     reach = 0.5 * (t.length[idx][:, None] + t.length[others][None, :])
     ok = (dx > 0.0) & (dx < LOOKAHEAD + reach) & (np.abs(dy) < half)
-    ok &= ~((cos_rel < -0.5) & (t.speed[others][None, :] > 1.0))
+    ok &= ~((cos_rel < -0.5) & (t.speed[others][None, :] > 1.0) & ~crossing)
     ok &= others[None, :] != idx[:, None]
     gap = np.where(ok, dx - reach, np.inf)
     j = np.argmin(gap, axis=1)

@@ -250,6 +250,7 @@ class World:
         #: the last delivered message, ``channel.Delivery`` (sender, sent_tick, payload, format)
         self.inbox: tuple | None = None
         self.ended = False
+        self.signals.release()  # a scenario's light override ends with its episode
         self.lane_signal = self.signals.lane_states(0.0)
         self.perceive()
 

@@ -51,6 +51,36 @@ def _train_stage0(args: argparse.Namespace) -> int:
     return 0
 
 
+def _pipeline(args: argparse.Namespace) -> int:
+    from v2xbench.agents.aurora.pipeline import SUMMARY, format_pipeline_summary, run_pipeline
+
+    _threads(args.threads)
+    s = run_pipeline(args.data, args.out, scale=args.scale, fusion=not args.no_fusion,
+                     lm=args.lm, device=args.device, max_steps=args.max_steps,
+                     stride=args.stride, seed=args.seed, progress=not args.quiet)
+    print(format_pipeline_summary(s), end="")
+    print(f"written: {args.out}/{SUMMARY}.json, {SUMMARY}.md")
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    import shlex
+
+    from v2xbench.agents.aurora.export import export_run
+
+    stage = [] if args.stage is None else ["--stage", str(args.stage)]
+    cmd = shlex.join(["v2xbench", "aurora", "export", "--run", str(args.run), *stage, "--out",
+                      str(args.out), "--dtype", args.dtype])
+    m = export_run(args.run, args.stage, args.out, dtype=args.dtype, command=cmd)
+    total = sum(f["bytes"] for f in m["files"].values())
+    for rel, f in m["files"].items():
+        print(f"{f['bytes']:>11,d}  {f['sha256'][:16]}  {rel}")
+    print(f"exported stage {m['stage']} of {args.run} ({m['scale']}, fusion {m['fusion']}, "
+          f"{m['parameters']:,d} parameters, {m['dtype']}): {total / 1e6:.2f} MB in {args.out} "
+          f"(manifest.json: SHA-256 of every file, commit {m['git_commit']})")
+    return 0
+
+
 def _ask(args: argparse.Namespace) -> int:
     from v2xbench.agents.aurora.answer import ask
 
@@ -127,6 +157,20 @@ def register(sub) -> None:
     t.add_argument("--no-cache", action="store_true", help="stages 3-5: run the frozen "
                    "branches every step instead of caching their outputs")
     t.set_defaults(func=_train)
+    _register_pipeline(asub)
+    x = asub.add_parser("export", help="write what inference needs of a trained stage (weights "
+                        "+ manifest with SHA-256)", description="Export one stage of a run for "
+                        "inference: weights.safetensors (float16 by default), the base LM's "
+                        "config and tokenizer, the run file and manifest.json (SHA-256 and size "
+                        "of every file, source, command, git commit, date). The aurora and "
+                        "no_fusion agents load agents/aurora/weights/<name> when no run is given.")
+    x.add_argument("--run", required=True, help="the trained run folder")
+    x.add_argument("--stage", type=int, choices=(3, 4, 5), default=None,
+                   help="stage to export (default: the run's latest of 3-5)")
+    x.add_argument("--out", required=True, help="output folder, e.g. agents/aurora/weights/aurora")
+    x.add_argument("--dtype", default="float16", choices=("float16", "bfloat16", "float32"),
+                   help="storage type of floating tensors (default: float16)")
+    x.set_defaults(func=_export)
     e = asub.add_parser("eval-perception", help="detection metrics (paper's perception table) "
                         "and pictures of a trained run",
                         description="Evaluate every trained branch of RUN on a split: avg mAP, "
@@ -144,6 +188,33 @@ def register(sub) -> None:
     e.add_argument("--quiet", action="store_true")
     e.set_defaults(func=_eval)
     _register_answering(asub)
+
+
+def _register_pipeline(asub) -> None:
+    """``aurora pipeline`` (:mod:`v2xbench.agents.aurora.pipeline`)."""
+    p = asub.add_parser("pipeline", help="train stages 0-5 in order (resume, skip complete "
+                        "stages, summary)", description="Run stages 0 (language model), 1 (ego "
+                        "branch), 2 (roadside branch), 3 (fusion + QA), 4 (planning) and 5 "
+                        "(joint) into RUN, as `aurora train --stage N` does each: a complete stage "
+                        "is skipped, an incomplete one resumed. Writes RUN/pipeline_summary.json "
+                        "and .md (final losses, steps, time per stage). Needs the data set's QA "
+                        "items (v2xbench qa build).")
+    p.add_argument("--data", required=True, help="data set folder (v2xbench collect --out)")
+    p.add_argument("--out", required=True, help="run folder RUN")
+    p.add_argument("--scale", default="default", help="tiny | default | paper (default: default)")
+    p.add_argument("--no-fusion", action="store_true", help="stages 3-5: the No Fusion model")
+    p.add_argument("--lm", default=None, help="a local Hugging Face causal-LM folder as the base "
+                   "LM (stage 0 is then not run)")
+    p.add_argument("--device", default="cpu", help="torch device (default: cpu)")
+    p.add_argument("--max-steps", type=_int_in(1), default=None,
+                   help="stop each stage after N optimizer steps; the pipeline stops after a "
+                   "stage left incomplete (the same command goes on)")
+    p.add_argument("--stride", type=_int_in(1), default=None,
+                   help="every K-th frame / QA item in every stage (default: each stage's)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--threads", type=_int_in(1), default=None, help="torch threads")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=_pipeline)
 
 
 def _register_answering(asub) -> None:

@@ -54,6 +54,9 @@ class Scenario:
     #: emergency vehicle): the "outside the route's lanes" test is off from the trigger until the
     #: ego is ``REJOIN_M`` m past ``end_s`` (CARLA's SwitchWrongDirectionTest); off-road counts
     lanes_free: ClassVar[bool] = False
+    #: the scenario rewrites the route to start at its site (the ego starts there, e.g. parked):
+    #: it can only be a route's first scenario
+    starts_route: ClassVar[bool] = False
 
     def __init__(self, route: Route, site: Site, conflict_s: float, params: dict | None = None) -> None:
         unknown = set(params or {}) - set(self.defaults)

@@ -304,14 +304,15 @@ class FlowScenario(Scenario):
     defaults = {"speed": 10.0, "spacing_min": 25.0, "spacing_max": 70.0}
 
     def spawn(self, world) -> None:
-        flows = resolve_extra(self, world.town)
+        flows = self.flow_paths(world.town)
+        all_rows = self.flow_rows()
         n = len(flows)
-        per = len(self.rows) // n
+        per = len(all_rows) // n
         self.flows: list[Flow] = []
         lanes = []
         for k, (path, s_conf) in enumerate(flows):
-            rows = self.rows[k * per : (k + 1) * per]
-            v = float(self.params["speed"])
+            rows = all_rows[k * per : (k + 1) * per]
+            v = self.flow_speed()
             lo, hi = s_conf - self.upstream, s_conf + self.downstream
             f = Flow(world, path, rows, v, self.spacing(world.town, flows, k), lo, hi, self.ignore_rules)
             f.conflict_xy = f.point(world.town, s_conf)[0]
@@ -322,6 +323,18 @@ class FlowScenario(Scenario):
         for f in self.flows:
             f.populate(world)
         self.hazard_rows = [int(r) for f in self.flows for r in f.rows]
+
+    def flow_paths(self, town: Town) -> tuple:
+        """``(path, conflict_s_on_path)`` per flow: ``site.extra`` (:func:`resolve_extra`)."""
+        return resolve_extra(self, town)
+
+    def flow_rows(self) -> np.ndarray:
+        """Rows the flows share: all of the scenario's (subclasses keep some for other actors)."""
+        return self.rows
+
+    def flow_speed(self) -> float:
+        """Desired speed (m/s) of the flows' vehicles: ``params["speed"]``."""
+        return float(self.params["speed"])
 
     def spacing(self, town: Town, flows: list, k: int) -> tuple[float, float]:
         """``(min, max)`` spacing (m) of flow ``k``: the parameters are per carriageway, so flows

@@ -203,15 +203,15 @@ class OppositeVehicleTakingPriority(CrossingAdversary):
 
 @register_scenario
 class PriorityAtJunction(Scenario):
-    """The ego has priority on the major road of a priority junction while vehicles on the minor
-    road(s) arrive fast, timed to the ego's arrival, and stop at their stop line to let it pass;
-    the ego must keep its priority instead of freezing.
+    """CARLA's PriorityAtJunction: at a signalized junction the ego goes straight on and its light
+    is set green (the conflicting approaches red) as it comes within ``trigger_distance`` m of
+    the junction, so it can cross at speed; vehicles on the crossing roads (one per side where
+    available) arrive fast, timed to the ego's arrival (CARLA's time-to-arrival trigger), and must
+    stop at their red light. The ego must keep its green instead of freezing.
 
-    CARLA's PriorityAtJunction freezes the ego's light green at a signalized junction so it can
-    cross at speed. V2XBench's fixed-time split-phase signals cannot be frozen by a scenario,
-    so the type is set at priority junctions: the ego's right of way comes from the road
-    hierarchy, and the crossing vehicles (one per side where available) obey it, holding at their
-    line until the ego has passed.
+    The override goes through :meth:`~..signals.SignalPlan.force_green` (approaches that were
+    green turn yellow for the junction's yellow time first) and ends once the ego has passed
+    (or with the episode). As in CARLA this is not a V2X type: nothing is hidden.
 
     Parameters: ``speed`` (m/s) of the crossing vehicles; ``source_dist`` (m) before their stop
     line where they start.
@@ -226,12 +226,10 @@ class PriorityAtJunction(Scenario):
 
     @classmethod
     def find_sites(cls, town):
-        return crossing_sites(
-            town, (PRIORITY,), (STRAIGHT,), minor=False, sides=("left", "right"), flow_minor=True
-        )
+        return crossing_sites(town, (SIGNAL,), (STRAIGHT,), minor=None, sides=("left", "right"))
 
     def spawn(self, world) -> None:
-        town, t = world.town, world.table
+        town = world.town
         e = self.site.lanes[0]
         by_side: dict[str, tuple] = {}
         for p in resolve_extra(self, town):
@@ -239,37 +237,46 @@ class PriorityAtJunction(Scenario):
         self.cars = []
         v = float(self.params["speed"])
         for row, (path, _) in zip(self.rows, by_side.values()):
+            # obeys its light (ignore_rules=False): the forced red stops it at its line
             f = Flow(world, path, [int(row)], v, (1e3, 1e3), 0.0, None, False, large_fraction=0.0)
             line = float(town.index.length[path[0]] - STOP_LINE_SETBACK)
             f.place(world, int(row), max(line - float(self.params["source_dist"]), 2.0), 0.0)
-            t.hold[row] = True
+            world.table.hold[row] = True
             clear_lanes(world, list(path))
             self.cars.append((int(row), f, line))
         for row in self.rows[len(self.cars) :]:
-            park(t, int(row))
+            park(world.table, int(row))
         clear_near(world, self.conflict_point, 12.0)
         self.state = {r: "waiting" for r, _, _ in self.cars}
         self.hazard_rows = [r for r, _, _ in self.cars]
+        self.forced = False
+
+    def green_lanes(self, town) -> list[int]:
+        """The ego's approach's phase group: the lanes that go green with it."""
+        e = self.site.lanes[0]
+        j = town.junctions[int(town.index.junction[self.site.lanes[1]])]
+        return next(list(g) for g in j.phase_groups if e in g)
+
+    def on_trigger(self, world) -> None:
+        world.signals.force_green(self.green_lanes(world.town), world.tick * world.config.dt)
+        self.forced = True  # (World.update_signals applies it this tick)
 
     def update(self, world) -> None:
         t, v = world.table, float(self.params["speed"])
-        passed = self.ego_s(world) > self.conflict_s + 6.0
         for row, f, line in self.cars:
-            s, state = float(f.path_s(t)[0]), self.state[row]
-            if state == "waiting":
-                t_cross = (
-                    line - s
-                ) / v + 4.5  # time to reach and stop at the line (IDM brakes early)
-                if ego_eta(self, world, self.conflict_s) <= t_cross:
-                    t.hold[row] = False
-                    set_speed(world, row, v)
-                    self.state[row] = "approaching"
-            elif state == "approaching" and t.speed[row] < 0.3 and line - s < 6.0:
-                t.hold[row] = True  # yield: wait at the line until the ego has passed
-                self.state[row] = "yielding"
-            if self.state[row] != "waiting" and passed:
+            if self.state[row] != "waiting":
+                continue
+            s = float(f.path_s(t)[0])
+            t_cross = (line - s) / v + 4.5  # time to reach and stop at the line (IDM brakes early)
+            if ego_eta(self, world, self.conflict_s) <= t_cross:
                 t.hold[row] = False
-                self.state[row] = "done"
+                set_speed(world, row, v)
+                self.state[row] = "approaching"
+        if self.forced and self.ego_s(world) > self.conflict_s + 6.0:
+            world.signals.release()
+            self.forced = False
+            for row, _, _ in self.cars:
+                t.hold[row] = False
 
 
 # ---------------------------------------------------------------------------- invading turn

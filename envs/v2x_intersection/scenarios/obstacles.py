@@ -239,7 +239,9 @@ class _LaneBlock(Scenario):
 
     def __init__(self, route, site, conflict_s, params=None) -> None:
         super().__init__(route, site, conflict_s, params)
-        self.end_s = min(self.conflict_s + self.span + 10.0, route.length - 1.0)
+        # at most the progress that completes the route (as ``Scenario.__init__``; the route's
+        # last points are not always 0.5 m apart, so ``route.length - 1`` can lie beyond it)
+        self.end_s = min(self.conflict_s + self.span + 10.0, float(route.s[max(len(route.s) - 3, 0)]))
         self.flow: LaneFlow | None = None
 
     def layout(self, width: float, rng: np.random.Generator) -> list[Item]:

@@ -208,6 +208,7 @@ class ParkingExit(Scenario):
 
     name = "ParkingExit"
     family = "parking"
+    starts_route = True  # the ego starts in the slot: the route is cut to begin there
     max_actors = 2 + 6
     towns = PARKING_TOWNS
     trigger_distance = 35.0

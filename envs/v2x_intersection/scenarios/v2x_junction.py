@@ -7,12 +7,15 @@ Two families:
   turn it comes from the inner corner, hidden by a truck parked at the right kerb of the ego's
   approach; after a left turn it steps out from behind a truck parked at the right kerb of the
   exit road (the inner corner of a left turn lies open across the junction).
-- ``junction``: at an unsignalized junction the ego (on a road that must yield) turns while a
-  vehicle (:class:`NonSignalizedJunctionLeftTurn`, :class:`NonSignalizedJunctionRightTurn`) or a
-  flow of bicycles (:class:`CrossingBicycleFlow`) with priority arrives on the crossing road,
-  hidden by a truck parked at the near kerb of that road and by the corner buildings.
+- ``junction``: at an unsignalized junction the ego (on a road that must yield) turns across or
+  into an actor flow as CARLA LB2.0's :class:`NonSignalizedJunctionLeftTurn` (oncoming flow) and
+  :class:`NonSignalizedJunctionRightTurn` (flow from the left), or a flow of bicycles with
+  priority arrives on the crossing road (:class:`CrossingBicycleFlow`). What makes them V2X
+  scenarios is a truck that hides the flow from the ego: waiting to turn left in the oncoming
+  approach, or parked at the near kerb of the crossing road (see each class).
 
-Hazards start by CARLA-style triggers and then ignore the ego (see :class:`~.timed.TimedScenario`).
+Hazards start by CARLA-style triggers and then ignore the ego (see :class:`~.timed.TimedScenario`);
+the vehicle flows run from reset on, whatever the ego does.
 """
 
 from __future__ import annotations
@@ -20,14 +23,24 @@ from __future__ import annotations
 import numpy as np
 
 from ..actors import RIDER, draw_size
-from ..classes import BICYCLE, CAR, PEDESTRIAN
+from ..classes import BICYCLE, CAR, LARGE_VEHICLE, PEDESTRIAN
 from ..geometry import world_to_local_2d
 from ..town.model import DRIVING, LEFT, PRIORITY, RIGHT, STOP, STRAIGHT, Town
 from ..traffic import STOP_LINE_SETBACK
 from .base import Site
-from .placement import clear_lanes, clear_near, lane_point, spawn_driver, spawn_walker, truck_size
+from .flows import FlowScenario, connectors, crossing_sites, merge_sites
+from .flows import first_conflict as lanes_conflict
+from .placement import (
+    clear_lanes,
+    clear_near,
+    lane_point,
+    spawn_driver,
+    spawn_static,
+    spawn_walker,
+    truck_size,
+)
 from .registry import register_scenario
-from .timed import TimedScenario
+from .timed import POSITION_JITTER_M, SPEED_SCALE, TimedScenario
 from .v2x import (
     CROSSWALK_HALF,
     box_points,
@@ -379,47 +392,145 @@ class _PriorityHazard(TimedScenario):
             )
 
 
+# ---------------------------------------------------------------------------------------------
+class _OccludedFlow(FlowScenario):
+    """Shared logic of the non-signalized flow turns: an actor flow (:class:`~.flows.Flow`, as
+    CARLA's ActorFlow) the ego must find a gap in, and a standing truck (row 0) that hides the flow
+    from the ego. The flow runs from reset on, independent of the ego (its vehicles only brake,
+    IDM, for what is in their lane, the ego included) and ignores its sign, as CARLA's flows do.
+
+    Drawn per instance (world generator, at reset): the flow's speed (``speed`` times a factor in
+    :data:`~.timed.SPEED_SCALE`), every gap between its vehicles (uniform in ``spacing_min`` ..
+    ``spacing_max`` m, so where the flow stands when the ego arrives), and the truck's place
+    (its parameter plus :data:`~.timed.POSITION_JITTER_M`)."""
+
+    family = "junction"
+    v2x = True
+    max_actors = 12
+    trigger_distance = 45.0
+    towns = ("Town01", "Town05", "Town02")
+
+    def setup(self, world, rows: np.ndarray) -> None:
+        self.speed_scale = float(world.rng.uniform(*SPEED_SCALE))
+        self.position_jitter = float(world.rng.uniform(*POSITION_JITTER_M))
+        super().setup(world, rows)
+
+    def flow_paths(self, town: Town) -> tuple:
+        if len(self.site.extra) != 2:
+            raise ValueError(f"scenario {self.name}: site.extra must be one (path, s) pair")
+        return (self.site.extra,)
+
+    def flow_rows(self) -> np.ndarray:
+        return self.rows[1:]
+
+    def flow_speed(self) -> float:
+        return float(self.params["speed"]) * self.speed_scale
+
+    def spawn(self, world) -> None:
+        (path, _), = self.flow_paths(world.town)
+        self.place_truck(world, int(path[0]), truck_size(world.rng))
+        super().spawn(world)
+
+    def place_truck(self, world, flow_lane: int, size: tuple[float, float, float]) -> None:
+        """Put the occluding truck (row 0, of ``size``) in place (override)."""
+        raise NotImplementedError
+
+
+def oncoming_sites(town: Town) -> list[Site]:
+    """Left turns from a lane that must yield (stop sign, or the minor road of a priority
+    junction) across the oncoming approach's outer lane, next to an inner lane with a left turn of
+    its own (where the truck waits). ``extra``: the flow's ``(path, conflict s on it)``."""
+    sites = []
+    for s in crossing_sites(town, (PRIORITY, STOP), (LEFT,), minor=True, sides=("opposite",)):
+        for path, s_path in s.extra:
+            inner = town.lanes[path[0]].left
+            if inner < 0 or not connectors(town, inner, (LEFT,)):
+                continue
+            hit = lanes_conflict(town, s.lanes[1], path[1])
+            if hit is not None:
+                sites.append(Site(s.lanes, 1, hit[0], (tuple(path), s_path)))
+                break
+    return sites
+
+
 @register_scenario
-class NonSignalizedJunctionRightTurn(_PriorityHazard):
-    """The ego turns right from a road that must yield; a car with priority comes from the left.
+class NonSignalizedJunctionLeftTurn(_OccludedFlow):
+    """CARLA LB2.0 NonSignalizedJunctionLeftTurn: at a junction without lights the ego makes an
+    unprotected left turn across a flow of oncoming vehicles and must find a gap in it.
 
-    At a priority junction (the ego's approach has a stop sign; an all-way stop where the town has
-    no priority junction) the ego turns right into the lane of a car arriving straight from its
-    left. A truck parked at the near kerb of the crossing road, just before the crosswalk, and the
-    corner buildings hide the car from the ego waiting at its stop line; the car waits hidden
-    ``distance`` m before the junction and drives off at ``speed`` once the ego leaves its stop
-    line, timed to meet it there (see :class:`_PriorityHazard`), ignoring the ego.
+    Here the ego comes from a road that must yield (a stop sign, or the minor road of a priority
+    junction) and the flow (:class:`_OccludedFlow`) drives straight through in the outer lane of
+    the oncoming approach. **V2X addition**: a truck of the oncoming approach's inner lane stands
+    just inside the junction waiting to turn left itself (its front ``into_junction`` m along its
+    left-turn connector, clear of the ego's path) and hides the flow behind it from the ego at
+    its stop line and while it pulls into the junction (the classic left-turn case for
+    cooperation); the roadside units at the junction see the flow.
 
-    Parameters: ``speed`` (m/s) of the car; ``distance`` (m) from the junction where it waits;
-    ``truck_gap`` (m) between the truck's front and the crosswalk.
-    """
-
-    name = "NonSignalizedJunctionRightTurn"
-    max_actors = 2
-    turn = RIGHT
-    hazard_side = 1.0
-    defaults = {"speed": 8.0, "distance": 30.0, "truck_gap": 0.3}
-
-
-@register_scenario
-class NonSignalizedJunctionLeftTurn(_PriorityHazard):
-    """The ego turns left from a road that must yield; a car with priority comes from the right.
-
-    At a priority junction (all-way stop where the town has none) the ego turns left across the
-    crossing road while a car with priority arrives straight from its right, into the lane the ego
-    turns into. A truck parked at the near kerb of the crossing road and the corner buildings hide
-    the car; it waits ``distance`` m before the junction and drives off at ``speed`` once the ego
-    leaves its stop line, timed to meet it there (see :class:`_PriorityHazard`), ignoring the ego.
-
-    Parameters: ``speed`` (m/s) of the car; ``distance`` (m) from the junction where it waits;
-    ``truck_gap`` (m) between the truck's front and the crosswalk.
+    Parameters: ``speed`` (m/s) of the flow; ``spacing_min`` / ``spacing_max`` (m, centre to
+    centre) between its vehicles; ``into_junction`` (m) of the truck's front past its lane's end.
     """
 
     name = "NonSignalizedJunctionLeftTurn"
-    max_actors = 2
-    turn = LEFT
-    hazard_side = -1.0
-    defaults = {"speed": 8.0, "distance": 30.0, "truck_gap": 0.3}
+    towns = ("Town01", "Town05")
+    defaults = {"speed": 10.0, "spacing_min": 25.0, "spacing_max": 70.0, "into_junction": 3.0}
+
+    @classmethod
+    def find_sites(cls, town):
+        return oncoming_sites(town)
+
+    def place_truck(self, world, flow_lane, size):
+        town = world.town
+        inner = town.lanes[flow_lane].left
+        turns = connectors(town, inner, (LEFT,)) if inner >= 0 else []
+        if not turns:
+            raise ValueError(
+                f"scenario {self.name}: flow lane {flow_lane} has no inner lane turning left"
+            )
+        clear_lanes(world, [inner])
+        # its centre on the inner lane / left connector, the front into_junction m past the lane end
+        s = float(self.params["into_junction"]) + self.position_jitter - size[0] / 2
+        lane = turns[0] if s >= 0.0 else inner
+        p, h = lane_point(town, lane, s if s >= 0.0 else town.index.length[inner] + s)
+        spawn_static(world, int(self.rows[0]), LARGE_VEHICLE, p, h, size, parked=True)
+
+
+@register_scenario
+class NonSignalizedJunctionRightTurn(_OccludedFlow):
+    """CARLA LB2.0 NonSignalizedJunctionRightTurn: at a junction without lights the ego turns
+    right and must merge into a flow of vehicles coming from its left on the crossing road.
+
+    Here the ego comes from a road that must yield (the minor road of a priority junction, where
+    the flow has priority; an all-way stop where the town has none) and the flow
+    (:class:`_OccludedFlow`) drives straight through into the lane the ego turns into.
+    **V2X addition**: a truck parked at the near kerb of the crossing road on the ego's left, its
+    front just before the crosswalk, and the corner buildings hide the flow from the ego at its
+    stop line; the roadside unit at the junction sees the flow.
+
+    Parameters: ``speed`` (m/s) of the flow; ``spacing_min`` / ``spacing_max`` (m, centre to
+    centre) between its vehicles; ``truck_gap`` (m) between the truck's front and the crosswalk.
+    """
+
+    name = "NonSignalizedJunctionRightTurn"
+    towns = ("Town01", "Town06", "Town02", "Town05")
+    defaults = {"speed": 10.0, "spacing_min": 25.0, "spacing_max": 70.0, "truck_gap": 0.3}
+
+    @classmethod
+    def find_sites(cls, town):
+        sites = []
+        for control in (PRIORITY, STOP):
+            for s in merge_sites(town, RIGHT, (control,), minor=True, from_side="left"):
+                sites.append(Site(s.lanes, s.key, s.s_on_key, s.extra[0]))
+            if sites:  # priority junctions where the town has them
+                break
+        return sites
+
+    def place_truck(self, world, flow_lane, size):
+        # at the kerb of the flow's road on the side that faces the ego's approach
+        town = world.town
+        side = side_of(town, flow_lane, town.lanes[self.site.lanes[0]].points[-1])
+        lat = side * (carriageway_edge(town, flow_lane, side) + 0.3 + size[1] / 2)
+        s_front = town.index.length[flow_lane] - 2 * CROSSWALK_HALF - float(self.params["truck_gap"])
+        park_vehicle(world, self.rows[0], flow_lane, s_front + self.position_jitter, lat, size)
 
 
 @register_scenario

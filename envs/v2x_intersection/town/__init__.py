@@ -1,7 +1,9 @@
 """Road networks: data model, procedural templates and the named towns.
 
 Named towns: ``Town01`` to ``Town06`` are training towns; ``Town12`` is the larger held-out test
-town (as the paper's Town12 test split) and is never used for training routes.
+town (as the paper's Town12 test split) and is never used for training routes; its template
+(``metro2``) builds road structures no training town has: per-street lane widths and speed limits,
+a curved arterial, five-way and skewed junctions and a roundabout.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ NAMED_TOWNS: dict[str, tuple[str, int, int | None]] = {
     "Town04": ("highway", 4, 3),
     "Town05": ("grid", 5, 2),
     "Town06": ("tjunction", 6, 3),
-    "Town12": ("metro", 12, 4),
+    "Town12": ("metro2", 12, 4),
 }
 TRAIN_TOWNS = ("Town01", "Town02", "Town03", "Town04", "Town05", "Town06")
 TEST_TOWNS = ("Town12",)

@@ -42,6 +42,8 @@ PARKING_WIDTH = 2.5  # m
 SIDEWALK_WIDTH = 3.0  # m
 CROSSWALK_WIDTH = 4.0  # m
 TURN_SPEED = 6.0  # m/s, speed limit on turning connectors
+#: rad: arms closer than this (skewed junctions) push the junction's radius out
+NARROW_ARM_GAP = np.radians(80.0)
 
 
 @dataclass
@@ -131,7 +133,24 @@ class _Builder:
         hw = max(max(_half_width(r, "right"), _half_width(r, "left")) for r in inc)
         if self.degree[n.id] == 2:
             return hw + 4.0
+        gap = self._min_arm_gap(n, inc)
+        if gap < NARROW_ARM_GAP:  # skewed arms: far enough out that their carriageways part
+            return max(hw + 3.0, hw / np.tan(gap / 2.0) + 1.0)
         return hw + 3.0
+
+    def _min_arm_gap(self, n: Node, inc: list[Road]) -> float:
+        """Smallest angle (rad) between two arms of node ``n``, each arm's direction taken from
+        the node to its road's centre line 10 m out (so ``via`` bends near the node count)."""
+        p = np.array(n.pos, float)
+        dirs = []
+        for r in inc:
+            pts = [np.array(q, float) for q in (self.nodes[r.a].pos, *r.via, self.nodes[r.b].pos)]
+            line = np.array(pts if r.a == n.id else pts[::-1])
+            s = polyline_lengths(line)
+            q = np.array([np.interp(10.0, s, line[:, 0]), np.interp(10.0, s, line[:, 1])])
+            dirs.append(float(np.arctan2(q[1] - p[1], q[0] - p[0])))
+        a = np.sort(np.asarray(dirs) % (2 * np.pi))
+        return float(np.min(np.diff(np.append(a, a[0] + 2 * np.pi)))) if len(a) > 1 else np.pi
 
     def add_lane(self, points: np.ndarray, **kw) -> int:
         lane = Lane(id=len(self.lanes), points=np.asarray(points, dtype=np.float64), **kw)

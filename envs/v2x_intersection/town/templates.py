@@ -1,7 +1,8 @@
 """Procedural town templates: each turns ``(seed, size)`` into a road graph for the builder.
 
 Templates: ``grid`` (city blocks with signalized, all-way-stop and priority four-way junctions),
-``metro`` (a grid with a highway joined by ramps; the held-out test town),
+``metro`` (a grid with a highway joined by ramps), ``metro2`` (the held-out test town: ``metro``
+reshaped with road structures no other template builds, see :mod:`.metro2`),
 ``tjunction`` (a main road with T-junctions), ``arterial`` (a wide road with parking lanes,
 mid-block crosswalks and side streets), ``highway`` (a multi-lane road section with an off-ramp and
 an on-ramp).
@@ -195,7 +196,10 @@ def metro(rng: np.random.Generator, size: int = 4) -> tuple[list[Node], list[Roa
     return nodes, roads
 
 
+from .metro2 import metro2  # noqa: E402  (metro2 builds on grid, defined above)
+
 TEMPLATES: dict[str, TemplateFn] = {
+    "metro2": metro2,
     "metro": metro,
     "grid": grid,
     "tjunction": tjunction,

@@ -19,7 +19,7 @@ then this checkout, each timing CPU seconds per tick of one workload:
   each time) and the third call is timed (same code on both sides: 4 pairs within 13.8-14.3 us,
   median ratio 0.995). A kernel looped on one state can mislead: the vectorized sight test of
   2026-11-26 took perception from 11.5 to 9.0 us on tick 60 of test50 route 0, and from 15.3 to
-  15.2 us over 500 of its states (docs/performance.md, "Stop 26").
+  15.2 us over 500 of its states (docs/performance.md, "How to measure").
 
 It prints both series and the median of the pairwise ratios (REV / this: above 1 means this
 checkout is faster), and writes them as JSON with ``--out``. Both sides are imported the same way:

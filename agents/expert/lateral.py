@@ -14,7 +14,12 @@ with a cosine profile over route arc lengths ``s0 -> s1`` (in) and ``s2 -> s3`` 
   first) while it passes.
 
 Offsets are capped at ``MAX_OFFSET`` (< 3 m) so the ego stays within the route-progress capture
-radius of the event monitor.
+radius of the event monitor. Only a move into a same-direction neighbour lane around a short
+cluster may go as far as the neighbour lane's centre (at most ``LANE_CHANGE_MAX_OFFSET``): on wide
+lanes (Town12's reach 4 m) an obstacle that closes the ego lane up to its edge leaves no corridor
+within 2.9 m; the route progress then waits while the ego is beyond the capture radius and catches
+up once it is back, which it does within the monitor's search window when the shifted stretch is
+shorter than ``WIDE_STRETCH_MAX_M``.
 """
 
 from __future__ import annotations
@@ -30,6 +35,8 @@ from .route_track import PathWindow, RouteTrack
 from .scalar import clip
 
 MAX_OFFSET = 2.9  # m
+LANE_CHANGE_MAX_OFFSET = 4.0  # m, to the centre of a same-direction neighbour lane
+WIDE_STRETCH_MAX_M = 35.0  # m, cluster + ego length + 2.5 m (monitor window: 40 route points)
 IN_LANE_SLACK = 0.3  # m the ego centre may leave its lane centre band beyond the lane edge
 CLUSTER_GAP_M = 10.0  # m between obstacles of one cluster
 STATIC_MARGINS = (0.6, 0.45, 0.3)  # m lateral clearance to standing objects, tried in order
@@ -91,14 +98,21 @@ class LateralPlanner:
         man = self.man
         return lambda st: man.value(st + s_ego)
 
-    def _lane_room(self, lane: int) -> tuple[float, float, float]:
-        """``(right limit, left limit, opposite-lane threshold)`` of offsets (m) on ``lane``."""
+    def _lane_room(self, lane: int, wide: bool = False) -> tuple[float, float, float]:
+        """``(right limit, left limit, opposite-lane threshold)`` of offsets (m) on ``lane``;
+        ``wide``: a same-direction neighbour may be used up to its centre (see module doc)."""
         ix = self.track.town.index
         ln = self.track.town.lanes[lane]
         w = float(ix.width[lane])
         nudge = w / 2.0 - self.hw + IN_LANE_SLACK
-        left = min(w, MAX_OFFSET) if (ln.left >= 0 or ln.opposite >= 0) else nudge
-        right = -min(w, MAX_OFFSET) if ln.right >= 0 else -nudge
+
+        def reach(nb: int) -> float:
+            if not wide or nb < 0:
+                return min(w, MAX_OFFSET)
+            return min(0.5 * (w + float(ix.width[nb])), LANE_CHANGE_MAX_OFFSET)
+
+        left = reach(ln.left) if (ln.left >= 0 or ln.opposite >= 0) else nudge
+        right = -reach(ln.right) if ln.right >= 0 else -nudge
         opp = nudge if (ln.left < 0 and ln.opposite >= 0) else np.inf
         return right, left, opp
 
@@ -126,6 +140,15 @@ class LateralPlanner:
         speed = objs.speed
         if self.man is not None and s_ego > self.man.s3:
             self.man = None
+        man = self.man
+        if man is not None and man.kind != "obstacle" and np.isfinite(man.s2) and s_ego >= man.s2:
+            # an invader / emergency shift ramping out gives way to a pass around an obstacle
+            # ahead: the ego may stand behind the obstacle before the ramp's end (a deadlock)
+            self.man = None
+            self._obstacle(s_ego, v, win, objs, st, lat, cos_r, e_lat, e_long, speed)
+            if self.man is None:
+                self.man = man
+            return
         if self.man is not None:
             self._keep(s_ego, v, win, objs, st, lat, cos_r, e_lat, e_long, speed)
             return
@@ -161,8 +184,9 @@ class LateralPlanner:
     def _best_offset(
         self, lane, lo, hi, objs, st, lat, e_lat, e_long, speed
     ) -> tuple[float, bool] | None:
-        right, left, opp = self._lane_room(lane)
-        cand = np.arange(-MAX_OFFSET, MAX_OFFSET + 1e-6, 0.1)
+        wide = hi - lo + 2.0 * self.hl + 2.5 < WIDE_STRETCH_MAX_M
+        right, left, opp = self._lane_room(lane, wide)
+        cand = np.arange(-LANE_CHANGE_MAX_OFFSET, LANE_CHANGE_MAX_OFFSET + 1e-6, 0.1)
         cand = cand[(cand >= right - 1e-6) & (cand <= left + 1e-6)]
         span = (
             (st + e_long > lo - self.hl - 4.0) & (st - e_long < hi + self.hl + 4.0) & (speed < 0.3)

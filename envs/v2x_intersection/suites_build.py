@@ -100,6 +100,9 @@ def compose_route(town, rng: np.random.Generator, types: list[str], route_id: st
                      "conflict": route.points[min(k, len(route.points) - 1)].round(3).tolist()})
     if np.any(np.diff(conflicts) < MIN_GAP) or conflicts[0] < 40.0:
         return None
+    on_route = set(lanes)
+    if any(get_scenario(n).actor_lanes(town, site) & on_route for n, site, _ in placed):
+        return None  # the route passes where a scenario's actors stand or drive (outside its site)
     wps = route.points[:: 20]
     wps = np.concatenate([wps, route.points[-1:]], 0)
     return {"format": ROUTE_FORMAT, "id": route_id, "town": town.name, "lanes": [int(x) for x in lanes],

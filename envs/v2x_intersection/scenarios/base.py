@@ -89,6 +89,24 @@ class Scenario:
         """All places in ``town`` where this scenario fits (override)."""
         raise NotImplementedError
 
+    @classmethod
+    def actor_lanes(cls, town: Town, site: Site) -> set[int]:
+        """Lanes outside ``site.lanes`` where this scenario's actors stand or drive: the lane ids
+        in ``site.extra`` (flow paths) by default; subclasses add their own (a waiting truck's
+        lane). A route must not pass through them elsewhere than at the site, where the
+        scenario's standing actors would block it (the suite builder checks this)."""
+        out: set[int] = set()
+
+        def walk(x) -> None:
+            if isinstance(x, (tuple, list)):
+                for y in x:
+                    walk(y)
+            elif isinstance(x, (int, np.integer)) and not isinstance(x, bool):
+                out.add(int(x))
+
+        walk(site.extra)
+        return out - set(site.lanes)
+
     # ------------------------------------------------------------------ runtime
     def setup(self, world, rows: np.ndarray) -> None:
         """Spawn the scenario's actors into ``rows`` (called by ``World.reset``)."""

@@ -416,7 +416,10 @@ class HazardAtSideLaneTwoWays(_SideHazardBase):
 class BlockedIntersection(Scenario):
     """After turning left or right at a junction, the ego finds its exit blocked by a stopped car
     (its tail ``into_junction`` m inside the junction). The car drives off once the ego has been
-    within ``release_distance`` m of it for ``wait_s`` s (CARLA removes it after 10 s).
+    within ``release_distance`` m of it for ``wait_s`` s (CARLA removes it after 10 s); from then on
+    it is background traffic (no scenario, no fixed plan), so the background rules apply to it: one
+    stuck behind a later scenario's obstacle on the route is respawned elsewhere instead of
+    blocking the ego's lane for good.
 
     Parameters: ``into_junction`` (m), ``release_distance`` (m), ``wait_s`` (s).
     """
@@ -464,6 +467,7 @@ class BlockedIntersection(Scenario):
             self._near_s += world.config.dt
         if self._near_s >= float(self.params["wait_s"]):
             t.hold[row] = False
+            t.scenario[row], t.plan[row], t.plan_pos[row] = -1, -1, 0
 
 
 # ----------------------------------------------------------------------------- hard-braking lead

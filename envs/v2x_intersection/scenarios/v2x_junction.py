@@ -478,6 +478,14 @@ class NonSignalizedJunctionLeftTurn(_OccludedFlow):
     def find_sites(cls, town):
         return oncoming_sites(town)
 
+    @classmethod
+    def actor_lanes(cls, town, site):
+        lanes = super().actor_lanes(town, site)
+        inner = town.lanes[site.extra[0][0]].left  # where the truck waits (``place_truck``)
+        if inner >= 0:
+            lanes |= {inner, *connectors(town, inner, (LEFT,))}
+        return lanes - set(site.lanes)
+
     def place_truck(self, world, flow_lane, size):
         town = world.town
         inner = town.lanes[flow_lane].left

@@ -34,6 +34,9 @@ RING_WIDTH = 4.0  # m, the ring's one lane
 CURVE_TILT = np.radians(18.0)  # the curved arterial's heading at its junctions, off the row's line
 SKEW = np.radians(60.0)  # angle between the skewed crossing's roads
 HIGHWAY_WIDTH, HIGHWAY_SPEED = 3.75, 100 * KMH
+#: m of westbound highway before the off-ramp's diverge: a route that leaves by the off-ramp
+#: (HighwayExit) needs a run-up at highway speed to merge into the exit lane's flow
+HIGHWAY_RUN_UP = 300.0
 
 
 def _road_between(roads: list[Road], a: int, b: int) -> Road:
@@ -137,9 +140,9 @@ def _highway(nodes: list[Node], roads: list[Road]) -> None:
                     and any(n.id in (r.a, r.b) for r in roads)), key=lambda n: n.pos[0])
     y = min(n.pos[1] for n in south) - 90.0
     x0 = min(n.pos[0] for n in nodes) - 150.0
-    x3 = max(n.pos[0] for n in nodes) + 150.0
     exit_to, entry_from = south[-2], south[1]
     x1, x2 = exit_to.pos[0] + 170.0, entry_from.pos[0] - 170.0
+    x3 = max(max(n.pos[0] for n in nodes) + 150.0, x1 + HIGHWAY_RUN_UP)
     base = len(nodes)
     hw = [Node(base, (x0, y), END), Node(base + 1, (x2, y), MERGE),
           Node(base + 2, (x1, y), MERGE), Node(base + 3, (x3, y), END)]

@@ -188,6 +188,61 @@ def register(sub) -> None:
     e.add_argument("--quiet", action="store_true")
     e.set_defaults(func=_eval)
     _register_answering(asub)
+    _register_planning(asub)
+
+
+def _eval_planning(args: argparse.Namespace) -> int:
+    import shlex
+
+    from v2xbench.agents.aurora.eval_planning import evaluate_planning
+
+    _threads(args.threads)
+    src = ["--run", str(args.run)] if args.run is not None else ["--weights", str(args.weights)]
+    opt = [] if args.stage is None else ["--stage", str(args.stage)]
+    opt += [] if args.out is None else ["--out", str(args.out)]
+    opt += [] if args.threads is None else ["--threads", str(args.threads)]
+    cmd = shlex.join(["v2xbench", "aurora", "eval-planning", *src, *opt, "--data",
+                      str(args.data), "--split", args.split, "--stride", str(args.stride)])
+    r = evaluate_planning(args.data, run=args.run, weights=args.weights, stage=args.stage,
+                          split=args.split, stride=args.stride, out=args.out,
+                          batch_size=args.batch_size, device=args.device,
+                          progress=not args.quiet, command=cmd)
+    print(r["table"], end="")
+    print(f"written: {r['out']}/metrics.json, metrics.md")
+    return 0
+
+
+def _register_planning(asub) -> None:
+    """``aurora eval-planning`` (:mod:`v2xbench.agents.aurora.eval_planning`)."""
+    g = asub.add_parser("eval-planning", help="open-loop planning metrics on recorded frames "
+                        "(L2 at 1/2/3 s vs a constant-velocity baseline, collision rate, start "
+                        "from rest)", description="Run the trained planner (the closed-loop "
+                        "policy's inference pass; fusion runs get the roadside message of the "
+                        "recorded roadside camera) on every K-th frame of a split and report, "
+                        "overall and per navigation command, L2 to the expert's waypoints at 1, "
+                        "2, 3 s, the same for driving straight on at the current speed, the "
+                        "collision rate against gt/fused actors moved at constant velocity, and "
+                        "the predicted vs expert speed when starting from rest. Writes "
+                        "metrics.json and metrics.md.")
+    src = g.add_mutually_exclusive_group(required=True)
+    src.add_argument("--run", default=None, help="trained run folder (stages 3-5)")
+    src.add_argument("--weights", default=None, help="exported weights folder (v2xbench aurora "
+                     "export), e.g. agents/aurora/weights/aurora")
+    g.add_argument("--stage", type=int, choices=(3, 4, 5), default=None,
+                   help="with --run: the stage (default: the run's latest)")
+    g.add_argument("--data", required=True, help="data set folder (v2xbench collect --out)")
+    g.add_argument("--split", default="test", help="train | val | test | all (default: test; a "
+                   "test50 collection made before route_split labels its routes train/val: use "
+                   "all)")
+    g.add_argument("--stride", type=_int_in(1), default=50,
+                   help="every K-th frame of each episode (default: 50)")
+    g.add_argument("--out", default=None,
+                   help="output folder (default: RUN/eval_planning or DIR/eval_planning)")
+    g.add_argument("--batch-size", type=_int_in(1), default=8)
+    g.add_argument("--device", default="cpu")
+    g.add_argument("--threads", type=_int_in(1), default=None, help="torch threads")
+    g.add_argument("--quiet", action="store_true", help="no progress bar")
+    g.set_defaults(func=_eval_planning)
 
 
 def _register_pipeline(asub) -> None:

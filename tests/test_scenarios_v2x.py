@@ -145,14 +145,13 @@ def test_crossing_walker_ends_on_the_far_sidewalk(name):
     town = get_town("Town12")
     world = World(make_config(town="Town12", **SMALL))
     episodes = [build_episode(name, town, np.random.default_rng(seed)) for seed in range(3)]
-    if name == "DynamicObjectCrossing":
-        episodes.append(
-            (None, [s for s in load_suite_cached("test50")[39].scenarios if s.type == name])
-        )
+    with_type = [r for r in load_suite_cached("test50") if any(s.type == name for s in r.scenarios)]
+    for spec in with_type:  # and every test50 instance of the type (the suite's own sites)
+        episodes.append((None, spec))
     pts = _driving_point_ids(town)
     for k, (route, scs) in enumerate(episodes):
         if route is None:
-            world.reset(seed=0, spec=load_suite_cached("test50")[39])
+            world.reset(seed=0, spec=scs)
             sc = next(s for s in world.scenarios if s.name == name)
         else:
             world.reset(seed=k, route=route, scenarios=scs)

@@ -201,6 +201,21 @@ def complete_agent(agent: Any, label: str, privileged: bool) -> Any:
     return agent
 
 
+def _declaration(agent: Any, attr: str, fields: tuple[str, ...], shape: str, label: str) -> dict:
+    """An agent's optional declaration dict ``attr`` (``{}`` when absent), its keys checked against
+    ``fields``; the messages name the agent, the attribute and the known keys."""
+    decl = getattr(agent, attr, None)
+    if decl is None:
+        return {}
+    if not isinstance(decl, dict):
+        raise ValueError(f"agent {label!r}: {attr} must be {shape}, got {type(decl).__name__}")
+    unknown = sorted(str(k) for k in decl if k not in fields)
+    if unknown:
+        raise ValueError(f"agent {label!r}: {attr} has unknown key(s) {unknown}; known: "
+                         f"{', '.join(fields)}")
+    return decl
+
+
 def declared_sensors(agent: Any, label: str = "agent") -> dict[str, Any]:
     """The sensor configuration ``agent`` declares it needs (its optional ``sensors`` dict; module
     docstring, "Sensors") as ``config.sensor_config`` values (JSON: lists; ``camera_images`` in
@@ -212,16 +227,10 @@ def declared_sensors(agent: Any, label: str = "agent") -> dict[str, Any]:
     """
     from v2xbench.envs.v2x_intersection.config import SENSOR_FIELDS, make_config, sensor_config
 
-    decl = getattr(agent, "sensors", None)
-    if decl is None:
+    decl = _declaration(agent, "sensors", SENSOR_FIELDS, f"a dict of {', '.join(SENSOR_FIELDS)}",
+                        label)
+    if not decl:
         return {}
-    if not isinstance(decl, dict):
-        raise ValueError(f"agent {label!r}: sensors must be a dict of {', '.join(SENSOR_FIELDS)}, "
-                         f"got {type(decl).__name__}")
-    unknown = sorted(str(k) for k in decl if k not in SENSOR_FIELDS)
-    if unknown:
-        raise ValueError(f"agent {label!r}: sensors has unknown key(s) {unknown}; known: "
-                         f"{', '.join(SENSOR_FIELDS)}")
     try:
         values = sensor_config(make_config(**decl))
     except ValueError as e:
@@ -243,16 +252,8 @@ def declared_channel(agent: Any, label: str = "agent") -> dict[str, int]:
     """
     from v2xbench.envs.v2x_intersection.config import FIELD_RULES
 
-    decl = getattr(agent, "channel", None)
-    if decl is None:
-        return {}
-    if not isinstance(decl, dict):
-        raise ValueError(f"agent {label!r}: channel must be a dict like "
-                         f"{{'max_payload_floats': N}}, got {type(decl).__name__}")
-    unknown = sorted(str(k) for k in decl if k not in CHANNEL_FIELDS)
-    if unknown:
-        raise ValueError(f"agent {label!r}: channel has unknown key(s) {unknown}; known: "
-                         f"{', '.join(CHANNEL_FIELDS)}")
+    decl = _declaration(agent, "channel", CHANNEL_FIELDS, "a dict like {'max_payload_floats': N}",
+                        label)
     out = {}
     for key in CHANNEL_FIELDS:
         if key in decl:

@@ -86,7 +86,8 @@ def _ask(args: argparse.Namespace) -> int:
 
     _threads(args.threads)
     r = ask(args.run, args.data, args.keyframe, args.question, lm=args.lm,
-            max_new_tokens=args.max_new_tokens, device=args.device)
+            max_new_tokens=args.max_new_tokens, device=args.device, stage=args.stage,
+            weights=args.weights)
     print(r["note"])
     print(f"prompt:\n{r['prompt']}")
     print(f"answer: {r['answer']}")
@@ -99,7 +100,8 @@ def _answer(args: argparse.Namespace) -> int:
     _threads(args.threads)
     r = answer_split(args.run, args.data, args.split, args.out, chat=args.chat, lm=args.lm,
                      max_new_tokens=args.max_new_tokens, batch_size=args.batch_size,
-                     device=args.device, progress=not args.quiet)
+                     device=args.device, progress=not args.quiet, stage=args.stage,
+                     weights=args.weights, stride=args.stride)
     print(r["note"])
     print(f"answered {r['items']} items of split {args.split!r} in {r['wall_s']:.0f} s "
           f"({r['items_per_s']:.1f}/s) -> {r['out']}")
@@ -272,13 +274,24 @@ def _register_pipeline(asub) -> None:
     p.set_defaults(func=_pipeline)
 
 
+def _model_args(p) -> None:
+    """``--stage`` / ``--weights``: answer with the whole stage-3+ system instead of stage 0."""
+    p.add_argument("--stage", type=int, choices=(3, 4, 5), default=None,
+                   help="answer with the whole system of RUN/stage<N> (cameras, roadside "
+                   "message, CQAF, fused tokens, LoRA LM); default: RUN/stage0 on the text alone")
+    p.add_argument("--weights", default=None, help="answer with the whole system of exported "
+                   "weights (v2xbench aurora export), instead of --run/--stage")
+
+
 def _register_answering(asub) -> None:
     """``aurora ask`` and ``aurora answer`` (:mod:`v2xbench.agents.aurora.answer`)."""
     a = asub.add_parser("ask", help="answer a question about a recorded frame with the run's "
                         "language model", description="Generate an answer (greedy) from the "
                         "run-time prompt of one recorded frame: speed, navigation command, the "
                         "roadside unit's pose and the question; never ground-truth objects. The "
-                        "model is RUN/stage0 (or --lm) on the text prompt alone.")
+                        "model is RUN/stage0 (or --lm) on the text prompt alone, or with --stage "
+                        "/ --weights the whole system on the frame's cameras.")
+    _model_args(a)
     a.add_argument("question", help="the question, e.g. \"Should the ego stop?\"")
     a.add_argument("--run", default=None, help="run folder (v2xbench aurora train --out)")
     a.add_argument("--data", required=True, help="data set folder holding the frame")
@@ -294,6 +307,9 @@ def _register_answering(asub) -> None:
                         "`v2xbench qa score`)", description="Answer the hint-free QA items of a "
                         "split with the run's language model; writes {id, answer} lines to score "
                         "with `v2xbench qa score QA PRED --split SPLIT` (per kind, type, level).")
+    _model_args(w)
+    w.add_argument("--stride", type=_int_in(1), default=1, help="every K-th item of the split "
+                   "(K > 1 also writes OUT.ref.jsonl, the answered items' reference to score)")
     w.add_argument("--run", default=None, help="run folder (v2xbench aurora train --out)")
     w.add_argument("--data", required=True, help="data set folder (its chat/qa.jsonl)")
     w.add_argument("--chat", default=None, help="folder or file of qa.jsonl (default DATA/chat)")

@@ -43,7 +43,7 @@ def _cli(*args: str) -> int:
     return main(["aurora", "eval-planning", "--quiet", "--threads", "1", *map(str, args)])
 
 
-def test_command_writes_the_metrics(tiny_run, tmp_path, capsys):
+def test_command_writes_the_metrics(tiny_run, tmp_path, capsys, monkeypatch):
     data, run = tiny_run
     assert _cli("--run", run, "--data", data, "--split", "all", "--stride", 4) == 0
     out = run / "eval_planning"
@@ -72,8 +72,10 @@ def test_command_writes_the_metrics(tiny_run, tmp_path, capsys):
     # exported float32 weights give the run's numbers; --out is honoured
     w = tmp_path / "w"
     export_run(run, None, w, dtype="float32")
+    monkeypatch.chdir(tmp_path)  # an export's results go to ./eval_planning/NAME, not into it
     assert _cli("--weights", w, "--data", data, "--split", "all", "--stride", 4) == 0
-    mw = json.loads((w / "eval_planning" / "metrics.json").read_text())
+    assert not (w / "eval_planning").exists()
+    mw = json.loads((tmp_path / "eval_planning" / "w" / "metrics.json").read_text())
     assert mw["overall"] == m["overall"] and mw["source"]["weights"] == str(w)
     assert _cli("--run", run, "--data", data, "--split", "all", "--stride", 20, "--out",
                 tmp_path / "o") == 0

@@ -256,6 +256,8 @@ def test_scoring(qa, tiny_dataset, tmp_path, capsys):
             wrong[it["id"]] = "Decelerating." if it["label"] != "decelerating" else "Accelerating."
         else:
             wrong[it["id"]] = it["answer"]
+    empty = score(qa, {it["id"]: " " for it in qa})  # an empty answer scores 0, even where the
+    assert empty["descriptive"]["f1"] == 0.0  # reference has no slots ("no critical object")
     s = score(qa, wrong)
     assert abs(s["coordinate"]["mean_error_m"] - 5.0) < 0.01 and s["coordinate"]["within_0.5m"] == 0.0
     assert s["closed"]["per_type"]["speed_trend"] == 0.0 and s["closed"]["per_type"]["traffic_light"] == 1.0

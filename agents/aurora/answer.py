@@ -48,8 +48,9 @@ MAX_NEW_TOKENS = 192  # the longest training answers are ~150 tokens at the defa
 def model_note(run: str | Path | None, path: Path) -> str:
     """Which model answers and what it sees (module docstring)."""
     later = [s for s in LATER_STAGES if run is not None and (Path(run) / f"stage{s}").is_dir()]
-    what = (f"RUN has stage {', '.join(map(str, later))}, but answering with fused tokens is "
-            "not wired yet" if later else "the run has no stage 3-5 (fused tokens)")
+    what = (f"RUN has stage {', '.join(map(str, later))}: pass --stage N to answer with that "
+            "stage's whole system (fused tokens)" if later else
+            "the run has no stage 3-5 (fused tokens)")
     return (f"model: {path} (language model alone, text prompt; {what}: the visual "
             "placeholders are omitted)")
 
@@ -322,7 +323,7 @@ def answer_split(run: str | Path | None, data: str | Path, split: str, out: str 
             for it in items:
                 f.write(json.dumps(it) + "\n")
     return {"items": len(items), "out": str(out), "qa": str(qa_path), "model": name,
-            "note": note, "wall_s": wall,
+            "note": note, "wall_s": wall, "empty": sum(not a.strip() for a in answers),
             "items_per_s": len(items) / wall if wall > 0 else 0.0}
 
 

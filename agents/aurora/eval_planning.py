@@ -247,7 +247,9 @@ def evaluate_planning(data: str | Path, *, run: str | Path | None = None,
     items = planning_items(frames, stride)
     ds = AuroraPairs(data, split, cfg, tok, items, fusion=system.fusion)
     loader = make_pair_loader(ds, batch_size, shuffle=False)
-    out = Path(out) if out is not None else Path(run if run is not None else weights) / OUT_DIR
+    if out is None:  # a run folder holds its evaluations; an export (maybe the shipped one) not
+        out = Path(run) / OUT_DIR if run is not None else Path(OUT_DIR) / Path(weights).name
+    out = Path(out)
     t_steps, dt = cfg.plan_waypoints, cfg.plan_dt
     parts: dict[str, list] = {k: [] for k in ("frame_id", "command", "speed", "expert", "model",
                                               "has_rsu", "futures")}

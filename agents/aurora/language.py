@@ -22,6 +22,7 @@ and the ``<wp>`` hidden state (seed paper, section 4.3).
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -35,6 +36,10 @@ from transformers.utils import logging as hf_logging
 from .config import AuroraConfig
 from .tokenizer import DET, MAP, WP, check_tokenizer, load_tokenizer
 from .trainer import load_weights, save_checkpoint
+
+# peft 0.21 still calls transformers 5's deprecated ``is_gradient_checkpointing`` when it wraps a
+# model: a warning about the libraries' own versions, not about anything a user can change
+warnings.filterwarnings("ignore", message=".*is_gradient_checkpointing.*", category=FutureWarning)
 
 IGNORE = -100  # label of positions without a next-token loss
 hf_logging.disable_progress_bar()  # no tqdm bars when saving / loading small local models

@@ -176,8 +176,8 @@ def score(items: list[dict], predictions: dict[str, str]) -> dict:
         elif it["kind"] == "coordinate":
             xyz = coordinates(pred)
             v = math.inf if xyz is None else float(np.linalg.norm(xyz - np.asarray(it["label"])))
-        else:
-            v = f1(slots(pred), slots(it["answer"]))
+        else:  # an empty answer says nothing: it scores 0 even where the reference has no slots
+            v = f1(slots(pred), slots(it["answer"])) if pred.strip() else 0.0
         scored.append((it, v))
     levels = dict.fromkeys(it["level"] for it in items)
     return {"answered": len(items) - missing, "missing": missing, **_groups(scored),

@@ -16,7 +16,8 @@ Commands:
     data        validate a collected data set (missing / corrupt shards)
     qa          build Chat-V2XBench from a data set, print its statistics, score answers
     warmup      compile the numba kernels ahead of time (first use in a fresh environment)
-    aurora      AURORA perception: train the ego / roadside branches, evaluate them (mAP, NDS)
+    aurora      AURORA: train (stages 0-5, pipeline), export weights, evaluate perception and
+                planning, ask / answer Chat-V2XBench questions
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""``v2xbench aurora``: train AURORA's perception branches and measure them (issue #32)."""
+"""``v2xbench aurora``: train AURORA (stages 0-5, or all in one pipeline), export its weights,
+measure its perception and planning, and ask it Chat-V2XBench questions."""
 
 from __future__ import annotations
 
@@ -105,6 +106,8 @@ def _answer(args: argparse.Namespace) -> int:
     print(r["note"])
     print(f"answered {r['items']} items of split {args.split!r} in {r['wall_s']:.0f} s "
           f"({r['items_per_s']:.1f}/s) -> {r['out']}")
+    if r["empty"]:
+        print(f"warning: {r['empty']} of {r['items']} answers are empty (they score 0)")
     print(f"score: v2xbench qa score {r['qa']} {r['out']} --split {args.split}")
     return 0
 
@@ -122,9 +125,9 @@ def _eval(args: argparse.Namespace) -> int:
 
 
 def register(sub) -> None:
-    """Add ``aurora`` (``train``, ``eval-perception``) to the ``v2xbench`` parser."""
-    p = sub.add_parser("aurora", help="AURORA perception: train the ego / roadside branches, "
-                       "evaluate them", description=__doc__)
+    """Add ``aurora`` and its sub-commands to the ``v2xbench`` parser."""
+    p = sub.add_parser("aurora", help="AURORA: train (stages 0-5, pipeline), export, evaluate "
+                       "perception and planning, ask / answer", description=__doc__)
     asub = p.add_subparsers(dest="aurora_command", required=True)
     t = asub.add_parser("train", help="train one stage (1 ego branch, 2 roadside branch, "
                         "3 fusion + QA, 4 planning, 5 joint)",
@@ -239,7 +242,7 @@ def _register_planning(asub) -> None:
     g.add_argument("--stride", type=_int_in(1), default=50,
                    help="every K-th frame of each episode (default: 50)")
     g.add_argument("--out", default=None,
-                   help="output folder (default: RUN/eval_planning or DIR/eval_planning)")
+                   help="output folder (default: RUN/eval_planning, or ./eval_planning/NAME for --weights DIR)")
     g.add_argument("--batch-size", type=_int_in(1), default=8)
     g.add_argument("--device", default="cpu")
     g.add_argument("--threads", type=_int_in(1), default=None, help="torch threads")

@@ -337,3 +337,19 @@ def test_leaderboard_ranks_comparable_runs_together(rf_run, flaky_run, suite, tm
     cfg = {"camera_size": [256, 128], "lidar_scale": 0.5, "num_vehicles": 3, "rsu_policy": "none"}
     assert sensor_settings(cfg) == {"camera_size": [256, 128], "lidar_scale": 0.5}
     assert world_settings(cfg) == {"num_vehicles": 3}
+
+
+def test_each_agent_gets_its_own_default_results_folder(tmp_path, monkeypatch):
+    """Without --out, eval writes to results/<agent name>, so a second agent does not meet the
+    first one's results (a file:Class agent is named by its class)."""
+    from v2xbench.cli import main
+    from v2xbench.cli.evaluation import default_out_name
+
+    assert default_out_name("expert") == "expert"
+    assert default_out_name("examples/my_agent.py:CautiousDriver") == "CautiousDriver"
+    assert default_out_name("../weird name!") == "weird_name"
+    monkeypatch.chdir(tmp_path)
+    for agent in ("route_follower", "expert"):
+        assert main(["eval", "--agent", agent, "--suite", "val", "--max-routes", "1",
+                     "--quiet"]) == 0
+        assert (tmp_path / "results" / agent / "summary.json").is_file()

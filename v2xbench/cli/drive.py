@@ -36,8 +36,10 @@ def _drive(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from v2xbench.agents.route_follower import RouteFollower
+    from v2xbench.collectors.route_log import ended_by_code
     from v2xbench.envs.v2x_intersection import V2XIntersectionEnv
     from v2xbench.envs.v2x_intersection.infractions import EVENT_NAMES
+    from v2xbench.envs.v2x_intersection.metrics import ENDED_BY_NAMES
     from v2xbench.envs.v2x_intersection.render import save_video
     from v2xbench.envs.v2x_intersection.sensors import SensorRig, mosaic
     from v2xbench.files import atomic_write, atomic_write_json
@@ -77,7 +79,7 @@ def _drive(args: argparse.Namespace) -> int:
         "town": args.town, "seed": args.seed, "ticks": ticks, "sim_seconds": round(ticks * 0.1, 1),
         "route_length_m": round(info["route_length"], 1),
         "route_completion": round(info["route_completion"], 1),
-        "ended_by": "route complete / deviation / blocked" if terminated else "time budget",
+        "ended_by": ENDED_BY_NAMES[ended_by_code(env.world, terminated, truncated)],
         "return": round(total, 2),
         "events": {k: int(v) for k, v in zip(EVENT_NAMES, np.asarray(info["events"]))},
         "v2x_bytes_per_s": round(info["v2x_bps"], 1),

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from pathlib import Path
 
@@ -10,10 +11,19 @@ from v2xbench.cli.common import parse_set
 from v2xbench.collectors.eval_workers import DEFAULT_ROUTE_TIMEOUT_S
 
 
+def default_out_name(agent: str) -> str:
+    """The folder name of an agent's results: a registered name as it is, ``path/file.py:Class``
+    as ``Class``, anything else reduced to letters, digits, ``-`` and ``_``."""
+    name = agent.rsplit(":", 1)[-1] if ":" in agent else Path(agent).stem
+    return re.sub(r"[^A-Za-z0-9_-]+", "_", name).strip("_") or "agent"
+
+
 def _eval(args: argparse.Namespace) -> int:
     """Run the evaluation; exit 1 when any route failed (error or wall-clock timeout)."""
     from v2xbench.collectors.evaluate import evaluate, summary_markdown
 
+    if args.out is None:  # one folder per agent, so a second agent never meets the first's results
+        args.out = str(Path("results") / default_out_name(args.agent_name or args.agent))
     summary = evaluate(args.agent, suite=args.suite, seeds=args.seeds, workers=args.workers, out=args.out,
                        video=args.video, max_routes=args.max_routes, config=parse_set(args.set),
                        agent_name=args.agent_name, progress=not args.quiet,
@@ -61,7 +71,8 @@ def register(sub) -> None:
     ev.add_argument("--suite", default="test50", help="suite name (test50, val, train) or suite JSON path")
     ev.add_argument("--seeds", type=int, default=1, help="seed indices per route")
     ev.add_argument("--workers", type=int, default=1, help="worker processes running routes at a time")
-    ev.add_argument("--out", default="results/eval")
+    ev.add_argument("--out", default=None,
+                    help="output folder (default: results/<agent name>, e.g. results/expert)")
     ev.add_argument("--video", action="store_true", help="save a top-down GIF per route in OUT/videos")
     ev.add_argument("--max-routes", type=int, default=None,
                     help="only the first N of the (selected) routes of the suite")

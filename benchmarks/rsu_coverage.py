@@ -20,11 +20,12 @@ Prints a per-type table and writes ``OUT/rsu_coverage.{json,md}``.
 from __future__ import annotations
 
 import argparse
-import json
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+
+from v2xbench.files import atomic_write_json, atomic_write_text
 
 VISIBLE = 0.1  # visible fraction counted as seen
 COVERED_S = 0.5  # s of covered time that counts an instance as covered
@@ -133,14 +134,11 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     table = markdown(rows)
-    for name, text in (("rsu_coverage.json", json.dumps({"suite": args.suite, "agent": args.agent,
-                                                        "types": rows, "instances": records},
-                                                       indent=1)),
-                       ("rsu_coverage.md", table)):
-        tmp = out / (name + ".tmp")
-        tmp.write_text(text)
-        tmp.replace(out / name)
+    atomic_write_json(out / "rsu_coverage.json", {"suite": args.suite, "agent": args.agent,
+                                                  "types": rows, "instances": records}, indent=1)
+    atomic_write_text(out / "rsu_coverage.md", table)
     print(table)
+    print(f"wrote {out / 'rsu_coverage.md'} and rsu_coverage.json")
     return 0
 
 

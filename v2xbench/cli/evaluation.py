@@ -69,7 +69,8 @@ def register(sub) -> None:
     ev.add_argument("--agent", default="route_follower",
                     help="registered agent name (route_follower, expert, ...) or path/to/file.py:ClassName")
     ev.add_argument("--suite", default="test50", help="suite name (test50, val, train) or suite JSON path")
-    ev.add_argument("--seeds", type=int, default=1, help="seed indices per route")
+    ev.add_argument("--seeds", type=int, default=1,
+                    help="number of seeds per route (seed indices 0..N-1; default 1)")
     ev.add_argument("--workers", type=int, default=1, help="worker processes running routes at a time")
     ev.add_argument("--out", default=None,
                     help="output folder (default: results/<agent name>, e.g. results/expert)")

@@ -39,6 +39,12 @@ class Site:
     extra: tuple = ()  # scenario-specific data (e.g. the crossing lane)
 
 
+def completing_s(route: Route) -> float:
+    """The route progress (m) that completes the route (``World.is_route_complete``: the third
+    last route point); a scenario's end never lies beyond it, or it could never be passed."""
+    return float(route.s[max(len(route.s) - 3, 0)])
+
+
 class Scenario:
     """Base class; see the module docstring."""
 
@@ -72,8 +78,7 @@ class Scenario:
         ts = max(conflict_s - self.trigger_distance, 0.0)
         self.trigger_s = ts
         self.trigger_point = route.points[min(max(int(np.searchsorted(route.s, ts)), 0), last)].copy()
-        # at most the progress that completes the route (``World.is_route_complete``)
-        self.end_s = min(conflict_s + 15.0, float(route.s[max(len(route.s) - 3, 0)]))
+        self.end_s = min(conflict_s + 15.0, completing_s(route))
         self.rows = np.zeros(0, np.int64)
         self.hazard_rows: list[int] = []
         self.triggered = False

@@ -49,7 +49,7 @@ from typing import ClassVar
 import numpy as np
 
 from ..town.model import Town
-from .base import Scenario, Site
+from .base import Scenario, Site, completing_s
 from .obstacles import lane_sites
 from .registry import register_scenario
 
@@ -114,7 +114,7 @@ class ControlLoss(Scenario):
                 f"ControlLoss: need span > 0 and 0 < window < span / {2 * self.n_points} "
                 f"(windows inside their thirds of the span), got span={span}, window={window}"
             )
-        route_end = float(route.s[max(len(route.s) - 3, 0)])
+        route_end = completing_s(route)
         self.span_m = max(
             min(span, route_end - self.conflict_s - window), 2 * window * self.n_points
         )

@@ -21,7 +21,7 @@ from ..actors import draw_size
 from ..classes import CAR, LARGE_VEHICLE, STATIC_OBSTACLE, TRAFFIC_CONE, TRAFFIC_SIGN
 from ..town.model import DRIVING, PARKING, Town
 from ..traffic import occupied
-from .base import Scenario, Site
+from .base import Scenario, Site, completing_s
 from .placement import (
     clear_lanes,
     clear_near,
@@ -239,9 +239,9 @@ class _LaneBlock(Scenario):
 
     def __init__(self, route, site, conflict_s, params=None) -> None:
         super().__init__(route, site, conflict_s, params)
-        # at most the progress that completes the route (as ``Scenario.__init__``; the route's
-        # last points are not always 0.5 m apart, so ``route.length - 1`` can lie beyond it)
-        self.end_s = min(self.conflict_s + self.span + 10.0, float(route.s[max(len(route.s) - 3, 0)]))
+        # (``route.length - 1`` can lie beyond the completing progress: the route's last points
+        # are not always 0.5 m apart)
+        self.end_s = min(self.conflict_s + self.span + 10.0, completing_s(route))
         self.flow: LaneFlow | None = None
 
     def layout(self, width: float, rng: np.random.Generator) -> list[Item]:

@@ -23,7 +23,6 @@ SHA-256 is an error naming the file), then builds the model from ``lm/config.jso
 from __future__ import annotations
 
 import datetime
-import hashlib
 import json
 import shutil
 import subprocess
@@ -31,6 +30,7 @@ import sys
 from pathlib import Path
 
 import torch
+from v2xbench.collectors.agent_fingerprint import sha256_file
 
 from v2xbench.files import atomic_write_bytes, atomic_write_json
 
@@ -45,15 +45,6 @@ LM_FILES = ("config.json", "tokenizer.json", "tokenizer_config.json", "special_t
 SHIPPED = Path(__file__).resolve().parent / "weights"
 DTYPES = {"float16": torch.float16, "bfloat16": torch.bfloat16, "float32": torch.float32}
 _F16_MAX = 65504.0
-
-
-def sha256_file(path: str | Path) -> str:
-    """Hex SHA-256 of a file's bytes."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _git(*args: str) -> str | None:

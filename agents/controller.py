@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from v2xbench.envs.v2x_intersection.dynamics import VehicleParams
+from v2xbench.envs.v2x_intersection.core.dynamics import VehicleParams
 
 
 @dataclass(frozen=True)

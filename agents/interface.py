@@ -225,7 +225,7 @@ def declared_sensors(agent: Any, label: str = "agent") -> dict[str, Any]:
         ValueError: ``sensors`` is not a dict, names a key outside ``config.SENSOR_FIELDS``, or
             holds a value the field's rule refuses (the message names the agent and the field).
     """
-    from v2xbench.envs.v2x_intersection.config import SENSOR_FIELDS, make_config, sensor_config
+    from v2xbench.envs.v2x_intersection.sim.config import SENSOR_FIELDS, make_config, sensor_config
 
     decl = _declaration(agent, "sensors", SENSOR_FIELDS, f"a dict of {', '.join(SENSOR_FIELDS)}",
                         label)
@@ -250,7 +250,7 @@ def declared_channel(agent: Any, label: str = "agent") -> dict[str, int]:
         ValueError: ``channel`` is not a dict, names a key other than ``max_payload_floats``, or
             holds a value outside the field's rule (the message names the agent and the bound).
     """
-    from v2xbench.envs.v2x_intersection.config import FIELD_RULES
+    from v2xbench.envs.v2x_intersection.sim.config import FIELD_RULES
 
     decl = _declaration(agent, "channel", CHANNEL_FIELDS, "a dict like {'max_payload_floats': N}",
                         label)
@@ -265,7 +265,7 @@ def declared_channel(agent: Any, label: str = "agent") -> dict[str, int]:
 def _check_rsu_policy(policy: Any, label: str) -> None:
     """Raise ``ValueError`` unless ``policy`` names a built-in RSU policy or is a roadside
     policy object (one with a callable ``act``; module docstring)."""
-    from v2xbench.envs.v2x_intersection.config import RSU_POLICIES
+    from v2xbench.envs.v2x_intersection.sim.config import RSU_POLICIES
 
     if isinstance(policy, str):
         if policy not in RSU_POLICIES:
@@ -416,7 +416,7 @@ def to_control(output: Any, obs: dict, action_mode: str = "carla") -> np.ndarray
         wps = np.asarray(output["waypoints"], dtype=np.float64).reshape(-1, 2)
         speed = float(output.get("speed", np.linalg.norm(wps[0]) / 0.5 if len(wps) else 0.0))
         return _CONTROLLER.control(wps, float(obs["ego"][0]), speed)
-    from v2xbench.envs.v2x_intersection.actions import get_mode, validate_action
+    from v2xbench.envs.v2x_intersection.api.actions import get_mode, validate_action
 
     a = np.asarray(output, dtype=np.float32)
     if a.shape != get_mode(action_mode).shape:

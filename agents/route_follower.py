@@ -8,9 +8,9 @@ red and yellow lights. It is the README's default driver and a baseline, not the
 from __future__ import annotations
 
 import numpy as np
-from v2xbench.envs.v2x_intersection.dynamics import IDMParams, idm_accel
-from v2xbench.envs.v2x_intersection.observations import LIGHT_STOP_SIGN as STOP_SIGN
-from v2xbench.envs.v2x_intersection.signals import RED, YELLOW
+from v2xbench.envs.v2x_intersection.api.observations import LIGHT_STOP_SIGN as STOP_SIGN
+from v2xbench.envs.v2x_intersection.core.dynamics import IDMParams, idm_accel
+from v2xbench.envs.v2x_intersection.traffic.signals import RED, YELLOW
 
 from .controller import WaypointController
 

@@ -35,12 +35,12 @@ from .settle import settle
 #: ``(module under v2xbench.envs.v2x_intersection, kernel name)`` of the six per-tick kernels, in
 #: the order a tick calls them (the module is where the tick looks the name up)
 KERNELS = (
-    ("world", "builtin_message_kernel"),
-    ("jit_batch", "traffic_one_kernel"),
-    ("infractions", "monitor_kernel"),
-    ("jit_batch", "perceive_one_kernel"),
-    ("channel", "decode_kernel"),
-    ("observations", "ego_obs_packed_kernel"),
+    ("sim.world", "builtin_message_kernel"),
+    ("sim.jit_batch", "traffic_one_kernel"),
+    ("evaluation.infractions", "monitor_kernel"),
+    ("sim.jit_batch", "perceive_one_kernel"),
+    ("v2x.channel", "decode_kernel"),
+    ("api.observations", "ego_obs_packed_kernel"),
 )
 #: most ticks timed per episode (an episode that has not ended by then is cut there)
 MAX_TICKS = 2000
@@ -79,7 +79,7 @@ def measure(episodes: int = 30, max_ticks: int = MAX_TICKS) -> dict:
         raise ValueError(f"floor: episodes={episodes!r} and max_ticks={max_ticks!r} must be >= 1")
     import gymnasium as gym
     import numpy as np
-    from v2xbench.envs.v2x_intersection.jit import HAVE_JIT
+    from v2xbench.envs.v2x_intersection.core.jit import HAVE_JIT
 
     import v2xbench  # noqa: F401  (registers the ids)
 

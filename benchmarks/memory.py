@@ -21,8 +21,8 @@ def rss_mib() -> float:
 
 def measure(resets: int = 10_000, samples: int = 20) -> dict:
     import numpy as np
-    from v2xbench.envs.v2x_intersection.config import make_config
-    from v2xbench.envs.v2x_intersection.world import World
+    from v2xbench.envs.v2x_intersection.sim.config import make_config
+    from v2xbench.envs.v2x_intersection.sim.world import World
 
     world = World(make_config())
     control = np.array([0.3, 0.0, 0.0])

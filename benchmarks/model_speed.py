@@ -33,9 +33,9 @@ def synthetic_batch(cfg, branch: str, batch_size: int, seed: int = 0) -> dict:
     import numpy as np
     import torch
     from v2xbench.agents.aurora.calib import camera_tensors, rsu_ground_pose
-    from v2xbench.envs.v2x_intersection.geometry import pose_matrix
-    from v2xbench.envs.v2x_intersection.rsu import RSU_HEIGHT, RSU_PITCH, RSU_ROLL
+    from v2xbench.envs.v2x_intersection.core.geometry import pose_matrix
     from v2xbench.envs.v2x_intersection.sensors.camera import ego_camera_specs, rsu_camera_spec
+    from v2xbench.envs.v2x_intersection.v2x.rsu import RSU_HEIGHT, RSU_PITCH, RSU_ROLL
 
     g = torch.Generator().manual_seed(seed)
     w, h = cfg.image_size(branch)

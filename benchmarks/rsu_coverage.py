@@ -42,8 +42,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _in_view(world, sc) -> bool:
     """Whether the conflict point is in range and in the camera FOV of the unit active 15 m
     before it."""
-    from v2xbench.envs.v2x_intersection.geometry import wrap_angle
-    from v2xbench.envs.v2x_intersection.rsu import VIEW_HALF_ANGLE, select_active
+    from v2xbench.envs.v2x_intersection.core.geometry import wrap_angle
+    from v2xbench.envs.v2x_intersection.v2x.rsu import VIEW_HALF_ANGLE, select_active
 
     r = world.route
     k = min(max(int(np.searchsorted(r.s, sc.conflict_s - 15.0)), 0), len(r.points) - 1)
@@ -63,10 +63,10 @@ def measure(suite: str = "test50", agent: str = "expert", max_routes: int | None
     from tqdm import tqdm
     from v2xbench.agents.interface import load_agent
     from v2xbench.collectors import jobs as J
-    from v2xbench.envs.v2x_intersection.config import make_config
-    from v2xbench.envs.v2x_intersection.observations import ego_observation
-    from v2xbench.envs.v2x_intersection.route_files import load_suite
-    from v2xbench.envs.v2x_intersection.world import World
+    from v2xbench.envs.v2x_intersection.api.observations import ego_observation
+    from v2xbench.envs.v2x_intersection.sim.config import make_config
+    from v2xbench.envs.v2x_intersection.sim.world import World
+    from v2xbench.envs.v2x_intersection.suites.route_files import load_suite
 
     torch.set_num_threads(1)
     routes = load_suite(suite)[1][:max_routes]

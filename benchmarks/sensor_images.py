@@ -33,7 +33,7 @@ def measure(steps: int = 40, reps: int = 9, camera_size: tuple[int, int] = (128,
     import numpy as np
     import torch
     from v2xbench.envs.v2x_intersection import V2XIntersectionEnv
-    from v2xbench.envs.v2x_intersection.torchrl_env import V2XTorchEnv
+    from v2xbench.envs.v2x_intersection.api.torchrl_env import V2XTorchEnv
 
     torch.set_num_threads(1)
     action = np.array([0.4, 0.0, 0.0], np.float32)

@@ -70,10 +70,10 @@ def measure(
 ) -> dict:
     """Run the benchmark; returns a JSON-able dict (camera sizes ``(W, H)``; None: defaults)."""
     import numpy as np
-    from v2xbench.envs.v2x_intersection.config import make_config
     from v2xbench.envs.v2x_intersection.sensors import SensorConfig, SensorRig
     from v2xbench.envs.v2x_intersection.sensors.lidar import ego_lidar_spec, rsu_lidar_spec
-    from v2xbench.envs.v2x_intersection.world import World
+    from v2xbench.envs.v2x_intersection.sim.config import make_config
+    from v2xbench.envs.v2x_intersection.sim.world import World
 
     cfg = SensorConfig(
         camera_size=camera_size or SensorConfig.camera_size,

@@ -186,12 +186,15 @@ def patched(patches: list[tuple[object, str, object]]) -> Iterator[None]:
 
 
 def _env_modules() -> list:
-    """The modules of the environment package (``v2xbench.envs.v2x_intersection`` and below)."""
+    """The modules of the environment package (``v2xbench.envs.v2x_intersection`` and below),
+    without the deprecated aliases of moved modules."""
     import v2xbench.envs.v2x_intersection as pkg
 
     mods = [pkg]
+    aliases = {f"{pkg.__name__}.{a}" for a in pkg.DEPRECATED_ALIASES}
     for info in pkgutil.walk_packages(pkg.__path__, pkg.__name__ + "."):
-        mods.append(importlib.import_module(info.name))
+        if info.name not in aliases:
+            mods.append(importlib.import_module(info.name))
     return mods
 
 
@@ -227,7 +230,9 @@ def _kernel_patches(timers: _Timers) -> list[tuple[object, str, object]]:
 
 def _stage_patches(timers: _Timers, mode: str) -> list[tuple[object, str, object]]:
     """Timed stand-ins for the tick's stages (and the tuples and imports that reference them)."""
-    from v2xbench.envs.v2x_intersection import batch, episode, gym_env, world
+    from v2xbench.envs.v2x_intersection.api import batch, gym_env
+    from v2xbench.envs.v2x_intersection.evaluation import episode
+    from v2xbench.envs.v2x_intersection.sim import world
 
     timed = {name: timers.wrap(getattr(world.World, name), name) for name in WORLD_STAGES}
     patches: list[tuple[object, str, object]] = [(world.World, n, f) for n, f in timed.items()]
@@ -238,7 +243,7 @@ def _stage_patches(timers: _Timers, mode: str) -> list[tuple[object, str, object
         patches.append((gym_env, "validate_action", timers.wrap(gym_env.validate_action, "validate_control")))
         patches.append((gym_env, "ego_observation", timers.wrap(gym_env.ego_observation, "observation")))
     else:
-        from v2xbench.envs.v2x_intersection import jit_batch
+        from v2xbench.envs.v2x_intersection.sim import jit_batch
 
         patches.append((batch, "validate_controls", timers.wrap(batch.validate_controls, "validate_control")))
         # with numba the batch moves the traffic of all its worlds in one call (jit_batch)
@@ -349,7 +354,7 @@ def profile(mode: str = "objects", ticks: int = 3000, worlds: int = 32, routes: 
         raise ValueError(f"profile: ticks={ticks} and worlds={worlds} must be >= 1")
     if not 1 <= routes <= TEST50_ROUTES:
         raise ValueError(f"profile: routes={routes} must be in [1, {TEST50_ROUTES}]")
-    from v2xbench.envs.v2x_intersection.jit import HAVE_JIT
+    from v2xbench.envs.v2x_intersection.core.jit import HAVE_JIT
 
     with _nrt_statistics(HAVE_JIT) as allocations:
         stage_t, kernel_t, scen_t = _Timers(), _Timers(allocations), _ScenarioTimers()

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from v2xbench.envs.v2x_intersection.config import make_config, sensor_config
+from v2xbench.envs.v2x_intersection.sim.config import make_config, sensor_config
 
 
 def apply_agent_sensors(overrides: dict[str, Any], declared: dict[str, Any],

@@ -63,12 +63,16 @@ from torch import nn
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 from v2xbench.agents.torchrl_policy import obs_tensors
-from v2xbench.envs.v2x_intersection.actions import get_mode, validate_action
-from v2xbench.envs.v2x_intersection.config import make_config
-from v2xbench.envs.v2x_intersection.episode import EpisodeTracker
-from v2xbench.envs.v2x_intersection.observations import ego_observation, ego_space, validate_control
-from v2xbench.envs.v2x_intersection.route_files import load_suite_cached
-from v2xbench.envs.v2x_intersection.world import World
+from v2xbench.envs.v2x_intersection.api.actions import get_mode, validate_action
+from v2xbench.envs.v2x_intersection.api.observations import (
+    ego_observation,
+    ego_space,
+    validate_control,
+)
+from v2xbench.envs.v2x_intersection.evaluation.episode import EpisodeTracker
+from v2xbench.envs.v2x_intersection.sim.config import make_config
+from v2xbench.envs.v2x_intersection.sim.world import World
+from v2xbench.envs.v2x_intersection.suites.route_files import load_suite_cached
 
 from . import jobs as J
 from .roadside import roadside_runner, world_rsu_policy

@@ -17,10 +17,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from v2xbench.envs.v2x_intersection.config import SENSOR_FIELDS
-from v2xbench.envs.v2x_intersection.metrics import ENDED_BY_NAMES, aggregate
-from v2xbench.envs.v2x_intersection.route_files import load_suite_cached
+from v2xbench.envs.v2x_intersection.evaluation.metrics import ENDED_BY_NAMES, aggregate
 from v2xbench.envs.v2x_intersection.scenarios import get_scenario
+from v2xbench.envs.v2x_intersection.sim.config import SENSOR_FIELDS
+from v2xbench.envs.v2x_intersection.suites.route_files import load_suite_cached
 
 from v2xbench.files import atomic_write_text
 

@@ -68,9 +68,9 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from v2xbench.envs.v2x_intersection.config import EnvConfig, make_config
-from v2xbench.envs.v2x_intersection.metrics import ENDED_ERROR
-from v2xbench.envs.v2x_intersection.route_files import load_suite_cached
+from v2xbench.envs.v2x_intersection.evaluation.metrics import ENDED_ERROR
+from v2xbench.envs.v2x_intersection.sim.config import EnvConfig, make_config
+from v2xbench.envs.v2x_intersection.suites.route_files import load_suite_cached
 
 from v2xbench.files import check_output_dir, remove_stale_tmp
 from v2xbench.locks import dir_lock

@@ -88,7 +88,7 @@ def _selection(s: dict) -> dict:
     routes (the only selection there was), or ``{}`` when the suite does not load."""
     if isinstance(s.get("selection"), dict):
         return s["selection"]
-    from v2xbench.envs.v2x_intersection.route_files import load_suite_cached
+    from v2xbench.envs.v2x_intersection.suites.route_files import load_suite_cached
 
     try:
         ids = [r.id for r in load_suite_cached(str(s["suite"]))]

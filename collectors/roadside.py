@@ -36,9 +36,9 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-from v2xbench.envs.v2x_intersection.channel import ChannelConfig
-from v2xbench.envs.v2x_intersection.config import RSU_POLICIES
-from v2xbench.envs.v2x_intersection.wire import (
+from v2xbench.envs.v2x_intersection.sim.config import RSU_POLICIES
+from v2xbench.envs.v2x_intersection.v2x.channel import ChannelConfig
+from v2xbench.envs.v2x_intersection.v2x.wire import (
     FORMAT_OBJECTS,
     FORMAT_RAW,
     _check_used,
@@ -202,7 +202,7 @@ class RoadsideRunner:
         """
         if world.active_rsu[0] < 0:
             return None
-        from v2xbench.envs.v2x_intersection.observations import rsu_observation
+        from v2xbench.envs.v2x_intersection.api.observations import rsu_observation
 
         out = self.policy.act(rsu_observation(world, 0))
         return to_message(out, world.channel_config, self.label)

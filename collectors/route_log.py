@@ -1,7 +1,7 @@
 """Per-tick log of one evaluation route and the result dict written for it.
 
-:class:`RouteLog` follows a :class:`~v2xbench.envs.v2x_intersection.world.World` tick by tick and
-keeps what :class:`~v2xbench.envs.v2x_intersection.metrics.RouteRecord` needs (ego pose and speed,
+:class:`RouteLog` follows a :class:`~v2xbench.envs.v2x_intersection.sim.world.World` tick by tick and
+keeps what :class:`~v2xbench.envs.v2x_intersection.evaluation.metrics.RouteRecord` needs (ego pose and speed,
 the surrounding traffic's mean speed, route progress), when each scenario was passed, and the
 video frames. :func:`build_result` turns it into the JSON-ready result of a job.
 
@@ -17,9 +17,9 @@ import traceback
 from pathlib import Path
 
 import numpy as np
-from v2xbench.envs.v2x_intersection import infractions as inf
-from v2xbench.envs.v2x_intersection.episode import time_budget_steps
-from v2xbench.envs.v2x_intersection.metrics import (
+from v2xbench.envs.v2x_intersection.evaluation import infractions as inf
+from v2xbench.envs.v2x_intersection.evaluation.episode import time_budget_steps
+from v2xbench.envs.v2x_intersection.evaluation.metrics import (
     ENDED_BLOCKED,
     ENDED_BY_NAMES,
     ENDED_COLLISION,
@@ -78,7 +78,7 @@ class RouteLog:
 
     def _frame(self) -> None:
         if self.video_every > 0 and self.world.tick % self.video_every == 0:
-            from v2xbench.envs.v2x_intersection.render import render_topdown
+            from v2xbench.envs.v2x_intersection.render.topdown import render_topdown
 
             self.frames.append(render_topdown(self.world, self.video_size))
 
@@ -141,7 +141,7 @@ class RouteLog:
         """Write the frames as a GIF (``None`` when there are none)."""
         if not self.frames:
             return None
-        from v2xbench.envs.v2x_intersection.render import save_video
+        from v2xbench.envs.v2x_intersection.render.topdown import save_video
 
         fps = max(1, round(10 / self.video_every))
         return str(save_video(self.frames, path, fps=fps))
@@ -151,7 +151,7 @@ def empty_record(spec, seed: int, ended_by: int = ENDED_ERROR) -> RouteRecord:
     """A zero-tick record (a route whose world or agent failed before the first tick)."""
     length = 0.0
     try:
-        from v2xbench.envs.v2x_intersection.route_files import build_episode_from_spec
+        from v2xbench.envs.v2x_intersection.suites.route_files import build_episode_from_spec
 
         length = build_episode_from_spec(spec)[0].length
     except Exception:  # noqa: BLE001  (the failure is already being reported)

@@ -56,7 +56,7 @@ from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 from v2xbench.envs.v2x_intersection import V2XTorchEnv
-from v2xbench.envs.v2x_intersection.episode import COLLISIONS
+from v2xbench.envs.v2x_intersection.evaluation.episode import COLLISIONS
 
 ENV_CONFIG = {
     "obs_mode": "objects", "action_mode": "accel_steer", "route_length": 150.0,

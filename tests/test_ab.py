@@ -13,7 +13,7 @@ REPO = Path(__file__).resolve().parents[1]
 def test_package_dir_imports_from_the_given_tree(tmp_path):
     pkg = ab._package_dir(REPO, tmp_path / "pkg")
     probe = ab.CHILD.split("import numpy as np")[0] + (
-        "import v2xbench.envs.v2x_intersection.world as w, v2xbench.benchmarks.ab as b; print(w.__file__, b.__file__)")
+        "import v2xbench.envs.v2x_intersection.sim.world as w, v2xbench.benchmarks.ab as b; print(w.__file__, b.__file__)")
     out = subprocess.run([sys.executable, "-c", probe, "objects", "1", str(pkg)], capture_output=True, text=True,
                          check=True).stdout
     world_file, ab_file = out.split()

@@ -33,7 +33,7 @@ from v2xbench.collectors.agent_process import AgentProcessError, IsolatedAgent
 from v2xbench.collectors.eval_env import EvalEnv
 from v2xbench.collectors.evaluate import evaluate
 from v2xbench.collectors.leaderboard import build_leaderboard
-from v2xbench.envs.v2x_intersection.metrics import ENDED_TIMEOUT
+from v2xbench.envs.v2x_intersection.evaluation.metrics import ENDED_TIMEOUT
 
 from tests.test_evaluate import CFG, FLAKY_AGENT, route_starts, suite  # noqa: F401  (fixture)
 from v2xbench import cli
@@ -50,7 +50,7 @@ class WorldSeeker:
     obs_mode, rsu_policy = "objects", "none"
 
     def _worlds(self):
-        from v2xbench.envs.v2x_intersection.world import World
+        from v2xbench.envs.v2x_intersection.sim.world import World
         n = 0
         for o in gc.get_objects():
             try:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 from v2xbench.agents.interface import complete_agent, declared_channel
 from v2xbench.collectors.agent_sensors import apply_agent_channel
-from v2xbench.envs.v2x_intersection.config import FIELD_RULES
+from v2xbench.envs.v2x_intersection.sim.config import FIELD_RULES
 
 
 class _Agent:

@@ -23,11 +23,11 @@ from v2xbench.agents.aurora.cqaf import (
     transform_points,
 )
 from v2xbench.agents.aurora.fused_heads import MASKED_LOGIT, FusedCriterion
-from v2xbench.envs.v2x_intersection.geometry import (
+from v2xbench.envs.v2x_intersection.core.geometry import (
     pose_matrix,
     relative_transform,
 )
-from v2xbench.envs.v2x_intersection.geometry import (
+from v2xbench.envs.v2x_intersection.core.geometry import (
     transform_points as np_transform_points,
 )
 

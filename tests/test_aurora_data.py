@@ -15,12 +15,12 @@ from v2xbench.agents.aurora.calib import (
 from v2xbench.agents.aurora.config import AuroraConfig
 from v2xbench.agents.aurora.data import AuroraFrames, collate, in_range, make_loader
 from v2xbench.collectors.dataset.loader import V2XDataset
-from v2xbench.envs.v2x_intersection.config import make_config
-from v2xbench.envs.v2x_intersection.geometry import transform_points, wrap_angle
+from v2xbench.envs.v2x_intersection.core.geometry import transform_points, wrap_angle
 from v2xbench.envs.v2x_intersection.sensors import SensorRig, boxes_in_frame, project
+from v2xbench.envs.v2x_intersection.sim.config import make_config
+from v2xbench.envs.v2x_intersection.sim.world import World
 from v2xbench.envs.v2x_intersection.town import get_town
 from v2xbench.envs.v2x_intersection.town.map_vectors import map_vectors
-from v2xbench.envs.v2x_intersection.world import World
 
 CFG = AuroraConfig.for_scale("tiny")
 KEYS = ["calib", ("gt", "ego"), ("gt", "rsu"), "light_state"]

@@ -22,8 +22,8 @@ from v2xbench.agents.aurora.eval_perception import (
     predict,
     run_branches,
 )
-from v2xbench.envs.v2x_intersection.classes import NUM_CLASSES
-from v2xbench.envs.v2x_intersection.metrics_perception import detection_metrics
+from v2xbench.envs.v2x_intersection.core.classes import NUM_CLASSES
+from v2xbench.envs.v2x_intersection.evaluation.metrics_perception import detection_metrics
 
 CFG = AuroraConfig.for_scale("tiny")
 

@@ -19,7 +19,7 @@ from v2xbench.agents.aurora.policy import AuroraPolicyNet
 from v2xbench.agents.aurora.system import load_system
 from v2xbench.collectors.chat.export import build as build_qa
 from v2xbench.collectors.dataset.loader import V2XDataset
-from v2xbench.envs.v2x_intersection.classes import CAR, PEDESTRIAN, TRAFFIC_SIGN
+from v2xbench.envs.v2x_intersection.core.classes import CAR, PEDESTRIAN, TRAFFIC_SIGN
 from v2xbench.envs.v2x_intersection.sensors import EGO_CAMERA_NAMES
 
 from v2xbench.cli import main

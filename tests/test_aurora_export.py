@@ -15,9 +15,9 @@ from v2xbench.agents.aurora.config import AuroraConfig
 from v2xbench.agents.aurora.pipeline import run_pipeline
 from v2xbench.agents.aurora.rsu_agent import message_floats
 from v2xbench.collectors.chat.export import build as build_qa
-from v2xbench.envs.v2x_intersection.config import make_config
-from v2xbench.envs.v2x_intersection.observations import ego_observation
-from v2xbench.envs.v2x_intersection.world import World
+from v2xbench.envs.v2x_intersection.api.observations import ego_observation
+from v2xbench.envs.v2x_intersection.sim.config import make_config
+from v2xbench.envs.v2x_intersection.sim.world import World
 
 from v2xbench.cli import main
 

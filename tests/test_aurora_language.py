@@ -40,8 +40,8 @@ from v2xbench.agents.aurora.tokenizer import (
     train_tokenizer,
 )
 from v2xbench.collectors.chat import templates
-from v2xbench.envs.v2x_intersection.classes import CLASS_NAMES
-from v2xbench.envs.v2x_intersection.geometry import pose_matrix
+from v2xbench.envs.v2x_intersection.core.classes import CLASS_NAMES
+from v2xbench.envs.v2x_intersection.core.geometry import pose_matrix
 
 torch.set_num_threads(1)
 

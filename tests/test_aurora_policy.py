@@ -25,11 +25,11 @@ from v2xbench.agents.aurora.system import AuroraSystem
 from v2xbench.agents.aurora.tokenizer import train_tokenizer
 from v2xbench.agents.aurora.trainer import load_weights, save_checkpoint
 from v2xbench.collectors.roadside import RoadsideRunner
-from v2xbench.envs.v2x_intersection.config import make_config
-from v2xbench.envs.v2x_intersection.observations import ego_observation
+from v2xbench.envs.v2x_intersection.api.observations import ego_observation
 from v2xbench.envs.v2x_intersection.sensors import SensorRig
-from v2xbench.envs.v2x_intersection.wire import HEADER_SIZE
-from v2xbench.envs.v2x_intersection.world import World
+from v2xbench.envs.v2x_intersection.sim.config import make_config
+from v2xbench.envs.v2x_intersection.sim.world import World
+from v2xbench.envs.v2x_intersection.v2x.wire import HEADER_SIZE
 
 CFG = AuroraConfig.for_scale("tiny")
 CAM = (32, 16)  # the env's camera size in these tests (the model resizes to 128 x 64)
@@ -60,7 +60,7 @@ def _world(**kw) -> World:
 def test_message_round_trip_within_float16(tok):
     roadside = AuroraRoadside(_system(tok).rsu, CFG, CAM)
     w = _world()
-    from v2xbench.envs.v2x_intersection.observations import rsu_observation
+    from v2xbench.envs.v2x_intersection.api.observations import rsu_observation
 
     obs = rsu_observation(w, 0)
     msg = roadside.message(obs)

@@ -19,16 +19,16 @@ from v2xbench.collectors.chat.scoring import closed_label, coordinates, score, s
 from v2xbench.collectors.dataset.collect import _rig
 from v2xbench.collectors.dataset.record import light_info
 from v2xbench.collectors.dataset.shards import load_shard, shards_dir
-from v2xbench.envs.v2x_intersection.config import make_config
-from v2xbench.envs.v2x_intersection.geometry import (
+from v2xbench.envs.v2x_intersection.core.geometry import (
     invert_transform,
     relative_transform,
     transform_points,
 )
-from v2xbench.envs.v2x_intersection.route_files import load_suite_cached
-from v2xbench.envs.v2x_intersection.signals import GREEN, RED, YELLOW
+from v2xbench.envs.v2x_intersection.sim.config import make_config
+from v2xbench.envs.v2x_intersection.sim.world import World
+from v2xbench.envs.v2x_intersection.suites.route_files import load_suite_cached
 from v2xbench.envs.v2x_intersection.town.model import COMMAND_NAMES
-from v2xbench.envs.v2x_intersection.world import World
+from v2xbench.envs.v2x_intersection.traffic.signals import GREEN, RED, YELLOW
 
 from tests.dataset_helpers import TINY
 from v2xbench.cli import main

@@ -7,8 +7,8 @@ import numpy as np
 from v2xbench.collectors.dataset.collect import CollectConfig, collect
 from v2xbench.collectors.dataset.loader import V2XDataset
 from v2xbench.collectors.dataset.record import OBS_KEYS
-from v2xbench.envs.v2x_intersection.config import make_config
-from v2xbench.envs.v2x_intersection.observations import EGO_FEATURES, ego_space
+from v2xbench.envs.v2x_intersection.api.observations import EGO_FEATURES, ego_space
+from v2xbench.envs.v2x_intersection.sim.config import make_config
 
 from tests.dataset_helpers import TINY
 

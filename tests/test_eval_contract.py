@@ -24,10 +24,10 @@ from v2xbench.collectors.agent_process import IsolatedAgent
 from v2xbench.collectors.eval_env import EvalEnv, copy_policy
 from v2xbench.collectors.evaluate import evaluate
 from v2xbench.collectors.route_selection import select_routes
-from v2xbench.envs.v2x_intersection.config import make_config
-from v2xbench.envs.v2x_intersection.observations import ego_space
-from v2xbench.envs.v2x_intersection.route_files import load_suite_cached
+from v2xbench.envs.v2x_intersection.api.observations import ego_space
 from v2xbench.envs.v2x_intersection.scenarios import get_scenario
+from v2xbench.envs.v2x_intersection.sim.config import make_config
+from v2xbench.envs.v2x_intersection.suites.route_files import load_suite_cached
 
 from tests.test_evaluate import CFG, suite  # noqa: F401  (fixture)
 from v2xbench import cli

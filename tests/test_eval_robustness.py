@@ -273,7 +273,7 @@ def test_stale_tmp_files_are_removed(damaged_resume):
 
 def test_results_videos_and_summaries_are_fsynced(tmp_path, monkeypatch):
     import numpy as np
-    from v2xbench.envs.v2x_intersection.video import save_video
+    from v2xbench.envs.v2x_intersection.render.video import save_video
 
     import v2xbench.files as files
 

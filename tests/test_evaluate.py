@@ -19,8 +19,12 @@ from v2xbench.collectors import jobs as J
 from v2xbench.collectors.eval_env import EvalEnv
 from v2xbench.collectors.evaluate import evaluate
 from v2xbench.collectors.leaderboard import build_leaderboard
-from v2xbench.envs.v2x_intersection.metrics import RouteRecord, compute_metrics
-from v2xbench.envs.v2x_intersection.route_files import SUITE_FORMAT, parse_route, save_json_atomic
+from v2xbench.envs.v2x_intersection.evaluation.metrics import RouteRecord, compute_metrics
+from v2xbench.envs.v2x_intersection.suites.route_files import (
+    SUITE_FORMAT,
+    parse_route,
+    save_json_atomic,
+)
 
 from v2xbench import cli
 
@@ -59,7 +63,7 @@ class FlakyAgent:
 
 def route_starts(suite: str) -> list[tuple[float, float]]:
     """First route point of each route of a suite file."""
-    from v2xbench.envs.v2x_intersection.route_files import (
+    from v2xbench.envs.v2x_intersection.suites.route_files import (
         build_episode_from_spec,
         load_suite_cached,
     )
@@ -70,7 +74,7 @@ def route_starts(suite: str) -> list[tuple[float, float]]:
 @pytest.fixture(scope="module")
 def suite(tmp_path_factory) -> str:
     """A suite JSON of three short Town01 routes, one scenario each."""
-    from v2xbench.envs.v2x_intersection.suites_build import compose_route
+    from v2xbench.envs.v2x_intersection.suites.suites_build import compose_route
     from v2xbench.envs.v2x_intersection.town import get_town
 
     town, rng = get_town("Town01"), np.random.default_rng(0)

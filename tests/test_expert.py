@@ -12,17 +12,17 @@ from v2xbench.agents.expert.lanes import lane_map
 from v2xbench.agents.expert.objects import ObjectMemory, from_observation_rows
 from v2xbench.agents.expert.route_track import RouteTrack
 from v2xbench.agents.interface import AGENTS
-from v2xbench.envs.v2x_intersection import infractions as inf
-from v2xbench.envs.v2x_intersection.config import make_config
-from v2xbench.envs.v2x_intersection.episode import time_budget_steps
-from v2xbench.envs.v2x_intersection.geometry import world_to_local_2d
-from v2xbench.envs.v2x_intersection.observations import ego_observation
-from v2xbench.envs.v2x_intersection.routes import route_from_lanes
+from v2xbench.envs.v2x_intersection.api.observations import ego_observation
+from v2xbench.envs.v2x_intersection.core.geometry import world_to_local_2d
+from v2xbench.envs.v2x_intersection.evaluation import infractions as inf
+from v2xbench.envs.v2x_intersection.evaluation.episode import time_budget_steps
 from v2xbench.envs.v2x_intersection.scenarios import build_episode
-from v2xbench.envs.v2x_intersection.signals import GREEN, RED
+from v2xbench.envs.v2x_intersection.sim.config import make_config
+from v2xbench.envs.v2x_intersection.sim.world import World
 from v2xbench.envs.v2x_intersection.town import get_town
 from v2xbench.envs.v2x_intersection.town.model import CONNECTOR, SIGNAL, STRAIGHT
-from v2xbench.envs.v2x_intersection.world import World
+from v2xbench.envs.v2x_intersection.town.routes import route_from_lanes
+from v2xbench.envs.v2x_intersection.traffic.signals import GREEN, RED
 
 EMPTY = dict(num_vehicles=0, num_parked=0, num_pedestrians=0, num_bicycles=0)
 BAD = (inf.COLLISION_PEDESTRIAN, inf.COLLISION_VEHICLE, inf.COLLISION_STATIC, inf.RED_LIGHT, inf.STOP_SIGN)
@@ -340,7 +340,7 @@ def _suite_world(route_id_pred, seed_index: int = 0):
     """The first test50 route for which ``route_id_pred(spec, town)`` holds, reset as the
     evaluation harness resets it (job seed of ``seed_index``), with a bound expert."""
     from v2xbench.collectors import jobs as J
-    from v2xbench.envs.v2x_intersection.route_files import load_suite
+    from v2xbench.envs.v2x_intersection.suites.route_files import load_suite
 
     spec = next(r for r in load_suite("test50")[1] if route_id_pred(r, get_town(r.town)))
     world = World(make_config(town=spec.town))

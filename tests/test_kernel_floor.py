@@ -7,8 +7,11 @@ import json
 
 import pytest
 from v2xbench.benchmarks import kernel_floor as kf
-from v2xbench.envs.v2x_intersection import channel, infractions, jit_batch, observations, world
-from v2xbench.envs.v2x_intersection.jit import HAVE_JIT
+from v2xbench.envs.v2x_intersection.api import observations
+from v2xbench.envs.v2x_intersection.core.jit import HAVE_JIT
+from v2xbench.envs.v2x_intersection.evaluation import infractions
+from v2xbench.envs.v2x_intersection.sim import jit_batch, world
+from v2xbench.envs.v2x_intersection.v2x import channel
 
 from v2xbench.cli import main as cli_main
 
@@ -16,8 +19,8 @@ needs_jit = pytest.mark.skipif(not HAVE_JIT, reason="the floor times numba kerne
 
 
 def _kernels() -> dict:
-    mods = {"world": world, "jit_batch": jit_batch, "infractions": infractions, "channel": channel,
-            "observations": observations}
+    mods = {"sim.world": world, "sim.jit_batch": jit_batch, "evaluation.infractions": infractions,
+            "v2x.channel": channel, "api.observations": observations}
     return {name: getattr(mods[m], name) for m, name in kf.KERNELS}
 
 

@@ -25,13 +25,17 @@ import torch
 from v2xbench.collectors.eval_env import EvalEnv, copy_policy
 from v2xbench.collectors.evaluate import evaluate
 from v2xbench.collectors.roadside import to_message
-from v2xbench.envs.v2x_intersection import observations as O
 from v2xbench.envs.v2x_intersection import parallel_env
-from v2xbench.envs.v2x_intersection.channel import ChannelConfig, message_space
-from v2xbench.envs.v2x_intersection.geometry import local_to_world_2d, world_to_local_2d, wrap_angle
-from v2xbench.envs.v2x_intersection.jit_wire import decode_kernel
-from v2xbench.envs.v2x_intersection.torchrl_env import V2XTorchEnv
-from v2xbench.envs.v2x_intersection.wire import (
+from v2xbench.envs.v2x_intersection.api import observations as O
+from v2xbench.envs.v2x_intersection.api.torchrl_env import V2XTorchEnv
+from v2xbench.envs.v2x_intersection.core.geometry import (
+    local_to_world_2d,
+    world_to_local_2d,
+    wrap_angle,
+)
+from v2xbench.envs.v2x_intersection.v2x.channel import ChannelConfig, message_space
+from v2xbench.envs.v2x_intersection.v2x.jit_wire import decode_kernel
+from v2xbench.envs.v2x_intersection.v2x.wire import (
     FORMAT_OBJECTS,
     FORMAT_RAW,
     HEADER_SIZE,

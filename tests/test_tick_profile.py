@@ -7,8 +7,11 @@ import json
 
 import pytest
 from v2xbench.benchmarks import tick_profile as tp
-from v2xbench.envs.v2x_intersection import batch, gym_env, jit_traffic, traffic, world
-from v2xbench.envs.v2x_intersection.jit import HAVE_JIT
+from v2xbench.envs.v2x_intersection.api import batch, gym_env
+from v2xbench.envs.v2x_intersection.core.jit import HAVE_JIT
+from v2xbench.envs.v2x_intersection.sim import world
+from v2xbench.envs.v2x_intersection.traffic import jit_vehicles as jit_traffic
+from v2xbench.envs.v2x_intersection.traffic import vehicles as traffic
 
 from v2xbench.cli import main as cli_main
 
@@ -95,7 +98,7 @@ def test_test50_profile_times_each_scenario_type(tmp_path):
     assert report["config"] == {"suite": "test50", "routes": 3, "ticks_per_route": 10} and report["steps"] == 30
     scen = report["scenarios"]
     # every scenario of test50 routes 0-2 is live from reset (its actors spawn then): each timed
-    from v2xbench.envs.v2x_intersection.route_files import load_suite_cached
+    from v2xbench.envs.v2x_intersection.suites.route_files import load_suite_cached
 
     assert set(scen) == {s.type for r in load_suite_cached("test50")[:3] for s in r.scenarios}
     for v in scen.values():

@@ -15,8 +15,8 @@ def _register() -> None:
     import gymnasium as gym
 
     if ENV_ID not in gym.registry:
-        gym.register(id=ENV_ID, entry_point="v2xbench.envs.v2x_intersection.gym_env:V2XIntersectionEnv",
-                     vector_entry_point="v2xbench.envs.v2x_intersection.batch:V2XVectorEnv")
+        gym.register(id=ENV_ID, entry_point="v2xbench.envs.v2x_intersection.api.gym_env:V2XIntersectionEnv",
+                     vector_entry_point="v2xbench.envs.v2x_intersection.api.batch:V2XVectorEnv")
 
 
 _register()

@@ -26,7 +26,7 @@ from collections.abc import Mapping
 
 import numpy as np
 import torch
-from v2xbench.envs.v2x_intersection.geometry import invert_transform
+from v2xbench.envs.v2x_intersection.core.geometry import invert_transform
 from v2xbench.envs.v2x_intersection.sensors import EGO_CAMERA_NAMES, boxes_in_frame
 
 from .config import check_branch
@@ -137,7 +137,7 @@ def spec_calib(camera_size: tuple[int, int], t_world_rsu: np.ndarray | None = No
     observation) places the unit's camera. Gives the same matrices as :func:`rig_calib` of the
     rig's calibration (``tests/test_aurora_policy.py``)."""
     from v2xbench.envs.v2x_intersection.sensors.camera import ego_camera_specs, rsu_camera_spec
-    from v2xbench.envs.v2x_intersection.world import EGO_LENGTH, EGO_WIDTH
+    from v2xbench.envs.v2x_intersection.sim.world import EGO_LENGTH, EGO_WIDTH
 
     w, h = (int(v) for v in camera_size)
     specs = {s.name: s for s in ego_camera_specs(w, h, EGO_LENGTH, EGO_WIDTH)}

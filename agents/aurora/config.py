@@ -26,7 +26,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from v2xbench.envs.v2x_intersection.classes import NUM_CLASSES
+from v2xbench.envs.v2x_intersection.core.classes import NUM_CLASSES
 from v2xbench.envs.v2x_intersection.town.model import COMMAND_NAMES
 
 SCALES = ("tiny", "default", "paper")

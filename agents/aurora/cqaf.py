@@ -37,7 +37,7 @@ from collections.abc import Mapping
 import numpy as np
 import torch
 from torch import nn
-from v2xbench.envs.v2x_intersection.geometry import relative_transform
+from v2xbench.envs.v2x_intersection.core.geometry import relative_transform
 
 from .calib import rsu_ground_pose
 from .config import AuroraConfig
@@ -52,7 +52,7 @@ EGO_KEYS = ("q_det", "det_ref", "det_logits", "q_map", "map_points", "t_det", "t
 # ---------------------------------------------------------------------- frames
 def rsu_to_ego(t_world_ego: np.ndarray, t_world_rsu: np.ndarray) -> torch.Tensor:
     """``E_{r->e}`` ``(4, 4)`` float32: the roadside unit's ground frame (:mod:`.calib`) -> ego
-    frame, from both world poses (:func:`~v2xbench.envs.v2x_intersection.geometry.
+    frame, from both world poses (:func:`~v2xbench.envs.v2x_intersection.core.geometry.
     relative_transform`)."""
     e = relative_transform(np.asarray(t_world_ego, np.float64),
                            rsu_ground_pose(np.asarray(t_world_rsu, np.float64)))
@@ -60,7 +60,7 @@ def rsu_to_ego(t_world_ego: np.ndarray, t_world_rsu: np.ndarray) -> torch.Tensor
 
 
 def transform_points(t: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
-    """Batched :func:`~v2xbench.envs.v2x_intersection.geometry.transform_points`: transforms
+    """Batched :func:`~v2xbench.envs.v2x_intersection.core.geometry.transform_points`: transforms
     ``t`` ``(B, 4, 4)`` applied to points ``(B, ..., 3)``."""
     b = t.shape[0]
     flat = points.reshape(b, -1, 3)

@@ -38,7 +38,7 @@ import torch
 import torch.nn.functional as F
 from torch.utils.data import DataLoader, Dataset
 from v2xbench.collectors.dataset.loader import V2XDataset
-from v2xbench.envs.v2x_intersection.geometry import invert_transform
+from v2xbench.envs.v2x_intersection.core.geometry import invert_transform
 from v2xbench.envs.v2x_intersection.town import get_town
 from v2xbench.envs.v2x_intersection.town.map_vectors import map_vectors
 

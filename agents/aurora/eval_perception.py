@@ -4,7 +4,7 @@ For each branch a run holds (``RUN/stage1`` ego, ``RUN/stage2`` roadside), the b
 a split of a data set (:class:`~.data.AuroraFrames`); per frame the ``top_k`` queries with the
 highest score (``sigmoid`` of the last decoder layer's logits, maximum over classes; the class
 is that maximum's) become predictions, and
-:func:`v2xbench.envs.v2x_intersection.metrics_perception.detection_metrics` matches them with
+:func:`v2xbench.envs.v2x_intersection.evaluation.metrics_perception.detection_metrics` matches them with
 the frame's ground truth (already cut to the branch's range; the ego branch in the ego frame,
 the roadside branch in its own ground frame). The table has the seed paper's columns (its
 Table 2): average mAP over the four class groups, NDS, and mAP for vehicle, VRU, traffic light
@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from torch import nn
-from v2xbench.envs.v2x_intersection.metrics_perception import DetBoxes, detection_metrics
+from v2xbench.envs.v2x_intersection.evaluation.metrics_perception import DetBoxes, detection_metrics
 
 from v2xbench.files import atomic_write_json, atomic_write_text
 
@@ -240,7 +240,7 @@ def evaluate_run(run: str | Path, data: str | Path, split: str = "test",
     atomic_write_json(out / "perception.json", _finite(result), indent=1)
     atomic_write_text(out / "perception.md", f"# AURORA perception: {data} ({split})\n\n"
                       f"Run `{run}`, top-{top_k} queries per frame, nuScenes-style metrics "
-                      "(envs/v2x_intersection/metrics_perception.py).\n\n" + table)
+                      "(envs/v2x_intersection/evaluation/metrics_perception.py).\n\n" + table)
     result["out"] = str(out)
     return result
 

@@ -12,12 +12,12 @@ without a unit, gets none. Metrics, overall and per navigation command
 
 - ``l2_<h>s``: L2 error (m) between the predicted and the expert waypoint at ``h`` = 1, 2, 3 s
   (UniAD / VAD style: the error at that horizon's waypoint, not a mean over the steps;
-  :func:`~v2xbench.envs.v2x_intersection.metrics_perception.l2_at`), for the model and for a
+  :func:`~v2xbench.envs.v2x_intersection.evaluation.metrics_perception.l2_at`), for the model and for a
   constant-velocity baseline (:func:`constant_velocity_plan`: the ego's current speed, straight
   ahead), so a reader sees whether the planner beats it.
 - ``collision_<h>s``: share of frames where an ego box (4.7 x 1.9 m, heading along the
   trajectory) at some predicted waypoint up to ``h`` overlaps a ground-truth actor's box at that
-  waypoint's time (:func:`~v2xbench.envs.v2x_intersection.metrics_perception.
+  waypoint's time (:func:`~v2xbench.envs.v2x_intersection.evaluation.metrics_perception.
   trajectory_collisions`; the heading from consecutive waypoints, kept where a step is under
   0.25 m: :func:`plan_headings`). Actors: the frame's ``gt/fused`` boxes (ego frame, within
   the ego range: what the ego or the roadside unit sees) of the vehicle and VRU classes, moved at
@@ -43,8 +43,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from v2xbench.envs.v2x_intersection.classes import CLASS_NAMES, VEHICLE_CLASSES, VRU_CLASSES
-from v2xbench.envs.v2x_intersection.metrics_perception import l2_at, trajectory_collisions
+from v2xbench.envs.v2x_intersection.core.classes import CLASS_NAMES, VEHICLE_CLASSES, VRU_CLASSES
+from v2xbench.envs.v2x_intersection.evaluation.metrics_perception import (
+    l2_at,
+    trajectory_collisions,
+)
 from v2xbench.envs.v2x_intersection.town.model import COMMAND_NAMES
 
 from v2xbench.files import atomic_write_json, atomic_write_text
@@ -82,7 +85,7 @@ def actor_futures(boxes: np.ndarray, labels: np.ndarray, mask: np.ndarray, steps
 
     Returns:
         ``(B, steps, M, 5)`` ``(x, y, length, width, yaw)``, NaN for rows that do not count
-        (:func:`~v2xbench.envs.v2x_intersection.metrics_perception.trajectory_collisions`).
+        (:func:`~v2xbench.envs.v2x_intersection.evaluation.metrics_perception.trajectory_collisions`).
     """
     b = np.asarray(boxes, np.float64)
     keep = np.asarray(mask, bool) & np.isin(np.asarray(labels), list(classes))

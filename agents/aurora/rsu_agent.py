@@ -38,9 +38,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from v2xbench.envs.v2x_intersection.geometry import pose_matrix
-from v2xbench.envs.v2x_intersection.observations import V2X_INFO_FEATURES
-from v2xbench.envs.v2x_intersection.wire import FORMAT_RAW, PAYLOAD_LIMIT
+from v2xbench.envs.v2x_intersection.api.observations import V2X_INFO_FEATURES
+from v2xbench.envs.v2x_intersection.core.geometry import pose_matrix
+from v2xbench.envs.v2x_intersection.v2x.wire import FORMAT_RAW, PAYLOAD_LIMIT
 
 from .calib import frame_camera_tensors, spec_calib
 from .config import AuroraConfig

@@ -20,7 +20,7 @@ and ``last_plan`` the full :class:`~.planner.Plan`.
 from __future__ import annotations
 
 import numpy as np
-from v2xbench.envs.v2x_intersection.visibility import VISIBLE_THRESHOLD
+from v2xbench.envs.v2x_intersection.perception.visibility import VISIBLE_THRESHOLD
 
 from .objects import (
     AnonymousMemory,

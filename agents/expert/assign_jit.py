@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from v2xbench.envs.v2x_intersection.jit import HAVE_JIT, _njit
+from v2xbench.envs.v2x_intersection.core.jit import HAVE_JIT, _njit
 
 __all__ = ["HAVE_JIT", "DenseGrid", "assign_kernel", "window_project_kernel"]
 

@@ -8,7 +8,7 @@
 - :class:`StopAndWaitEgo` (``stop_and_wait_ego``): the ego-only oracle that stands
   :attr:`StopAndWaitEgo.wait_s` s before every standing large vehicle it sees ahead, then drives
   on as the plain oracle. Hazards are triggered by the ego's time to arrival at its current
-  speed (never by its waiting), so this gains nothing; ``tests/test_fairness.py`` keeps it that
+  speed (never by its waiting), so this gains nothing; ``tests/scenarios/test_fairness.py`` keeps it that
   way.
 
 Both are privileged like the oracles (they read the ego state, route and visibility from the
@@ -18,7 +18,7 @@ world; the objects they react to are the ego's own view).
 from __future__ import annotations
 
 import numpy as np
-from v2xbench.envs.v2x_intersection.classes import LARGE_VEHICLE
+from v2xbench.envs.v2x_intersection.core.classes import LARGE_VEHICLE
 
 from .agents import EgoOnlyOracle
 from .objects import Objects

@@ -19,8 +19,8 @@ Lights and stop signs are road furniture, known to every agent. For each junctio
 from __future__ import annotations
 
 import numpy as np
-from v2xbench.envs.v2x_intersection.signals import RED, YELLOW
 from v2xbench.envs.v2x_intersection.town.model import LEFT, MERGE, RIGHT, STOP, STRAIGHT
+from v2xbench.envs.v2x_intersection.traffic.signals import RED, YELLOW
 
 from .lanes import LaneMap
 from .objects import Objects

@@ -14,9 +14,9 @@
 from __future__ import annotations
 
 import numpy as np
-from v2xbench.envs.v2x_intersection.geometry import polyline_lengths
+from v2xbench.envs.v2x_intersection.core.geometry import polyline_lengths
 from v2xbench.envs.v2x_intersection.town.model import CONNECTOR, PARKING, Town
-from v2xbench.envs.v2x_intersection.traffic import STOP_LINE_SETBACK
+from v2xbench.envs.v2x_intersection.traffic.vehicles import STOP_LINE_SETBACK
 
 from .assign_jit import HAVE_JIT, DenseGrid, assign_kernel
 

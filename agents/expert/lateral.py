@@ -27,7 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from v2xbench.envs.v2x_intersection.classes import BICYCLE, PEDESTRIAN
+from v2xbench.envs.v2x_intersection.core.classes import BICYCLE, PEDESTRIAN
 
 from .junction import travel_time
 from .objects import Objects

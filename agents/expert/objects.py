@@ -11,8 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 
 import numpy as np
-from v2xbench.envs.v2x_intersection.actors import PARKED, STATIC
-from v2xbench.envs.v2x_intersection.classes import (
+from v2xbench.envs.v2x_intersection.core.actors import PARKED, STATIC
+from v2xbench.envs.v2x_intersection.core.classes import (
     EMERGENCY_VEHICLE,
     LARGE_VEHICLE,
     STATIC_OBSTACLE,
@@ -20,7 +20,7 @@ from v2xbench.envs.v2x_intersection.classes import (
     TRAFFIC_LIGHT,
     TRAFFIC_SIGN,
 )
-from v2xbench.envs.v2x_intersection.geometry import local_to_world_2d, stack_xy
+from v2xbench.envs.v2x_intersection.core.geometry import local_to_world_2d, stack_xy
 
 #: classes that never move (road furniture and debris)
 STATIC_CLASSES = np.array([TRAFFIC_LIGHT, TRAFFIC_SIGN, TRAFFIC_CONE, STATIC_OBSTACLE])

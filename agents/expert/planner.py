@@ -25,11 +25,11 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from v2xbench.envs.v2x_intersection.classes import BICYCLE, PEDESTRIAN
-from v2xbench.envs.v2x_intersection.dynamics import VehicleParams
-from v2xbench.envs.v2x_intersection.geometry import stack_xy, world_to_local_2d
-from v2xbench.envs.v2x_intersection.routes import Route
+from v2xbench.envs.v2x_intersection.core.classes import BICYCLE, PEDESTRIAN
+from v2xbench.envs.v2x_intersection.core.dynamics import VehicleParams
+from v2xbench.envs.v2x_intersection.core.geometry import stack_xy, world_to_local_2d
 from v2xbench.envs.v2x_intersection.town.model import Town
+from v2xbench.envs.v2x_intersection.town.routes import Route
 
 from .junction import JunctionRules, travel_time
 from .lanes import lane_map

@@ -12,8 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from v2xbench.envs.v2x_intersection.classes import BICYCLE, CAR, LARGE_VEHICLE
-from v2xbench.envs.v2x_intersection.signals import RED, YELLOW
+from v2xbench.envs.v2x_intersection.core.classes import BICYCLE, CAR, LARGE_VEHICLE
+from v2xbench.envs.v2x_intersection.traffic.signals import RED, YELLOW
 
 from .lanes import LaneMap
 from .objects import Objects

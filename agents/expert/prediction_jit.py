@@ -1,10 +1,10 @@
 """numba kernel of the lane-following part of :func:`.prediction.forecast` (same float operations
-in the same order, so the NumPy and kernel paths agree bit for bit; ``tests/test_jit.py``)."""
+in the same order, so the NumPy and kernel paths agree bit for bit; ``tests/core/test_jit.py``)."""
 
 from __future__ import annotations
 
 import numpy as np
-from v2xbench.envs.v2x_intersection.jit import HAVE_JIT, _njit, _np_max, _np_min
+from v2xbench.envs.v2x_intersection.core.jit import HAVE_JIT, _njit, _np_max, _np_min
 
 __all__ = ["HAVE_JIT", "lane_forecast_kernel", "travel_time_kernel"]
 

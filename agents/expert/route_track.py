@@ -11,15 +11,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from v2xbench.envs.v2x_intersection.geometry import stack_xy
-from v2xbench.envs.v2x_intersection.routes import Route
+from v2xbench.envs.v2x_intersection.core.geometry import stack_xy
 from v2xbench.envs.v2x_intersection.town.model import (
     CHANGE_LANE_LEFT,
     CHANGE_LANE_RIGHT,
     CONNECTOR,
     Town,
 )
-from v2xbench.envs.v2x_intersection.traffic import STOP_LINE_SETBACK
+from v2xbench.envs.v2x_intersection.town.routes import Route
+from v2xbench.envs.v2x_intersection.traffic.vehicles import STOP_LINE_SETBACK
 
 from .assign_jit import HAVE_JIT, window_project_kernel
 

@@ -29,7 +29,7 @@ Definitions (exact, tested):
 from __future__ import annotations
 
 import numpy as np
-from v2xbench.envs.v2x_intersection.classes import (
+from v2xbench.envs.v2x_intersection.core.classes import (
     BICYCLE,
     CAR,
     CLASS_NAMES,
@@ -40,7 +40,7 @@ from v2xbench.envs.v2x_intersection.classes import (
     TRAFFIC_LIGHT,
     TRAFFIC_SIGN,
 )
-from v2xbench.envs.v2x_intersection.geometry import (
+from v2xbench.envs.v2x_intersection.core.geometry import (
     invert_transform,
     relative_transform,
     transform_points,

@@ -128,7 +128,7 @@ class CollectConfig:
         bad = {"suite", "route_index", "obs_mode"} & set(self.env)
         if bad:
             raise ValueError(f"CollectConfig: env keys {sorted(bad)} are chosen by the collector")
-        from v2xbench.envs.v2x_intersection.config import SENSOR_FIELDS, make_config
+        from v2xbench.envs.v2x_intersection.sim.config import SENSOR_FIELDS, make_config
 
         bad = set(SENSOR_FIELDS) & set(self.env)
         if bad:
@@ -166,7 +166,11 @@ class CollectConfig:
         Raises:
             ValueError: ``camera_size`` or ``lidar_scale`` breaks its ``EnvConfig`` rule.
         """
-        from v2xbench.envs.v2x_intersection.config import CAMERA_IMAGES, make_config, sensor_config
+        from v2xbench.envs.v2x_intersection.sim.config import (
+            CAMERA_IMAGES,
+            make_config,
+            sensor_config,
+        )
 
         if isinstance(self.camera_size, str):  # the env would read "128x64"; the collector does not
             raise ValueError(f"CollectConfig: camera_size={self.camera_size!r} must be (width, "
@@ -182,7 +186,7 @@ class CollectConfig:
     def record_schema(self) -> dict[tuple[str, ...], tuple]:
         """``record.record_schema`` of the frames these settings record (every key, dtype and
         per-frame shape a shard's memmap holds)."""
-        from v2xbench.envs.v2x_intersection.config import make_config
+        from v2xbench.envs.v2x_intersection.sim.config import make_config
 
         ego, rsu = _lidar_specs(self)
         env = make_config(**self.env)
@@ -317,10 +321,10 @@ def run_episode(cfg: CollectConfig, job: J.Job, root: str | Path) -> dict:
     import torch
     from tensordict import TensorDict
     from v2xbench.agents.expert import Expert
-    from v2xbench.envs.v2x_intersection.config import make_config
-    from v2xbench.envs.v2x_intersection.episode import EpisodeTracker
-    from v2xbench.envs.v2x_intersection.route_files import load_suite_cached
-    from v2xbench.envs.v2x_intersection.world import World
+    from v2xbench.envs.v2x_intersection.evaluation.episode import EpisodeTracker
+    from v2xbench.envs.v2x_intersection.sim.config import make_config
+    from v2xbench.envs.v2x_intersection.sim.world import World
+    from v2xbench.envs.v2x_intersection.suites.route_files import load_suite_cached
 
     torch.set_num_threads(1)
     t0 = time.perf_counter()
@@ -352,7 +356,7 @@ def run_episode(cfg: CollectConfig, job: J.Job, root: str | Path) -> dict:
     with open(tmp / "keyframes.jsonl", "w") as f:
         for k in keyframes:
             f.write(_json_line(k))
-    from v2xbench.envs.v2x_intersection.infractions import EVENT_NAMES
+    from v2xbench.envs.v2x_intersection.evaluation.infractions import EVENT_NAMES
 
     counts = world.monitor.counts
     meta = {
@@ -379,7 +383,7 @@ def _json_line(obj) -> str:
 def _suite_split(suite: str) -> str:
     import json
 
-    from v2xbench.envs.v2x_intersection.route_files import SUITE_DIR
+    from v2xbench.envs.v2x_intersection.suites.route_files import SUITE_DIR
 
     path = SUITE_DIR / f"{suite}.json" if (SUITE_DIR / f"{suite}.json").exists() else Path(suite)
     return str(json.loads(Path(path).read_text()).get("split", "train"))
@@ -420,7 +424,7 @@ def collect(cfg: CollectConfig, root: str | Path, workers: int = 1, progress: bo
         ValueError: a bad argument, ``root`` is in use by another run (``DirectoryLocked``) or
             holds a data set collected with other settings.
     """
-    from v2xbench.envs.v2x_intersection.route_files import load_suite_cached
+    from v2xbench.envs.v2x_intersection.suites.route_files import load_suite_cached
 
     root = Path(root)
     _check_run(root, workers, max_episodes)

@@ -62,13 +62,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from v2xbench.envs.v2x_intersection.geometry import invert_transform
-from v2xbench.envs.v2x_intersection.observations import (
+from v2xbench.envs.v2x_intersection.api.observations import (
     EGO_FEATURES,
     OBJECT_FEATURES,
     V2X_INFO_FEATURES,
     ego_observation,
 )
+from v2xbench.envs.v2x_intersection.core.geometry import invert_transform
 from v2xbench.envs.v2x_intersection.sensors import BEV_CHANNELS, EGO_CAMERA_NAMES, boxes_in_frame
 
 SENSORS = ("rgb", "depth", "semantic", "lidar", "bev")

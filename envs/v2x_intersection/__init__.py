@@ -12,13 +12,16 @@ All three wrap one :class:`World`; configuration keys are the fields of :class:`
 
 from typing import TYPE_CHECKING
 
-from .config import EnvConfig, make_config
-from .gym_env import V2XIntersectionEnv
-from .parallel_env import V2XParallelEnv, parallel_env
-from .world import StepError, World
+from .api.gym_env import V2XIntersectionEnv
+from .api.parallel_env import V2XParallelEnv, parallel_env
+from .sim.config import EnvConfig, make_config
+from .sim.world import StepError, World
+
+#: old module paths kept for one release as deprecated aliases of their new homes (CHANGELOG.md)
+DEPRECATED_ALIASES = ("channel", "docgen", "episode", "geometry", "infractions", "suites_build")
 
 if TYPE_CHECKING:
-    from .torchrl_env import V2XTorchEnv
+    from .api.torchrl_env import V2XTorchEnv
 
 __all__ = ["EnvConfig", "StepError", "V2XIntersectionEnv", "V2XParallelEnv", "V2XTorchEnv", "World",
            "make_config", "parallel_env"]
@@ -26,7 +29,7 @@ __all__ = ["EnvConfig", "StepError", "V2XIntersectionEnv", "V2XParallelEnv", "V2
 
 def __getattr__(name: str):
     if name == "V2XTorchEnv":  # imported on first use (torch is heavy to import)
-        from .torchrl_env import V2XTorchEnv
+        from .api.torchrl_env import V2XTorchEnv
 
         return V2XTorchEnv
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

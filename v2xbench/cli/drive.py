@@ -38,9 +38,9 @@ def _drive(args: argparse.Namespace) -> int:
     from v2xbench.agents.route_follower import RouteFollower
     from v2xbench.collectors.route_log import ended_by_code
     from v2xbench.envs.v2x_intersection import V2XIntersectionEnv
-    from v2xbench.envs.v2x_intersection.infractions import EVENT_NAMES
-    from v2xbench.envs.v2x_intersection.metrics import ENDED_BY_NAMES
-    from v2xbench.envs.v2x_intersection.render import save_video
+    from v2xbench.envs.v2x_intersection.evaluation.infractions import EVENT_NAMES
+    from v2xbench.envs.v2x_intersection.evaluation.metrics import ENDED_BY_NAMES
+    from v2xbench.envs.v2x_intersection.render.topdown import save_video
     from v2xbench.envs.v2x_intersection.sensors import SensorRig, mosaic
     from v2xbench.files import atomic_write, atomic_write_json
 

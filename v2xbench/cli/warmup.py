@@ -2,7 +2,7 @@
 
 The first use of the simulator in a fresh environment compiles its numba kernels (about
 1-2 minutes on a 2-core machine); the compiled code is cached in the user cache folder
-(``envs/v2x_intersection/jit_cache.py``) and every later process and clone with the same
+(``envs/v2x_intersection/core/jit_cache.py``) and every later process and clone with the same
 sources loads it in about a second. ``warmup`` runs one short workload per subsystem so that
 none of that cost lands in the middle of a training or evaluation run.
 """
@@ -50,7 +50,7 @@ def _sensors() -> None:
 def _batched() -> None:
     import torch
 
-    from v2xbench.envs.v2x_intersection.torchrl_env import V2XTorchEnv
+    from v2xbench.envs.v2x_intersection.api.torchrl_env import V2XTorchEnv
 
     torch.set_num_threads(1)
     env = V2XTorchEnv(num_worlds=2)
@@ -71,7 +71,7 @@ STAGES: tuple[tuple[str, Callable[[], None]], ...] = (
 def _warmup(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from v2xbench.envs.v2x_intersection import jit
+    from v2xbench.envs.v2x_intersection.core import jit
 
     if not jit.HAVE_JIT:
         print("numba is not available or disabled (V2XBENCH_NO_JIT): nothing to compile")

@@ -12,8 +12,8 @@ import numpy as np
 import torch
 from v2xbench.agents.aurora.data import AuroraFrames
 from v2xbench.agents.aurora.eval_perception import load_branch, predict
-from v2xbench.envs.v2x_intersection.classes import VEHICLE_CLASSES
-from v2xbench.envs.v2x_intersection.metrics_perception import detection_metrics
+from v2xbench.envs.v2x_intersection.core.classes import VEHICLE_CLASSES
+from v2xbench.envs.v2x_intersection.evaluation.metrics_perception import detection_metrics
 
 
 def main(run: str, data: str, split: str, stride: int, out_path: str) -> None:

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..routes import Route
 from ..town.model import Town
+from ..town.routes import Route
 from . import control_loss, flows, highway, junctions, obstacles, parking, v2x, v2x_junction  # noqa: F401  (registers the types)
 from .base import Scenario, Site
 from .placement import pick_site, route_through

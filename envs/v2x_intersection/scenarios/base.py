@@ -21,9 +21,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..infractions import SCENARIO_TIMEOUT
-from ..routes import Route
+from ..evaluation.infractions import SCENARIO_TIMEOUT
 from ..town.model import Town
+from ..town.routes import Route
 
 REJOIN_M = 10.0  # m past a lanes-free scenario's end where driving outside the route lanes counts again
 

@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..actors import DRIVER, draw_size
-from ..classes import BICYCLE, CAR, LARGE_VEHICLE
-from ..geometry import box_corners_2d, world_to_local_2d, wrap_angle
-from ..jit import CORRIDOR_MARGIN_M
+from ..core.actors import DRIVER, draw_size
+from ..core.classes import BICYCLE, CAR, LARGE_VEHICLE
+from ..core.geometry import box_corners_2d, world_to_local_2d, wrap_angle
 from ..town.model import CONNECTOR, LEFT, PRIORITY, RAMP, RIGHT, STRAIGHT, Town
-from ..traffic import LANE_CHANGE_RATE
+from ..traffic.jit_vehicles import CORRIDOR_MARGIN_M
+from ..traffic.vehicles import LANE_CHANGE_RATE
 from .base import Scenario, Site
 from .placement import clear_lanes, clear_near, lane_point, spawn_driver
 from .registry import register_scenario
@@ -23,7 +23,7 @@ FAR = np.array([-1.0e4, -1.0e4])  # where unused rows wait (far from every town)
 DODGE_AFTER_S = 4.0  # s a flow vehicle waits for the ego blocking it before steering around it
 #: m a dodging flow vehicle keeps between its side and the ego's box: more than the car-following
 #: corridor's margin (``jit.CORRIDOR_MARGIN_M``), else the ego stays its leader and it never
-#: drives on (with 0.3 m it stood beside the ego for good: tests/test_scenarios_flows.py)
+#: drives on (with 0.3 m it stood beside the ego for good: tests/scenarios/test_scenarios_flows.py)
 DODGE_CLEARANCE_M = CORRIDOR_MARGIN_M + 0.2
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from ..render import render_topdown, save_video
+from ..render.topdown import render_topdown, save_video
 from . import get_scenario
 from .probe import hidden_seconds, probe
 

@@ -12,13 +12,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..classes import LARGE_VEHICLE
-from ..dynamics import IDMParams, idm_accel
-from ..geometry import world_to_local_2d
-from ..infractions import YIELD_EMERGENCY
-from ..routes import LANE_CHANGE_LENGTH
-from ..signals import RED, YELLOW
+from ..core.classes import LARGE_VEHICLE
+from ..core.dynamics import IDMParams, idm_accel
+from ..core.geometry import world_to_local_2d
+from ..evaluation.infractions import YIELD_EMERGENCY
 from ..town.model import CONNECTOR, RAMP, STRAIGHT
+from ..town.routes import LANE_CHANGE_LENGTH
+from ..traffic.signals import RED, YELLOW
 from .base import Scenario, Site
 from .flows import (
     Flow,

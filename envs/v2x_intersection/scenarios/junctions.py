@@ -14,10 +14,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..classes import CAR, TRAFFIC_CONE
-from ..signals import RED
+from ..core.classes import CAR, TRAFFIC_CONE
 from ..town.model import LEFT, PRIORITY, RIGHT, SIGNAL, STOP, STRAIGHT
-from ..traffic import STOP_LINE_SETBACK
+from ..traffic.signals import RED
+from ..traffic.vehicles import STOP_LINE_SETBACK
 from .base import Scenario, Site
 from .flows import (
     Flow,

@@ -17,10 +17,10 @@ from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
-from ..actors import draw_size
-from ..classes import CAR, LARGE_VEHICLE, STATIC_OBSTACLE, TRAFFIC_CONE, TRAFFIC_SIGN
+from ..core.actors import draw_size
+from ..core.classes import CAR, LARGE_VEHICLE, STATIC_OBSTACLE, TRAFFIC_CONE, TRAFFIC_SIGN
 from ..town.model import DRIVING, PARKING, Town
-from ..traffic import occupied
+from ..traffic.vehicles import occupied
 from .base import Scenario, Site, completing_s
 from .placement import (
     clear_lanes,

@@ -15,13 +15,13 @@ from typing import ClassVar
 
 import numpy as np
 
-from ..actors import DRIVER, RIDER, SCRIPTED, draw_size
-from ..classes import BICYCLE, CAR, LARGE_VEHICLE
-from ..geometry import polyline_lengths
-from ..routes import ROUTE_STEP
+from ..core.actors import DRIVER, RIDER, SCRIPTED, draw_size
+from ..core.classes import BICYCLE, CAR, LARGE_VEHICLE
+from ..core.geometry import polyline_lengths
 from ..town import get_town
 from ..town.builder import PARKING_WIDTH
 from ..town.model import CHANGE_LANE_LEFT, DRIVING, LEFT, PARKING, RIGHT, Town
+from ..town.routes import ROUTE_STEP
 from .base import Scenario, Site
 from .obstacles import (
     FLOW_DEFAULTS,

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..actors import DRIVER, PARKED, SCRIPTED, STATIC, WALKER, ActorTable, draw_size
-from ..classes import BICYCLE, LARGE_VEHICLE, PEDESTRIAN
-from ..draws import pick
-from ..routes import Route, route_from_lanes
+from ..core.actors import DRIVER, PARKED, SCRIPTED, STATIC, WALKER, ActorTable, draw_size
+from ..core.classes import BICYCLE, LARGE_VEHICLE, PEDESTRIAN
+from ..core.draws import pick
 from ..town.model import CONNECTOR, DRIVING, PARKING, Town
+from ..town.routes import Route, route_from_lanes
 from .base import Scenario, Site
 
 

@@ -11,10 +11,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..config import make_config
-from ..observations import ego_observation
+from ..api.observations import ego_observation
+from ..sim.config import make_config
+from ..sim.world import World
 from ..town import get_town
-from ..world import World
 from . import build_episode, get_scenario
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..pedestrians import ego_in_the_way
+from ..traffic.pedestrians import ego_in_the_way
 from .base import Scenario
 
 WALKER_EGO_MARGIN = 0.4  # m around the ego's box in which a scenario walker stops for it

@@ -15,16 +15,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..actors import DRIVER
-from ..classes import CAR, LARGE_VEHICLE, PEDESTRIAN
-from ..geometry import row_norms, world_to_local_2d
-from ..jit import HAVE_JIT
-from ..jit_sight import KEEP_RADIUS_M, sight_fraction_kernel
-from ..raycast import END_TOLERANCES, Boxes, segments_blocked
-from ..rsu import deploy, select_active
+from ..core.actors import DRIVER
+from ..core.classes import CAR, LARGE_VEHICLE, PEDESTRIAN
+from ..core.geometry import row_norms, world_to_local_2d
+from ..core.jit import HAVE_JIT
+from ..core.raycast import END_TOLERANCES, Boxes, segments_blocked
 from ..town.model import DRIVING, MERGE, PARKING, Town
-from ..traffic import STOP_LINE_SETBACK
+from ..traffic.vehicles import STOP_LINE_SETBACK
+from ..v2x.rsu import deploy, select_active
 from .base import Site
+from .jit_sight import KEEP_RADIUS_M, sight_fraction_kernel
 from .placement import (
     clear_lanes,
     clear_near,

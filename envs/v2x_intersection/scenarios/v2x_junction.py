@@ -22,11 +22,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..actors import RIDER, draw_size
-from ..classes import BICYCLE, CAR, LARGE_VEHICLE, PEDESTRIAN
-from ..geometry import world_to_local_2d
+from ..core.actors import RIDER, draw_size
+from ..core.classes import BICYCLE, CAR, LARGE_VEHICLE, PEDESTRIAN
+from ..core.geometry import world_to_local_2d
 from ..town.model import DRIVING, LEFT, PRIORITY, RIGHT, STOP, STRAIGHT, Town
-from ..traffic import STOP_LINE_SETBACK
+from ..traffic.vehicles import STOP_LINE_SETBACK
 from .base import Site
 from .flows import FlowScenario, connectors, crossing_sites, merge_sites
 from .flows import first_conflict as lanes_conflict

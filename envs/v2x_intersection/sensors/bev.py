@@ -37,11 +37,11 @@ from dataclasses import dataclass
 import numpy as np
 from PIL import Image, ImageDraw
 
-from ..classes import BICYCLE, CAR, EMERGENCY_VEHICLE, LARGE_VEHICLE, PEDESTRIAN
-from ..jit import HAVE_JIT
-from ..signals import GREEN, NO_SIGNAL, RED, YELLOW
+from ..core.classes import BICYCLE, CAR, EMERGENCY_VEHICLE, LARGE_VEHICLE, PEDESTRIAN
+from ..core.jit import HAVE_JIT
+from ..perception.visibility import VISIBLE_THRESHOLD
 from ..town.areas import stop_bars
-from ..visibility import VISIBLE_THRESHOLD
+from ..traffic.signals import GREEN, NO_SIGNAL, RED, YELLOW
 from .ground import GroundRaster
 from .kernels import bev_ground_kernel, fill_boxes_kernel
 from .semantics import (

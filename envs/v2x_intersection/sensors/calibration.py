@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import pose_matrix, relative_transform
+from ..core.geometry import pose_matrix, relative_transform
 from .camera import CameraSpec, ego_camera_specs, rsu_camera_spec
 from .lidar import LidarSpec, ego_lidar_spec, rsu_lidar_spec
 

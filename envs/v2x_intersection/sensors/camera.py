@@ -44,10 +44,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..config import CAMERA_IMAGES
-from ..geometry import T_BODY_OPTICAL, camera_intrinsics, memo_matrix, pose_matrix
-from ..jit import HAVE_JIT
-from ..raycast import GROUND, NO_HIT, first_hit_fan
+from ..core.geometry import T_BODY_OPTICAL, camera_intrinsics, memo_matrix, pose_matrix
+from ..core.jit import HAVE_JIT
+from ..core.raycast import GROUND, NO_HIT, first_hit_fan
+from ..sim.config import CAMERA_IMAGES
 from .fan import Fan, fan_for
 from .ground import GroundRaster
 from .kernels import camera_hits_kernel

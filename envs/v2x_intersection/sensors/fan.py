@@ -20,9 +20,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..geometry import camera_intrinsics
-from ..jit import HAVE_JIT
-from ..raycast import Boxes, ray_box_intervals, ray_box_setup
+from ..core.geometry import camera_intrinsics
+from ..core.jit import HAVE_JIT
+from ..core.raycast import Boxes, ray_box_intervals, ray_box_setup
 from .kernels import unoccluded_counts_kernel
 from .scene import Scene
 from .shading import sky_colors

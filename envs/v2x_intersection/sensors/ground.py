@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from PIL import Image, ImageDraw
 
-from ..geometry import offset_polyline
+from ..core.geometry import offset_polyline
 from ..town.areas import (
     junction_corners,
     junction_roads,

@@ -45,8 +45,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import transform_points
-from ..jit import HAVE_JIT
+from ..core.geometry import transform_points
+from ..core.jit import HAVE_JIT
 from .kernels import instance_counts_kernel
 from .semantics import STATIC_INSTANCE_OFFSET, static_instance
 

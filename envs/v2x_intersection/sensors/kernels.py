@@ -11,14 +11,15 @@
 
 Every operation is repeated in float32 as NumPy does it: Python-float constants are cast to
 float32 first (NumPy treats them as weak scalars, numba would promote to float64), comparisons
-included. ``tests/test_jit.py`` compares the outputs of both paths byte for byte.
+included. ``tests/core/test_jit.py`` compares the outputs of both paths byte for byte.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..jit import _njit, _njit_inline, first_hit_fan_kernel, ray_box_interval
+from ..core.jit import _njit, _njit_inline
+from ..core.jit_raycast import first_hit_fan_kernel, ray_box_interval
 
 _F = np.float32
 

@@ -30,9 +30,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry import memo_matrix, pose_matrix
-from ..jit import HAVE_JIT
-from ..raycast import GROUND, NO_HIT, first_hit_fan
+from ..core.geometry import memo_matrix, pose_matrix
+from ..core.jit import HAVE_JIT
+from ..core.raycast import GROUND, NO_HIT, first_hit_fan
 from .ground import GroundRaster
 from .kernels import lidar_points_kernel
 from .scene import Scene

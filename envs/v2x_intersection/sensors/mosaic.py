@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from PIL import Image, ImageDraw
 
-from ..render import font as _font
+from ..render.topdown import font as _font
 from .bev import BEV_CHANNELS
 from .camera import EGO_CAMERA_NAMES
 from .semantics import NUM_CLASSES, SEMANTIC_COLORS

@@ -40,8 +40,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..config import MAX_CAMERA_SIDE, MIN_CAMERA_SIDE
-from ..world import EGO_LENGTH, EGO_WIDTH
+from ..core.actors import EGO_LENGTH, EGO_WIDTH
+from ..sim.config import MAX_CAMERA_SIDE, MIN_CAMERA_SIDE
 from .bev import BEV_CHANNELS, BevSpec, capture_bev
 from .calibration import active_unit, calibration, ego_pose, rsu_lidar_pose, rsu_pose
 from .camera import (

@@ -32,11 +32,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import libm
-from ..classes import BICYCLE, EMERGENCY_VEHICLE, TRAFFIC_CONE, TRAFFIC_LIGHT, TRAFFIC_SIGN
-from ..jit import HAVE_JIT
-from ..raycast import Boxes
-from ..signals import GREEN, RED, YELLOW
+from ..core import libm
+from ..core.classes import BICYCLE, EMERGENCY_VEHICLE, TRAFFIC_CONE, TRAFFIC_LIGHT, TRAFFIC_SIGN
+from ..core.jit import HAVE_JIT
+from ..core.raycast import Boxes
+from ..traffic.signals import GREEN, RED, YELLOW
 from .kernels import cast_fan_kernel, cull_kernel
 from .semantics import actor_instance, static_instance
 

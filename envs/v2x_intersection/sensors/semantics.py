@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..classes import (
+from ..core.classes import (
     BICYCLE,
     CAR,
     CLASS_NAMES,

@@ -24,8 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..jit import HAVE_JIT
-from ..raycast import GROUND, NO_HIT
+from ..core.jit import HAVE_JIT
+from ..core.raycast import GROUND, NO_HIT
 from .ground import GroundRaster
 from .kernels import lidar_returns_kernel, shade_kernel
 from .scene import Scene

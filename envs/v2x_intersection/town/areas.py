@@ -7,9 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import convex_hull, cut_polyline, dash_polyline, offset_polyline
-from ..traffic import STOP_LINE_SETBACK
-from .model import CONNECTOR, DRIVING, MERGE, RAMP, Town
+from ..core.geometry import convex_hull, cut_polyline, dash_polyline, offset_polyline
+from .model import CONNECTOR, DRIVING, MERGE, RAMP, STOP_LINE_SETBACK, Town
 
 
 def junction_corners(town: Town) -> list[np.ndarray]:

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..geometry import (
+from ..core.geometry import (
     offset_polyline,
     polyline_lengths,
     resample_polyline,

@@ -34,9 +34,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry import convex_hull, cut_polyline, invert_transform, offset_polyline
-from ..traffic import STOP_LINE_SETBACK
-from .model import CONNECTOR, DRIVING, MERGE, RAMP, Town
+from ..core.geometry import convex_hull, cut_polyline, invert_transform, offset_polyline
+from .model import CONNECTOR, DRIVING, MERGE, RAMP, STOP_LINE_SETBACK, Town
 
 MAP_CLASSES = ("divider", "boundary", "crosswalk")
 DIVIDER, BOUNDARY, CROSSWALK = 0, 1, 2

@@ -11,8 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..geometry import polyline_lengths
-from ..jit import HAVE_JIT, pose_at_kernel, project_kernel
+from ..core.geometry import polyline_lengths
+from ..core.jit import HAVE_JIT, pose_at_kernel, project_kernel
 
 # Lane kinds
 DRIVING, CONNECTOR, PARKING, RAMP = 0, 1, 2, 3
@@ -25,6 +25,7 @@ COMMAND_NAMES = ("follow_lane", "left", "right", "straight", "change_lane_left",
 # Junction control
 SIGNAL, STOP, PRIORITY, MERGE = 0, 1, 2, 3
 CONTROL_NAMES = ("signal", "stop", "priority", "merge")
+STOP_LINE_SETBACK = 4.5  # m, stop line before the lane end (crosswalk + margin)
 
 
 @dataclass

@@ -14,8 +14,8 @@ import pytest
 import v2xbench.envs.v2x_intersection as pkg
 
 ROOT = Path(__file__).resolve().parents[1]
-MOVE = re.compile(r"^- `(v2xbench\.envs\.v2x_intersection\.\w+)` -> `(v2xbench\.envs\.v2x_intersection[\w.]+)`",
-                  re.M)
+MOVE = re.compile(r"^- `(v2xbench\.envs\.v2x_intersection\.\w+)` -> "
+                  r"`(v2xbench\.envs\.v2x_intersection[\w.]+)`", re.M)
 
 
 def _moves() -> list[tuple[str, str]]:
@@ -36,9 +36,10 @@ def test_changelog_lists_every_move_to_an_importable_module():
 @pytest.mark.parametrize("alias", pkg.DEPRECATED_ALIASES)
 def test_documented_old_paths_warn_and_forward(alias):
     new = dict(_moves())[f"{pkg.__name__}.{alias}"]
-    code = (f"import warnings; warnings.simplefilter('error', DeprecationWarning)\n"
-            f"try:\n    import {pkg.__name__}.{alias}\nexcept DeprecationWarning as e:\n    print(e)\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
+    code = (f"import warnings; warnings.simplefilter('error', DeprecationWarning)\ntry:\n"
+            f"    import {pkg.__name__}.{alias}\nexcept DeprecationWarning as e:\n    print(e)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=ROOT)
     assert f"moved to {new}" in out.stdout
     with pytest.warns(DeprecationWarning):
         sys.modules.pop(f"{pkg.__name__}.{alias}", None)
@@ -50,9 +51,11 @@ def test_documented_old_paths_warn_and_forward(alias):
 
 def test_no_repository_code_imports_an_alias():
     names = "|".join(pkg.DEPRECATED_ALIASES)
-    pattern = re.compile(rf"v2x_intersection\.({names})\b|v2x_intersection import [\w, ]*\b({names})\b")
+    pattern = re.compile(rf"v2x_intersection\.({names})\b"
+                         rf"|v2x_intersection import [\w, ]*\b({names})\b")
     offenders = []
-    for top in ("envs", "agents", "collectors", "benchmarks", "v2xbench", "tests", "examples", "docs"):
+    tops = ("envs", "agents", "collectors", "benchmarks", "v2xbench", "tests", "examples", "docs")
+    for top in tops:
         for p in (ROOT / top).rglob("*"):
             if p.suffix in (".py", ".md") and p.parent != ROOT / "envs" / "v2x_intersection":
                 if p.name != "test_module_moves.py" and pattern.search(p.read_text()):

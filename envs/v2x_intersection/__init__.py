@@ -6,6 +6,11 @@
 
 All three wrap one :class:`World`; configuration keys are the fields of :class:`EnvConfig`.
 
+The package is grouped by subsystem: ``core/``, ``town/``, ``traffic/``, ``perception/``,
+``v2x/``, ``evaluation/``, ``sensors/``, ``scenarios/``, ``suites/``, ``sim/`` (the world and its
+step order), ``api/`` and ``render/``; imports flow from ``api`` down to ``core``
+(``docs/architecture.md``).
+
 ``V2XTorchEnv`` is imported on first use: torch, tensordict and TorchRL take ~4 s to import, which
 ``gym.make`` and ``parallel_env`` (NumPy only) do not need.
 """

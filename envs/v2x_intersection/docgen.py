@@ -1,22 +1,9 @@
-"""Deprecated alias of :mod:`.sim.docgen` (moved in the regroup by subsystem; see ``CHANGELOG.md``).
+"""Deprecated alias of :mod:`.sim.docgen` (``CHANGELOG.md``: module moves); goes away in the
+next release."""
 
-Import ``v2xbench.envs.v2x_intersection.sim.docgen`` instead;
-this module goes away in the next release.
-"""
+from ._aliases import forward
 
-import warnings as _warnings
-
-from .sim.docgen import *  # noqa: F403
-from .sim.docgen import __name__ as _target
-
-_warnings.warn(f"{__name__} moved to {_target}; import it from there (this alias goes away in "
-               "the next release)", DeprecationWarning, stacklevel=2)
-
-
-def __getattr__(name: str):
-    import importlib
-
-    return getattr(importlib.import_module(_target), name)
+forward(globals(), "sim.docgen")
 
 
 if __name__ == "__main__":

@@ -3,7 +3,8 @@
 :func:`populate` fills the actor table's rows after the ego, kind by kind, from the world's one
 generator. The NumPy loops here are the reference and the fallback without numba; with numba,
 drivers, riders and pedestrians are placed by :mod:`.jit_spawn`'s kernels, which draw the same
-numbers and place the same actors (``tests/core/test_jit.py::test_world_reset_kernels_match_numpy``).
+numbers and place the same actors
+(``tests/core/test_jit.py``, ``test_world_reset_kernels_match_numpy``).
 """
 
 from __future__ import annotations

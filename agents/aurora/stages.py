@@ -277,6 +277,7 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
         FileNotFoundError: no data, no earlier stage, no QA items. ValueError: a run folder of
             other settings, ``lm`` for a later stage, a fusion setting other than stage 3's.
     """
+    from . import distributed as ddp
     from .data import AuroraFrames
     from .feature_cache import ensure_cache
     from .pairs import AuroraPairs, make_pair_loader
@@ -289,6 +290,7 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
     if not data.is_dir():
         raise FileNotFoundError(f"aurora train: data directory {data} does not exist")
     cfg = _route_config(run, stage, _run_config(run, scale), route_points)
+    device = ddp.setup(device)  # under torchrun: join the group; rank 0 builds shared files
     hp = cfg.stage_hparams(stage)
     if stride is not None:
         hp = dataclasses.replace(hp, frame_stride=stride)
@@ -298,7 +300,7 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
     sdir = stage_dir(run, stage)
     sdir.mkdir(parents=True, exist_ok=True)
     if stage == 3:
-        lm_info = base_lm(run, data, cfg, lm, seed)
+        lm_info = ddp.main_first(lambda: base_lm(run, data, cfg, lm, seed))
     else:
         if lm is not None:
             raise ValueError("aurora train: --lm chooses stage 3's base LM; later stages use "
@@ -327,10 +329,9 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
     feature_cache = None
     if use_cache:
         fids = sorted({fid for fid, _, _ in items})
-        feature_cache, cstats = ensure_cache(system, data, "train", fids, run / "cache",
-                                             batch_size=hp.batch_size,
-                                             num_workers=hp.num_workers, device=device,
-                                             progress=progress)
+        feature_cache, cstats = ddp.main_first(lambda: ensure_cache(
+            system, data, "train", fids, run / "cache", batch_size=hp.batch_size,
+            num_workers=hp.num_workers, device=device, progress=progress and ddp.is_main()))
     ds = AuroraPairs(data, "train", cfg, tok, items, fusion=fusion, images=not use_cache,
                      cache=feature_cache, speed_dropout=cfg.plan_speed_dropout, seed=seed)
     if stage == 4 and cfg.planner == "diffusion" and not bool(system.planner.anchors_set):
@@ -346,19 +347,22 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
             "from": "stages 1-2" if stage == 3 else f"stage{stage - 1}",
             "trains": STAGE_TABLE[stage], "camera_size": list(frames.recorded_size)}
     _check_same_run(sdir / RUN_CONFIG, info)
-    atomic_write_json(sdir / RUN_CONFIG, info, indent=1)
+    if ddp.is_main():
+        atomic_write_json(sdir / RUN_CONFIG, info, indent=1)
     loader = make_pair_loader(ds, hp.batch_size, shuffle=True, seed=seed,
                               num_workers=hp.num_workers)
     criterion = StageCriterion(cfg, stage, live_branches=not frozen)
     summary = fit(system, criterion, loader, sdir, hp, device=device, seed=seed,
                   progress=progress, max_steps=max_steps)
-    _save_adapter(system, sdir / ADAPTER_DIR)
+    if ddp.is_main():
+        _save_adapter(system, sdir / ADAPTER_DIR)
     if cstats is not None:  # what the cache saves: the branches' forward pass per sample
         cstats["branch_s_per_epoch_without_cache"] = cstats["ms_per_frame"] * len(ds) / 1e3
     summary.update(stage=stage, branch=STAGE_NAMES[stage], frames=len(set(ds.frame_ids())),
                    scale=cfg.scale, samples=info["samples"], lm=lm_info, cache=cstats,
                    fusion=bool(fusion))
-    atomic_write_json(sdir / "train_summary.json", summary, indent=1)
+    if ddp.is_main():
+        atomic_write_json(sdir / "train_summary.json", summary, indent=1)
     return summary
 
 

@@ -287,13 +287,7 @@ def _fit(model, criterion, loader, out, hp, device, seed, progress, max_steps, l
         raise ValueError(f"fit: {n} training samples give no batch of {hp.batch_size}")
     total = hp.epochs * spe
     stop = total if max_steps is None else min(max_steps, total)
-    world, main = ddp.world_size(), ddp.is_main()
-    tail = n % hp.batch_size
-    if world > 1 and (hp.batch_size < world or (tail and not loader.drop_last and tail < world)):
-        raise ValueError(f"fit: a batch of {min(hp.batch_size, tail or hp.batch_size)} samples "
-                         f"cannot be shared by {world} processes (batch_size={hp.batch_size}, "
-                         f"{n} samples); choose a batch size of at least {world} whose last "
-                         f"batch is too")
+    main = ddp.is_main()
     model.to(device).train()
     criterion.to(device)
     net = ddp.wrap(model, device)
@@ -325,16 +319,20 @@ def _fit(model, criterion, loader, out, hp, device, seed, progress, max_steps, l
                 epoch, skip = divmod(step, spe)
                 batches = epoch_batches(n, hp.batch_size, seed, epoch, shuffle, loader.drop_last)
                 sizes = [len(b) for b in batches[skip:]]
-                mine = [ddp.shard(b) for b in batches[skip:]] if world > 1 else batches[skip:]
+                shares = [ddp.shard(b) for b in batches[skip:]]
+                counts = [len(x) for x in shares]
+                # a rank whose share of a short batch is empty runs one sample with weight 0
+                mine = [x or b[:1] for x, b in zip(shares, batches[skip:])]
                 it = iter(_epoch_loader(loader, mine, seed, epoch))
                 while step < stop and step < (epoch + 1) * spe:
                     t0 = time.perf_counter()
                     batch = _to(next(it), device)
                     t1 = time.perf_counter()
                     lr = lr_at(step, total, hp)
-                    size = sizes[step - epoch * spe - skip]
+                    k = step - epoch * spe - skip
+                    size = sizes[k]
                     loss, parts, grad_norm = _step(net, criterion, opt, params, batch, hp, lr,
-                                                   _mix(seed, step, 3), step, size)
+                                                   _mix(seed, step, 3), step, size, counts[k])
                     t2 = time.perf_counter()
                     step += 1
                     done_samples += size
@@ -370,10 +368,11 @@ def _fit(model, criterion, loader, out, hp, device, seed, progress, max_steps, l
 
 
 def _step(model: nn.Module, criterion: nn.Module, opt: torch.optim.Optimizer, params: list,
-          batch: Any, hp: StageHParams, lr: float, rng_seed: int, step: int, size: int
-          ) -> tuple[float, dict[str, float], float]:
-    """One optimizer step at learning rate ``lr`` on this process's share of a global batch of
-    ``size`` samples; returns the global batch's (loss, parts) and the gradient norm."""
+          batch: Any, hp: StageHParams, lr: float, rng_seed: int, step: int, size: int,
+          local: int) -> tuple[float, dict[str, float], float]:
+    """One optimizer step at learning rate ``lr`` on this process's share (``local`` samples;
+    0: a stand-in sample of weight 0) of a global batch of ``size`` samples; returns the global
+    batch's (loss, parts) and the gradient norm."""
     for g in opt.param_groups:
         g["lr"] = lr
     torch.manual_seed(rng_seed)  # dropout etc.: a function of (seed, step), so resume is exact
@@ -381,7 +380,6 @@ def _step(model: nn.Module, criterion: nn.Module, opt: torch.optim.Optimizer, pa
     if not torch.isfinite(loss):
         raise FloatingPointError(f"fit: loss is {float(loss)} at step {step + 1}")
     opt.zero_grad(set_to_none=True)
-    local = _batch_size(batch)
     (loss * ddp.local_loss_scale(local, size) if ddp.world_size() > 1 else loss).backward()
     clip = hp.grad_clip if hp.grad_clip > 0 else float("inf")
     grad_norm = float(nn.utils.clip_grad_norm_(params, clip))

@@ -5,12 +5,14 @@ from __future__ import annotations
 import numpy as np
 
 from .aurora.agent import AuroraAgent, NoFusionAgent
+from .baselines.univ2x.agent import UniV2XAgent
 from .interface import register_agent
 from .route_follower import RouteFollower
 
 register_agent("route_follower")(RouteFollower)
 register_agent("aurora")(AuroraAgent)  # the learned model (agents/aurora/agent.py)
 register_agent("no_fusion")(NoFusionAgent)  # the same without the roadside input
+register_agent("univ2x")(UniV2XAgent)  # UniV2X baseline (agents/baselines/univ2x/agent.py)
 
 
 @register_agent("random")

@@ -108,13 +108,15 @@ def test_predictions_are_the_policy_modules(tiny_run):
                      fusion=False)
     batch = collate_pairs([ds[0], ds[1]], int(tok.pad_token_id))
     got = EP.predict(system, batch)
-    rec = V2XDataset(data, "all", keys=[("cameras", c, "rgb") for c in EGO_CAMERA_NAMES])
+    rec = V2XDataset(data, "all", keys=[("cameras", c, "rgb") for c in EGO_CAMERA_NAMES]
+                     + ["route"])
     cams = [torch.stack([rec[f]["cameras", c, "rgb"] for f in (3, 17)]) for c in EGO_CAMERA_NAMES]
     size = (int(cams[0].shape[2]), int(cams[0].shape[1]))
     ego = torch.zeros(2, 8)
     ego[:, 0] = batch["ego_speed"]
-    route = torch.zeros(2, 4, 3)
-    route[:, :, 2] = batch["command"][:, None].float()
+    route = torch.stack([rec[f]["route"] for f in (3, 17)])  # the recorded observation's route
+    assert torch.equal(route[:, 0, 2].long(), batch["command"])  # the frame's command
+    assert system.cfg.plan_route_points > 0 and batch["route_points"].shape[1] > 0
     net = AuroraPolicyNet(system, tok, size)
     with torch.no_grad():
         wps, _ = net(*cams, ego, route, torch.zeros(2, 8), torch.zeros(2, 4))

@@ -104,3 +104,29 @@ def test_agents_load_shipped_weights_by_default(run, tmp_path, monkeypatch):
     assert agent.run == str(tmp_path / "weights" / "aurora")
     assert agent.checkpoint[0].endswith("weights.safetensors")
     assert agent.channel == {"max_payload_floats": message_floats(CFG)}
+
+
+def test_shipped_weights_without_route_input_load_and_ignore_the_route_points():
+    """Weights exported before the planner's route input (``aurora.json`` without
+    ``plan_route_points``, like the shipped ones of 2026-11-27) load strictly as K = 0, keep
+    their fingerprint and drive as before: the route's points do not change their actions."""
+    src = export_mod.SHIPPED / "aurora"
+    info = json.loads((src / "aurora.json").read_text())
+    if "plan_route_points" in info["config"]:
+        pytest.skip("the shipped weights were exported with the route input")
+    cfg = AuroraConfig.from_dict(info["config"])
+    agent = AuroraAgent()  # the shipped folder, SHA-256 checked, strict state-dict load
+    assert agent.cfg.plan_route_points == 0 == cfg.plan_route_points
+    assert not any(".route." in n for n, _ in agent.policy.module.system.named_parameters())
+    assert agent.fingerprint() == "stage=5 fusion=True planner=vae speed=wp0-wp1"
+    w = World(make_config(town="Town05", obs_mode="sensors", camera_images=("rgb",),
+                          camera_size=agent.sensors["camera_size"], num_vehicles=2,
+                          num_pedestrians=0, num_bicycles=0,
+                          max_payload_floats=message_floats(cfg)))
+    w.reset(seed=3)
+    w.step(np.array([0.5, 0.0, 0.0]))
+    obs = ego_observation(w)
+    bent = {**obs, "route": obs["route"].copy()}
+    bent["route"][:, 1] += 0.05 * bent["route"][:, 0] ** 2  # the same command, another path
+    a, b = agent.act(obs), agent.act(bent)
+    assert np.array_equal(a["waypoints"], b["waypoints"]) and a["speed"] == b["speed"]

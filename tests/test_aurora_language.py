@@ -181,7 +181,9 @@ def test_gradient_flows_from_planner_loss_through_wp_to_fused_tokens(tok):
     h_wp = out["h_wp"]
     h_wp.retain_grad()
     gt = torch.stack([torch.arange(1, 7) * 2.0, torch.zeros(6)], -1).expand(2, 6, 2)
-    plan = planner(h_wp, torch.tensor([3, 1]), gt)
+    route = torch.zeros(2, CFG.plan_route_points, 2)  # straight ahead
+    route[..., 0] = torch.arange(1, CFG.plan_route_points + 1) * CFG.plan_route_spacing
+    plan = planner(h_wp, torch.tensor([3, 1]), gt, route=route)
     (plan["waypoints"] - gt).abs().mean().backward()  # the planner's L1
     assert float(h_wp.grad.abs().sum()) > 0
     assert bool((det.grad.abs().sum(-1) > 0).all())  # every fused detection token

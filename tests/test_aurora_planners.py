@@ -47,6 +47,16 @@ def road(b: int, p: int = 6, half: float = 5.0) -> dict[str, torch.Tensor]:
             "map_closed": torch.zeros(b, 4, dtype=torch.bool)}
 
 
+def route_on(radius: float | None, cfg: AuroraConfig, side: float = 1.0) -> torch.Tensor:
+    """``(K, 2)`` route points every ``plan_route_spacing`` m: straight on (``radius`` None) or
+    on a circle to the left (``side=1``) or right."""
+    s = torch.arange(1, cfg.plan_route_points + 1) * cfg.plan_route_spacing
+    if radius is None:
+        return torch.stack([s, torch.zeros_like(s)], -1)
+    a = s / radius
+    return torch.stack([radius * torch.sin(a), side * radius * (1 - torch.cos(a))], -1)
+
+
 def bound(wps: torch.Tensor, margin: float = 1.0) -> torch.Tensor:
     r = road(wps.shape[0])
     return boundary_loss(wps, r["map_points"], r["map_labels"], r["map_mask"], r["map_closed"],
@@ -119,6 +129,7 @@ def two_samples(cfg: AuroraConfig) -> tuple[torch.Tensor, torch.Tensor, dict]:
              "ego_speed": torch.tensor([6.0, 5.0]),
              "agent_future": torch.zeros(2, 0, T, 2),
              "agent_future_mask": torch.zeros(2, 0, T, dtype=torch.bool),
+             "route_points": torch.stack([route_on(None, cfg), route_on(12.0, cfg)]),
              **road(2, half=15.0)}  # a wide junction: both trajectories are drivable
     return h, command, batch
 
@@ -142,7 +153,7 @@ def test_each_planner_overfits_two_samples(name):
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
     planner.train()
     for _ in range(steps):
-        out = planner(h, command, gt if name == "vae" else None)
+        out = planner(h, command, gt if name == "vae" else None, route=batch["route_points"])
         loss, parts = crit(out, batch)
         opt.zero_grad()
         loss.backward()
@@ -154,14 +165,14 @@ def test_each_planner_overfits_two_samples(name):
     assert set(parts) == expect
     planner.eval()
     with torch.no_grad():
-        pred = planner(h, command)["waypoints"]
+        pred = planner(h, command, route=batch["route_points"])["waypoints"]
     assert tuple(pred.shape) == (2, T, 2)
     err = (pred - gt).norm(dim=-1).mean(1)
     assert float(err.max()) < 0.25, (name, err.tolist(), parts)  # m, mean over waypoints
     # the command conditions the output: another command gives another trajectory
     if name != "diffusion":
         with torch.no_grad():
-            other = planner(h, torch.tensor([0, 2]))["waypoints"]
+            other = planner(h, torch.tensor([0, 2]), route=batch["route_points"])["waypoints"]
         assert float((other - pred).abs().max()) > 0.1
 
 
@@ -170,20 +181,21 @@ def test_plan_mask_and_errors():
     cfg = AuroraConfig.for_scale("tiny", planner="mlp")
     planner = build_planner(cfg, cfg.lm_width)
     h, command, batch = two_samples(cfg)
-    out = planner(h, command)
+    route = batch["route_points"]
+    out = planner(h, command, route=route)
     loss, _ = PlanningCriterion(cfg)(out, {**batch, "plan_mask": torch.zeros(2, dtype=torch.bool)})
     assert float(loss.detach()) == 0.0  # QA-only samples carry no planning loss
     loss1, _ = PlanningCriterion(cfg)(out, {**batch, "plan_mask": torch.tensor([True, False])})
     assert float(loss1.detach()) > 0
     with pytest.raises(ValueError, match="command codes outside"):
-        planner(h, torch.tensor([0, cfg.num_commands]))
+        planner(h, torch.tensor([0, cfg.num_commands]), route=route)
     with pytest.raises(ValueError, match="h_wp has shape"):
-        planner(h[:, :-1], command)
+        planner(h[:, :-1], command, route=route)
     with pytest.raises(ValueError, match="agent_future"):
         PlanningCriterion(cfg)(out, {k: v for k, v in batch.items() if k != "agent_future"})
     diff_cfg = AuroraConfig.for_scale("tiny", planner="diffusion")
     with pytest.raises(ValueError, match="no anchors"):
-        build_planner(diff_cfg, cfg.lm_width)(h, command)
+        build_planner(diff_cfg, cfg.lm_width)(h, command, route=route)
     with pytest.raises(ValueError, match="cannot give"):
         fit_anchors(torch.zeros(2, T, 2), 4)
     with pytest.raises(ValueError, match="known planners"):
@@ -191,6 +203,46 @@ def test_plan_mask_and_errors():
     vae_cfg = AuroraConfig.for_scale("tiny")
     vae = build_planner(vae_cfg, vae_cfg.lm_width)
     with pytest.raises(ValueError, match="without the expert trajectory"):
-        PlanningCriterion(vae_cfg)(vae(h, command), batch)
-    loss, _ = PlanningCriterion(vae_cfg)(vae(h, command, batch["expert_waypoints"]), batch)
+        PlanningCriterion(vae_cfg)(vae(h, command, route=route), batch)
+    loss, _ = PlanningCriterion(vae_cfg)(vae(h, command, batch["expert_waypoints"], route=route),
+                                         batch)
     assert math.isfinite(float(loss.detach()))
+
+
+# ---------------------------------------------------------------------- route points (#33)
+@pytest.mark.parametrize("name", ["vae", "mlp", "diffusion"])
+def test_planner_overfits_two_samples_that_differ_only_in_their_route(name):
+    """The same ``h_wp`` and command (straight), a straight and a left-bending route: only the
+    route points tell the two expert trajectories apart."""
+    cfg = AuroraConfig.for_scale("tiny", planner=name)
+    assert cfg.plan_route_points > 0  # on at the tiny scale (as at every scale)
+    torch.manual_seed(0)
+    planner = build_planner(cfg, cfg.lm_width)
+    h, _, batch = two_samples(cfg)
+    h = h[:1].expand(2, -1).clone()
+    command = torch.tensor([3, 3])
+    gt = batch["expert_waypoints"][:, :T]
+    route = batch["route_points"]
+    if name == "diffusion":
+        planner.set_anchors(fit_anchors(torch.stack(
+            [straight(v) for v in (3.0, 6.0, 9.0)] + [turn(5.0, r) for r in (8.0, 12.0, 16.0)]
+            + [turn(5.0, 12.0, -1.0)]), cfg.plan_anchors, seed=0))
+    crit = PlanningCriterion(cfg)
+    steps = 500
+    opt = torch.optim.Adam(planner.parameters(), lr=5e-3)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
+    planner.train()
+    for _ in range(steps):
+        loss, _ = crit(planner(h, command, gt if name == "vae" else None, route=route), batch)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sched.step()
+    planner.eval()
+    with torch.no_grad():
+        pred = planner(h, command, route=route)["waypoints"]
+        swapped = planner(h, command, route=route.flip(0))["waypoints"]
+    err = (pred - gt).norm(dim=-1).mean(1)
+    assert float(err.max()) < 0.25, (name, err.tolist())
+    # the route alone decides which trajectory comes out
+    assert float((swapped - gt.flip(0)).norm(dim=-1).mean(1).max()) < 0.25

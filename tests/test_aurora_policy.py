@@ -13,6 +13,7 @@ from v2xbench.agents.aurora.language import AuroraLM, add_lora, build_lm
 from v2xbench.agents.aurora.planner_losses import PlanningCriterion
 from v2xbench.agents.aurora.policy import IN_KEYS, policy_module
 from v2xbench.agents.aurora.prompt import template_texts
+from v2xbench.agents.aurora.route_input import planner_route_points
 from v2xbench.agents.aurora.rsu_agent import (
     HEADER_FLOATS,
     AuroraRoadside,
@@ -143,6 +144,17 @@ def test_spec_calibration_and_received_pose_match_the_rig():
 
 
 # ---------------------------------------------------------------------- the system
+def _route_rows(b: int, bend: float = 0.0, command: int = 0) -> torch.Tensor:
+    """``(b, 20, 3)`` observation-style route rows every 2 m: straight on (``bend`` 0) or
+    curving (``bend`` rad per metre, left > 0), with ``command`` in column 2."""
+    s = torch.arange(20) * 2.0
+    heading = bend * s
+    step = torch.stack([torch.cos(heading), torch.sin(heading)], -1) * 2.0
+    xy = torch.cat([torch.zeros(1, 2), step[:-1].cumsum(0)])
+    rows = torch.cat([xy, torch.full((20, 1), float(command))], -1)
+    return rows.expand(b, -1, -1).clone()
+
+
 def _batch(tok, b: int = 2, with_msg: bool = True) -> dict:
     from v2xbench.agents.aurora.prompt import PLAN_QUESTION, build_prompt
 
@@ -162,6 +174,7 @@ def _batch(tok, b: int = 2, with_msg: bool = True) -> dict:
             "has_rsu": torch.tensor([with_msg] * b), "rsu_to_ego": torch.eye(4).expand(b, 4, 4),
             "input_ids": enc["input_ids"], "attention_mask": enc["attention_mask"],
             "command": torch.zeros(b, dtype=torch.long), "plan_mask": torch.ones(b, dtype=bool),
+            "route_points": planner_route_points(_route_rows(b), CFG),
             "ego_speed": torch.full((b,), 4.0),
             "expert_waypoints": torch.linspace(0, 10, 16).view(1, 8, 2).expand(b, 8, 2).clone(),
             "map_points": torch.zeros(b, CFG.num_map_queries, CFG.map_points, 2),
@@ -195,6 +208,9 @@ def test_planner_loss_reaches_the_wp_hidden_state_and_lora(tok):
     assert lora and any(p.grad is not None and float(p.grad.abs().sum()) > 0 for p in lora)
     assert all(p.grad is None for p in system.ego.parameters())  # frozen branches
     assert not system.ego.training  # and kept in eval mode
+    route = list(system.planner.route.parameters())  # the route encoder learns from it too
+    assert route and all(p.grad is not None for p in route)
+    assert float(sum(p.grad.abs().sum() for p in route)) > 0
 
 
 def test_checkpoint_and_adapters_round_trip(tok, tmp_path):
@@ -269,3 +285,41 @@ def test_inference_path_gives_the_training_path_waypoints(tok):
         full = system(batch, plan=True)
     assert torch.allclose(fast["h_wp"], full["h_wp"], atol=1e-5)
     assert torch.allclose(fast["plan"]["waypoints"], full["plan"]["waypoints"], atol=1e-5)
+
+
+def test_policy_gives_the_planner_the_route_points_of_its_observation(tok):
+    """The policy turns ``route`` into the planner's input with the function the training
+    samples use, and the waypoints follow the route (same cameras, speed and command)."""
+    from tensordict import TensorDict
+
+    rng = np.random.default_rng(1)
+    system = _system(tok).eval()
+    with torch.no_grad():  # an untrained encoder's effect is small: make it visible
+        system.planner.route[-1].weight.mul_(50.0)
+    seen = []
+    planner_forward = system.planner.forward
+
+    def spy(*args, **kw):
+        seen.append(kw["route"].clone())
+        return planner_forward(*args, **kw)
+
+    system.planner.forward = spy
+    images = {k[1]: torch.from_numpy(rng.integers(0, 255, (1, 64, 128, 3), dtype=np.uint8))
+              for k in IN_KEYS[:6]}
+
+    def td(route):
+        return TensorDict({"cameras": {n: {"rgb": im.clone()} for n, im in images.items()},
+                           "ego": torch.zeros(1, 9), "route": route,
+                           "v2x_info": torch.zeros(1, 8), "v2x_payload": torch.zeros(1, 600)},
+                          batch_size=[1])
+
+    pol = policy_module(system, tok, (128, 64))
+    straight, left = _route_rows(1, command=3), _route_rows(1, bend=0.08, command=3)
+    with torch.no_grad():
+        a = pol(td(straight))["waypoints"]
+        b = pol(td(left))["waypoints"]
+        a2 = pol(td(straight))["waypoints"]
+    assert torch.equal(seen[0], planner_route_points(straight, CFG))
+    assert torch.equal(seen[1], planner_route_points(left, CFG))
+    assert seen[0].shape == (1, CFG.plan_route_points, 2)
+    assert torch.equal(a, a2) and float((a - b).abs().max()) > 1e-3

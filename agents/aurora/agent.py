@@ -15,7 +15,7 @@ sends nothing (``rsu_policy = "none"``) and ignores ``v2x_payload``; train its r
 ``--no-fusion``. Without a ``run`` both load exported weights (:mod:`.export`): ``weights``, else
 the repository's shipped ``agents/aurora/weights/aurora`` / ``no_fusion``, SHA-256 checked.
 ``checkpoint`` declares the weights and the base LM's folder, ``fingerprint()`` the stage,
-fusion, planner and target-speed rule, so
+fusion, planner, target-speed rule and route input (:mod:`.route_input`), so
 results of other weights never mix. Each step goes through the ``TensorDictModule`` of
 :mod:`.policy`; its waypoints go to the shared waypoint controller (``interface.to_control``).
 
@@ -92,11 +92,16 @@ class AuroraAgent:
         self.ticks, self.infer_s = 0, 0.0
 
     def fingerprint(self) -> str:
-        """What else the behaviour depends on: the stage, fusion, planner and speed rule."""
+        """What else the behaviour depends on: the stage, fusion, planner and speed rule, and
+        the planner's route input where it has one (models without it keep their old
+        fingerprint)."""
         from .policy import TARGET_SPEED_RULE
 
+        route = ""
+        if self.cfg.plan_route_points:
+            route = (f" route={self.cfg.plan_route_points}x{self.cfg.plan_route_spacing:g}m")
         return (f"stage={self.info['stage']} fusion={self.fusion} planner={self.cfg.planner} "
-                f"speed={TARGET_SPEED_RULE}")
+                f"speed={TARGET_SPEED_RULE}{route}")
 
     def reset(self, route_info: dict) -> None:
         """A new route (the model keeps no state between ticks)."""

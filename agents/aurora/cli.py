@@ -20,7 +20,7 @@ from pathlib import Path
 
 from v2xbench.files import atomic_write_json
 
-from .config import AuroraConfig
+from .config import AuroraConfig, same_config
 from .eval_perception import RUN_CONFIG, STAGE_BRANCH
 
 STAGES = (0, *STAGE_BRANCH, 3, 4, 5)  # 0: agents/aurora/stage0.py; 3-5: stages.py
@@ -113,11 +113,9 @@ def _check_same_run(path: Path, info: dict) -> None:
 
 
 def _same_config(old, new: dict) -> bool:
-    """Equal configs, where the old file may predate fields added since (issue #33)."""
-    try:
-        return AuroraConfig.from_dict(old) == AuroraConfig.from_dict(new)
-    except (TypeError, ValueError):
-        return False
+    """Equal configs, where the old file may predate fields added since (issue #33;
+    :func:`~.config.same_config`)."""
+    return same_config(old, new)
 
 
 def format_summary(s: dict) -> str:

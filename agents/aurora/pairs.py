@@ -22,6 +22,10 @@ key                        content
 ``input_ids``, ``labels``  (T,) the prompt (:func:`~.prompt.build_prompt`: run-time
                            context only) and the answer's labels (``-100`` elsewhere)
 ``command``                () int64 navigation command
+``route_points``           (K, 2) float32 the planner's route input: the K =
+                           ``cfg.plan_route_points`` points ahead on the recorded
+                           ``route``, ego frame (:func:`~.route_input.
+                           planner_route_points`, as the policy at run time)
 ``ego_speed``              () float32 the ego's speed (m/s; the planning loss's
                            start-from-rest weight reads it, whatever the prompt says)
 ``expert_waypoints``       (8, 2) the expert's future positions, ego frame, 0.5 s apart
@@ -57,9 +61,10 @@ from .data import CALIB_KEYS, AuroraFrames, encode_targets, in_range
 from .language import IGNORE, encode_qa
 from .planner_losses import constant_velocity_futures
 from .prompt import PLAN_QUESTION, build_prompt
+from .route_input import ROUTE_KEY, planner_route_points
 
 QA_FILE = Path("chat") / "qa.jsonl"
-EXTRA_KEYS = ("ego_speed", "command", "expert_waypoints", ("gt", "fused", "boxes"),
+EXTRA_KEYS = ("ego_speed", "command", "route", "expert_waypoints", ("gt", "fused", "boxes"),
               ("gt", "fused", "class"), ("gt", "fused", "mask"))
 TEXT_KEYS = ("input_ids", "labels", "attention_mask")
 
@@ -212,6 +217,7 @@ class AuroraPairs(Dataset):
             input_ids=torch.tensor(ids, dtype=torch.long),
             labels=torch.tensor(labels, dtype=torch.long),
             command=torch.tensor(command, dtype=torch.long),
+            **{ROUTE_KEY: planner_route_points(x["route"], cfg)},
             ego_speed=torch.tensor(speed, dtype=torch.float32),
             expert_waypoints=x["expert_waypoints"].float(),
             agent_future=fut[0], agent_future_mask=fmask[0],

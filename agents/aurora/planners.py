@@ -1,10 +1,13 @@
 """AURORA's planning decoders (seed paper, section 4.3 and appendix stage 4).
 
 Every planner reads the language model's final-layer hidden state at ``<wp>`` (``h_wp``,
-``(B, H)``) and the navigation command (``(B,)`` codes of ``COMMAND_NAMES``) and predicts
-``cfg.plan_waypoints`` ego-frame waypoints ``cfg.plan_dt`` apart (``(B, T, 2)`` metres: the data
-set's ``expert_waypoints[:, :T]``). The context is ``MLP(h_wp) + Embedding(command)``;
-trajectories are handled normalized by ``cfg.plan_traj_scale``.
+``(B, H)``), the navigation command (``(B,)`` codes of ``COMMAND_NAMES``) and, with
+``cfg.plan_route_points`` = K > 0, the K route points ahead (``route``, ``(B, K, 2)`` m, ego
+frame: :func:`~.route_input.planner_route_points`) and predicts ``cfg.plan_waypoints`` ego-frame
+waypoints ``cfg.plan_dt`` apart (``(B, T, 2)`` metres: the data set's
+``expert_waypoints[:, :T]``). The context is ``MLP(h_wp) + Embedding(command)`` (+ ``MLP(route /
+plan_traj_scale)`` with K > 0; K = 0 builds no route encoder: the paper's inputs and the weights
+of runs made before it); trajectories are handled normalized by ``cfg.plan_traj_scale``.
 
 - :class:`MLPPlanner`: direct regression; one trajectory per command (the output is the given
   command's: "command-conditioned", as VAD / ORION), each the cumulative sum of predicted steps.
@@ -51,9 +54,14 @@ class Planner(nn.Module):
         self.ctx = nn.Sequential(nn.Linear(in_width, h), nn.LayerNorm(h), nn.ReLU(),
                                  nn.Linear(h, h))
         self.cmd = nn.Embedding(self.c, h)
+        self.k_route = cfg.plan_route_points
+        if self.k_route:  # the route points ahead (module docstring)
+            self.route = mlp([2 * self.k_route, h, h])
 
-    def context(self, h_wp: torch.Tensor, command: torch.Tensor) -> torch.Tensor:
-        """``(B, plan_hidden)`` context; ``ValueError`` on bad shapes or command codes."""
+    def context(self, h_wp: torch.Tensor, command: torch.Tensor,
+                route: torch.Tensor | None = None) -> torch.Tensor:
+        """``(B, plan_hidden)`` context; ``ValueError`` on bad shapes or command codes, or a
+        missing or misshaped ``route`` ``(B, K, 2)`` where the planner has K > 0 route points."""
         if h_wp.dim() != 2 or h_wp.shape[1] != self.in_width:
             raise ValueError(f"{type(self).__name__}: h_wp has shape {tuple(h_wp.shape)}; "
                              f"expected (B, {self.in_width})")
@@ -62,7 +70,23 @@ class Planner(nn.Module):
                              f"expected ({h_wp.shape[0]},)")
         if command.numel() and (int(command.min()) < 0 or int(command.max()) >= self.c):
             raise ValueError(f"{type(self).__name__}: command codes outside [0, {self.c})")
-        return self.ctx(h_wp) + self.cmd(command.long())
+        ctx = self.ctx(h_wp) + self.cmd(command.long())
+        if not self.k_route:
+            if route is not None and route.numel():
+                raise ValueError(f"{type(self).__name__}: route points of shape "
+                                 f"{tuple(route.shape)} given to a planner without route input "
+                                 "(plan_route_points=0)")
+            return ctx
+        want = (h_wp.shape[0], self.k_route, 2)
+        if route is None:
+            raise ValueError(f"{type(self).__name__}: no route points; this planner conditions "
+                             f"on plan_route_points={self.k_route} (batch key 'route_points', "
+                             f"shape {want}: route_input.planner_route_points)")
+        if tuple(route.shape) != want:
+            raise ValueError(f"{type(self).__name__}: route points have shape "
+                             f"{tuple(route.shape)}; expected {want}")
+        norm = route.to(ctx.dtype) / self.scale.to(ctx.dtype)
+        return ctx + self.route(norm.flatten(1))
 
     def check_target(self, target: torch.Tensor | None, b: int) -> torch.Tensor | None:
         """The first ``T`` expert waypoints ``(B, T, 2)`` (m) of ``target`` or ``None``."""
@@ -89,9 +113,10 @@ class MLPPlanner(Planner):
         self.head = mlp([h, h, self.c * self.t * 2])
 
     def forward(self, h_wp: torch.Tensor, command: torch.Tensor,
-                target: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+                target: torch.Tensor | None = None, *, route: torch.Tensor | None = None
+                ) -> dict[str, torch.Tensor]:
         """``waypoints`` ``(B, T, 2)`` m of the command, ``per_command`` ``(B, C, T, 2)``."""
-        x = self.context(h_wp, command)
+        x = self.context(h_wp, command, route)
         steps = self.head(torch.relu(x)).view(-1, self.c, self.t, 2)
         per = steps.cumsum(2) * self.scale
         return {"waypoints": self.select(per, command), "per_command": per}
@@ -130,11 +155,11 @@ class VAEPlanner(Planner):
         return torch.stack(steps, 2).cumsum(2) * self.scale
 
     def forward(self, h_wp: torch.Tensor, command: torch.Tensor,
-                target: torch.Tensor | None = None, sample: bool = False
-                ) -> dict[str, torch.Tensor]:
+                target: torch.Tensor | None = None, sample: bool = False, *,
+                route: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """``waypoints`` ``(B, T, 2)`` m, ``per_command``, ``mu_p`` / ``logvar_p`` and, with a
         ``target`` (expert waypoints, ``(B, >= T, 2)`` m), ``mu_f`` / ``logvar_f``."""
-        ctx = self.context(h_wp, command)
+        ctx = self.context(h_wp, command, route)
         mu_p, logvar_p = self._gaussian(self.present(torch.relu(ctx)))
         out = {"mu_p": mu_p, "logvar_p": logvar_p}
         target = self.check_target(target, h_wp.shape[0])
@@ -237,7 +262,8 @@ class DiffusionPlanner(Planner):
         return ab.sqrt() * x0 + (1 - ab).sqrt() * noise
 
     def forward(self, h_wp: torch.Tensor, command: torch.Tensor,
-                target: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+                target: torch.Tensor | None = None, *, route: torch.Tensor | None = None
+                ) -> dict[str, torch.Tensor]:
         """``waypoints`` ``(B, T, 2)`` m of the best mode, ``mode_logits`` ``(B, K)``,
         ``mode_trajs`` ``(B, K, T, 2)`` m, ``anchors`` ``(K, T, 2)`` m. In training mode the
         anchors are noised to a random step; in eval mode :attr:`steps` DDIM steps run from the
@@ -245,7 +271,7 @@ class DiffusionPlanner(Planner):
         if not bool(self.anchors_set):
             raise ValueError("DiffusionPlanner: no anchors (set_anchors(fit_anchors(train "
                              "trajectories, cfg.plan_anchors)) before use)")
-        ctx = self.context(h_wp, command)
+        ctx = self.context(h_wp, command, route)
         b = ctx.shape[0]
         x0 = (self.anchors / self.scale).expand(b, -1, -1, -1)
         if self.training:

@@ -13,7 +13,9 @@ payload to waypoints, batched (``TensorDict`` rows are samples):
 3. DET-/MAP-CQAF and semantic fusion; the language model on the run-time prompt (speed
    ``ego[0]``, navigation command ``route[0, 2]``, the unit's pose from the message or "no
    message received", the planning question) ending with ``<wp>``;
-4. the planner (the run's: VAE by default, its latent's mean) on ``h_wp`` and the command:
+4. the planner (the run's: VAE by default, its latent's mean) on ``h_wp``, the command and
+   (``plan_route_points`` > 0) the route points ahead of ``route``
+   (:func:`~.route_input.planner_route_points`, the function training uses):
    ``waypoints`` ``(B, 6, 2)`` ego frame, 0.5 s apart, and ``target_speed`` ``(B,)``
    (:func:`target_speed`: the speed between waypoints 0 and 1).
 
@@ -91,6 +93,7 @@ class AuroraPolicyNet(nn.Module):
         """``IN_KEYS`` tensors (batched) -> ``(waypoints (B, T, 2), target_speed (B,))``."""
         from .data import model_images
         from .prompt import PLAN_QUESTION, build_prompt
+        from .route_input import ROUTE_KEY, planner_route_points
         from .system import MSG_FEATURES
 
         cams, (ego, route, info, payload) = args[:len(EGO_CAMERA_NAMES)], args[-4:]
@@ -121,6 +124,7 @@ class AuroraPolicyNet(nn.Module):
                  "input_ids": enc["input_ids"].to(dev),
                  "attention_mask": enc["attention_mask"].to(dev),
                  "command": route[:, 0, COMMAND].round().long().to(dev), "has_rsu": has,
+                 ROUTE_KEY: planner_route_points(route.cpu(), cfg).to(dev),
                  "rsu_to_ego": torch.stack([e if e is not None else torch.eye(4)
                                             for e in poses]).to(dev)}
         if bool(has.any()):

@@ -183,11 +183,10 @@ class AuroraRoadside:
             self._cams = (key, k[None], c2f[None])
         return self._cams[1], self._cams[2]
 
-    @torch.no_grad()
-    def message(self, rsu_obs: Mapping) -> dict[str, torch.Tensor]:
-        """The message tensors (:func:`~.cqaf.rsu_message`, batch 1) of one observation."""
-        import time
-
+    def inputs(self, rsu_obs: Mapping) -> dict[str, torch.Tensor]:
+        """The branch's batch-1 inputs (``images``, ``intrinsics``, ``cam_to_frame``) of one
+        observation (its camera ``rgb`` image and ``calibration[0]``); ``ValueError`` naming a
+        missing or misshapen image."""
         cam = rsu_obs.get("camera")
         if not isinstance(cam, Mapping) or "rgb" not in cam:
             raise ValueError("AuroraRoadside: the roadside observation has no camera rgb image "
@@ -197,10 +196,17 @@ class AuroraRoadside:
             raise ValueError(f"AuroraRoadside: the camera image has shape {tuple(rgb.shape)}; "
                              f"expected {(self.camera_size[1], self.camera_size[0], 3)} "
                              "(camera_size)")
-        t0 = time.perf_counter()
         k, c2f = self.camera(np.asarray(rsu_obs["calibration"][0], np.float64))
         images = model_images(rgb[None], self.cfg.image_size("rsu"))[None]
-        out = self.branch({"images": images, "intrinsics": k, "cam_to_frame": c2f})
+        return {"images": images, "intrinsics": k, "cam_to_frame": c2f}
+
+    @torch.no_grad()
+    def message(self, rsu_obs: Mapping) -> dict[str, torch.Tensor]:
+        """The message tensors (:func:`~.cqaf.rsu_message`, batch 1) of one observation."""
+        import time
+
+        t0 = time.perf_counter()
+        out = self.branch(self.inputs(rsu_obs))
         msg = rsu_message(out, self.cfg, torch.eye(4)[None])
         self.infer_s += time.perf_counter() - t0
         return msg

@@ -44,7 +44,7 @@ from torch.utils.data import DataLoader, Dataset
 from v2xbench.files import atomic_write_json
 from v2xbench.locks import dir_lock
 
-from .config import AuroraConfig
+from .config import AuroraConfig, same_config
 from .language import IGNORE, build_lm, encode_qa, load_lm, save_lm
 from .prompt import prompt_text, template_texts
 from .tokenizer import load_tokenizer, train_tokenizer
@@ -238,12 +238,7 @@ def _check_same_run(path: Path, info: dict) -> None:
     old = json.loads(path.read_text())
     diff = [k for k in ("stage", "scale", "data", "chat", "item_stride", "seed")
             if old.get(k) != info[k]]
-    try:
-        same_cfg = AuroraConfig.from_dict(old.get("config")) == AuroraConfig.from_dict(
-            info["config"])
-    except (TypeError, ValueError):
-        same_cfg = False
-    diff += [] if same_cfg else ["config"]
+    diff += [] if same_config(old.get("config"), info["config"]) else ["config"]
     if diff:
         raise ValueError(f"aurora train: {path.parent} holds a stage-0 run with other settings "
                          f"({', '.join(diff)} differ: {[old.get(k) for k in diff if k != 'config']}"

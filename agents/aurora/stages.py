@@ -25,6 +25,13 @@ cache (:mod:`.feature_cache`, ``RUN/cache``), computed once.
 Samples (:mod:`.pairs`, train split): stage 3 every ``frame_stride``-th QA item, stage 4 every
 ``frame_stride``-th frame as a planning sample, stage 5 both. ``fusion=False`` trains the No
 Fusion model: every roadside message dropped, the prompt saying none arrived.
+
+The planner's route input (``plan_route_points``, :mod:`.route_input`) is chosen per late stage:
+``route_points`` (``aurora train --plan-route-points K``) if given, else the value of stages
+1-2's run file, else (a run file from before the field) the scale's default. Stage 5 continues
+stage 4's planner and keeps its value (a different one is refused). Stage 3 does not train the
+planner, so stage 4 may add (or drop) the route encoder on top of a stage 3 without it: that is
+how stages 4-5 of an existing run are retrained with route points, stages 1-3 kept.
 """
 
 from __future__ import annotations
@@ -40,7 +47,7 @@ from torch import nn
 
 from v2xbench.files import atomic_write_json
 
-from .config import STAGE_TABLE, AuroraConfig
+from .config import ABSENT_MEANS_OFF, SCALES, STAGE_TABLE, AuroraConfig
 from .fused_heads import FusedCriterion
 from .losses import SetCriterion
 from .planner_losses import PlanningCriterion
@@ -56,6 +63,7 @@ from .system import (
 )
 
 LATE_STAGES = (3, 4, 5)
+ROUTE_ENCODER = "planner.route."  # the planner's route encoder's weights (planners.Planner)
 STAGE_NAMES = {3: "fusion + QA", 4: "planning", 5: "joint QA + planning"}
 BASE_LM_DIR = "base_lm"
 FUSED_PARTS = ("det_cls", "det_box", "map_cls", "map_pts")
@@ -139,7 +147,8 @@ def base_lm(run: Path, data: Path, cfg: AuroraConfig, lm: str | Path | None, see
 
 # ---------------------------------------------------------------------- one stage
 def _run_config(run: Path, scale: str | None) -> AuroraConfig:
-    """The configuration stages 1 and 2 of ``run`` were trained with (they must agree)."""
+    """The configuration stages 1 and 2 of ``run`` were trained with (they must agree); a
+    planner field their files predate takes the scale's default (they trained no planner)."""
     cfgs = []
     for s in (1, 2):
         path = stage_dir(run, s) / RUN_CONFIG
@@ -147,7 +156,11 @@ def _run_config(run: Path, scale: str | None) -> AuroraConfig:
             raise FileNotFoundError(f"aurora train: {stage_dir(run, s)} has no trained stage {s} "
                                     f"(train stages 1 and 2 first: `v2xbench aurora train "
                                     f"--stage {s} --out {run}`)")
-        cfgs.append(AuroraConfig.from_dict(json.loads(path.read_text())["config"]))
+        raw = json.loads(path.read_text())["config"]
+        defaults = AuroraConfig.for_scale(raw["scale"]).to_dict() \
+            if raw.get("scale") in SCALES else {}
+        cfgs.append(AuroraConfig.from_dict({k: defaults[k] for k in ABSENT_MEANS_OFF
+                                            if k in defaults} | raw))
     if cfgs[0] != cfgs[1]:
         raise ValueError(f"aurora train: stages 1 and 2 of {run} were trained with different "
                          "configurations")
@@ -155,6 +168,44 @@ def _run_config(run: Path, scale: str | None) -> AuroraConfig:
         raise ValueError(f"aurora train: {run} was trained at scale {cfgs[0].scale!r} (stages 1-2)"
                          f", not {scale!r}; drop --scale or use another run")
     return cfgs[0]
+
+
+def _route_config(run: Path, stage: int, cfg: AuroraConfig, requested: int | None
+                  ) -> AuroraConfig:
+    """``cfg`` with the stage's route input (module docstring): stage 5 keeps stage 4's
+    ``plan_route_points`` / ``plan_route_spacing``; stages 3-4 take ``requested`` if given."""
+    if stage == 5:
+        prev = AuroraConfig.from_dict(read_stage_info(run, 4)["config"])
+        if requested is not None and requested != prev.plan_route_points:
+            raise ValueError(f"aurora train: stage 4 of {run} trained its planner with "
+                             f"plan_route_points={prev.plan_route_points}; stage 5 continues it "
+                             f"(drop --plan-route-points {requested}, or retrain stage 4 with it "
+                             "in another run folder)")
+        return dataclasses.replace(cfg, plan_route_points=prev.plan_route_points,
+                                   plan_route_spacing=prev.plan_route_spacing)
+    if requested is None:
+        return cfg
+    return dataclasses.replace(cfg, plan_route_points=requested)
+
+
+def _load_previous(system: AuroraSystem, run: Path, stage: int) -> None:
+    """The whole checkpoint of stage ``stage - 1`` into ``system``. Stage 4 on a stage 3 of
+    another route input (stage 3 does not train the planner): the route encoder keeps its fresh
+    weights (or is not loaded); every other weight must fit."""
+    from safetensors.torch import load_file
+
+    from .trainer import load_weights
+
+    ckpt = stage_dir(run, stage - 1) / CHECKPOINT
+    prev = AuroraConfig.from_dict(read_stage_info(run, stage - 1)["config"])
+    if stage != 4 or prev.plan_route_points == system.cfg.plan_route_points:
+        load_weights(system, ckpt)
+        return
+    state = {k: v for k, v in load_file(str(ckpt)).items() if not k.startswith(ROUTE_ENCODER)}
+    missing, unexpected = system.load_state_dict(state, strict=False)
+    bad = [k for k in missing if not k.startswith(ROUTE_ENCODER)] + list(unexpected)
+    if bad:
+        raise ValueError(f"load_weights: {ckpt} does not fit the model: {bad[:5]}")
 
 
 def _items(data: Path, stage: int, frames, stride: int) -> list:
@@ -177,6 +228,10 @@ def _check_same_run(path: Path, info: dict) -> None:
     diff = [k for k in keys if old.get(k) != json.loads(json.dumps(info[k]))]
     if not _same_config(old.get("config"), info["config"]):
         diff.append("config")
+    else:  # a run file without the key trained a planner without route input
+        k_old = AuroraConfig.from_dict(old["config"]).plan_route_points
+        if k_old != info["config"]["plan_route_points"]:
+            diff.append("config")
     if diff:
         raise ValueError(f"aurora train: {path.parent} holds a run with other settings "
                          f"({', '.join(diff)} differ: {[old.get(k) for k in diff]} vs "
@@ -198,7 +253,7 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
                      max_steps: int | None = None, stride: int | None = None, seed: int = 0,
                      progress: bool = True, num_workers: int | None = None,
                      lm: str | Path | None = None, fusion: bool = True,
-                     cache: bool = True) -> dict:
+                     cache: bool = True, route_points: int | None = None) -> dict:
     """Train stage 3, 4 or 5 of ``out`` on the train split of ``data`` (module docstring).
 
     Args:
@@ -210,6 +265,8 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
         lm: stage 3 only: a local Hugging Face causal-LM folder for the base LM.
         fusion: ``False`` trains the No Fusion model (stage 3 decides; later stages follow).
         cache: use the feature cache while the branches are frozen.
+        route_points: the planner's ``plan_route_points`` (stages 3-4; default: the run's,
+            module docstring; stage 5 keeps stage 4's).
 
     Returns:
         :func:`~.trainer.fit`'s summary plus ``stage``, ``branch`` (the stage's name),
@@ -220,6 +277,7 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
         FileNotFoundError: no data, no earlier stage, no QA items. ValueError: a run folder of
             other settings, ``lm`` for a later stage, a fusion setting other than stage 3's.
     """
+    from . import distributed as ddp
     from .data import AuroraFrames
     from .feature_cache import ensure_cache
     from .pairs import AuroraPairs, make_pair_loader
@@ -231,7 +289,8 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
     data, run = Path(data), Path(out)
     if not data.is_dir():
         raise FileNotFoundError(f"aurora train: data directory {data} does not exist")
-    cfg = _run_config(run, scale)
+    cfg = _route_config(run, stage, _run_config(run, scale), route_points)
+    device = ddp.setup(device)  # under torchrun: join the group; rank 0 builds shared files
     hp = cfg.stage_hparams(stage)
     if stride is not None:
         hp = dataclasses.replace(hp, frame_stride=stride)
@@ -241,7 +300,7 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
     sdir = stage_dir(run, stage)
     sdir.mkdir(parents=True, exist_ok=True)
     if stage == 3:
-        lm_info = base_lm(run, data, cfg, lm, seed)
+        lm_info = ddp.main_first(lambda: base_lm(run, data, cfg, lm, seed))
     else:
         if lm is not None:
             raise ValueError("aurora train: --lm chooses stage 3's base LM; later stages use "
@@ -261,7 +320,7 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
         load_weights(system.ego, stage_dir(run, 1) / CHECKPOINT)
         load_weights(system.rsu, stage_dir(run, 2) / CHECKPOINT)
     else:
-        load_weights(system, stage_dir(run, stage - 1) / CHECKPOINT)
+        _load_previous(system, run, stage)
     system.set_trainable(branches=not frozen, planner=stage >= 4)
     frames = AuroraFrames(data, "train", "ego", cfg, images=False)
     items = _items(data, stage, frames, hp.frame_stride)
@@ -270,10 +329,9 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
     feature_cache = None
     if use_cache:
         fids = sorted({fid for fid, _, _ in items})
-        feature_cache, cstats = ensure_cache(system, data, "train", fids, run / "cache",
-                                             batch_size=hp.batch_size,
-                                             num_workers=hp.num_workers, device=device,
-                                             progress=progress)
+        feature_cache, cstats = ddp.main_first(lambda: ensure_cache(
+            system, data, "train", fids, run / "cache", batch_size=hp.batch_size,
+            num_workers=hp.num_workers, device=device, progress=progress and ddp.is_main()))
     ds = AuroraPairs(data, "train", cfg, tok, items, fusion=fusion, images=not use_cache,
                      cache=feature_cache, speed_dropout=cfg.plan_speed_dropout, seed=seed)
     if stage == 4 and cfg.planner == "diffusion" and not bool(system.planner.anchors_set):
@@ -289,19 +347,22 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
             "from": "stages 1-2" if stage == 3 else f"stage{stage - 1}",
             "trains": STAGE_TABLE[stage], "camera_size": list(frames.recorded_size)}
     _check_same_run(sdir / RUN_CONFIG, info)
-    atomic_write_json(sdir / RUN_CONFIG, info, indent=1)
+    if ddp.is_main():
+        atomic_write_json(sdir / RUN_CONFIG, info, indent=1)
     loader = make_pair_loader(ds, hp.batch_size, shuffle=True, seed=seed,
                               num_workers=hp.num_workers)
     criterion = StageCriterion(cfg, stage, live_branches=not frozen)
     summary = fit(system, criterion, loader, sdir, hp, device=device, seed=seed,
                   progress=progress, max_steps=max_steps)
-    _save_adapter(system, sdir / ADAPTER_DIR)
+    if ddp.is_main():
+        _save_adapter(system, sdir / ADAPTER_DIR)
     if cstats is not None:  # what the cache saves: the branches' forward pass per sample
         cstats["branch_s_per_epoch_without_cache"] = cstats["ms_per_frame"] * len(ds) / 1e3
     summary.update(stage=stage, branch=STAGE_NAMES[stage], frames=len(set(ds.frame_ids())),
                    scale=cfg.scale, samples=info["samples"], lm=lm_info, cache=cstats,
                    fusion=bool(fusion))
-    atomic_write_json(sdir / "train_summary.json", summary, indent=1)
+    if ddp.is_main():
+        atomic_write_json(sdir / "train_summary.json", summary, indent=1)
     return summary
 
 

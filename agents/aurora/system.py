@@ -12,7 +12,8 @@ planner (:mod:`.planners`). One forward pass on a batch (:mod:`.pairs`) runs:
 2. CQAF: DET-CQAF, MAP-CQAF, fused heads, semantic fusion -> ``T^f_det``, ``T^f_map``;
 3. the language model on the prompt with the fused tokens in place of ``<det>`` / ``<map>``
    (next-token loss where the batch has ``labels``), giving the ``<wp>`` hidden state;
-4. the planner on ``h_wp`` and the navigation command (rows with ``plan_mask``).
+4. the planner on ``h_wp``, the navigation command and (``cfg.plan_route_points`` > 0) the
+   route points ahead, ``route_points`` (:mod:`.route_input`) (rows with ``plan_mask``).
 
 Run files (``RUN/stage<N>/``, written by :mod:`.stages`): ``aurora.json`` (config, the LM's
 base folder, fusion, data), the trainer's ``checkpoint.safetensors`` (every weight of the
@@ -34,6 +35,7 @@ from .config import AuroraConfig
 from .cqaf import CQAF, empty_message, rsu_message
 from .language import AuroraLM, add_lora, load_lm
 from .planners import build_planner
+from .route_input import ROUTE_KEY
 from .rsu_agent import to_wire
 
 #: Ego-branch outputs CQAF and the LM read (the last decoder layer), per sample.
@@ -175,7 +177,7 @@ class AuroraSystem(nn.Module):
 
         Args:
             batch: see :mod:`.pairs` (``input_ids``, ``attention_mask``, optional ``labels``,
-                ``command``, ``plan_mask``, ``expert_waypoints``, ...).
+                ``command``, ``route_points``, ``plan_mask``, ``expert_waypoints``, ...).
             plan: run the planner (default: when the batch has ``plan_mask`` and any row is
                 set). In training mode the planner sees the expert trajectory (VAE's future
                 distribution).
@@ -205,7 +207,8 @@ class AuroraSystem(nn.Module):
         if plan:
             target = batch.get("expert_waypoints") if self.training else None
             kw = {"sample": sample} if self.cfg.planner == "vae" and target is None else {}
-            out["plan"] = self.planner(lm["h_wp"], batch["command"], target, **kw)
+            out["plan"] = self.planner(lm["h_wp"], batch["command"], target,
+                                       route=batch.get(ROUTE_KEY), **kw)
         return out
 
 

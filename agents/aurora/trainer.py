@@ -20,6 +20,11 @@ torch RNG is re-seeded from ``(seed, step)`` before every step, so a run is a fu
 seed and an interrupted run that resumes from ``out_dir`` continues at the same step with the
 same batches and gives the same losses as an uninterrupted one. ``fit`` holds
 ``v2xbench.locks.dir_lock(out_dir)`` while it runs (pass ``lock=False`` if the caller holds it).
+
+Under ``torchrun --nproc_per_node N`` the same call trains data-parallel (:mod:`.distributed`:
+DistributedDataParallel, gloo on CPUs, NCCL on GPUs): each process takes its share of every
+global batch of ``hp.batch_size`` samples, the logged losses are the global batch's, and only
+rank 0 writes files; the result equals the single-process run for batch-mean losses.
 """
 
 from __future__ import annotations
@@ -40,6 +45,7 @@ from tqdm import tqdm
 from v2xbench.files import atomic_write, atomic_write_bytes, atomic_write_json, remove_stale_tmp
 from v2xbench.locks import dir_lock
 
+from . import distributed as ddp
 from .config import StageHParams
 
 CHECKPOINT = "checkpoint.safetensors"
@@ -252,9 +258,12 @@ def fit(model: nn.Module, criterion: nn.Module, train_loader: DataLoader, out_di
         raise ValueError(f"fit: log_every={log_every} must be >= 1")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    ctx = dir_lock(out, "aurora training") if lock else _nullcontext(out)
+    device = ddp.setup(device)
+    main = ddp.is_main()
+    ctx = dir_lock(out, "aurora training") if lock and main else _nullcontext(out)
     with ctx:
-        remove_stale_tmp(out)
+        if main:
+            remove_stale_tmp(out)
         return _fit(model, criterion, train_loader, out, hp, device, seed, progress,
                     max_steps, log_every)
 
@@ -278,8 +287,10 @@ def _fit(model, criterion, loader, out, hp, device, seed, progress, max_steps, l
         raise ValueError(f"fit: {n} training samples give no batch of {hp.batch_size}")
     total = hp.epochs * spe
     stop = total if max_steps is None else min(max_steps, total)
+    main = ddp.is_main()
     model.to(device).train()
     criterion.to(device)
+    net = ddp.wrap(model, device)
     params = [p for p in model.parameters() if p.requires_grad]
     opt = torch.optim.AdamW(params, lr=hp.lr, betas=tuple(hp.betas),
                             weight_decay=hp.weight_decay)
@@ -288,33 +299,43 @@ def _fit(model, criterion, loader, out, hp, device, seed, progress, max_steps, l
         "seed": seed, "steps_per_epoch": spe, "total_steps": total, "samples": n}
     start = step = state["step"]
     records = _read_log(out / LOG, start)  # drop lines logged after the last checkpoint
-    atomic_write_bytes(out / LOG, "".join(json.dumps(r) + "\n" for r in records).encode())
+    ddp.barrier()  # every rank has read the run's files before rank 0 rewrites any
+    if main:
+        atomic_write_bytes(out / LOG, "".join(json.dumps(r) + "\n" for r in records).encode())
 
     def save() -> None:
         state.update(step=step, epoch=step // spe, done=step >= total)
-        _save(out, model, opt, state, records)
+        if main:
+            _save(out, model, opt, state, records)
 
-    bar = tqdm(total=total, initial=start, disable=not progress, dynamic_ncols=True,
+    bar = tqdm(total=total, initial=start, disable=not (progress and main), dynamic_ncols=True,
                desc=f"train {out.name}")
     t_data = t_comp = 0.0
     done_samples, recent, running = 0, [], None
     t_start = time.perf_counter()
     try:
-        with open(out / LOG, "a") as logf:
+        with open(out / LOG, "a") if main else _nullcontext(None) as logf:
             while step < stop:
                 epoch, skip = divmod(step, spe)
                 batches = epoch_batches(n, hp.batch_size, seed, epoch, shuffle, loader.drop_last)
-                it = iter(_epoch_loader(loader, batches[skip:], seed, epoch))
+                sizes = [len(b) for b in batches[skip:]]
+                shares = [ddp.shard(b) for b in batches[skip:]]
+                counts = [len(x) for x in shares]
+                # a rank whose share of a short batch is empty runs one sample with weight 0
+                mine = [x or b[:1] for x, b in zip(shares, batches[skip:])]
+                it = iter(_epoch_loader(loader, mine, seed, epoch))
                 while step < stop and step < (epoch + 1) * spe:
                     t0 = time.perf_counter()
                     batch = _to(next(it), device)
                     t1 = time.perf_counter()
                     lr = lr_at(step, total, hp)
-                    loss, parts, grad_norm = _step(model, criterion, opt, params, batch, hp, lr,
-                                                   _mix(seed, step, 3), step)
+                    k = step - epoch * spe - skip
+                    size = sizes[k]
+                    loss, parts, grad_norm = _step(net, criterion, opt, params, batch, hp, lr,
+                                                   _mix(seed, step, 3), step, size, counts[k])
                     t2 = time.perf_counter()
                     step += 1
-                    done_samples += _batch_size(batch)
+                    done_samples += size
                     t_data, t_comp = t_data + t1 - t0, t_comp + t2 - t1
                     rec = {"step": step, "epoch": epoch, "loss": loss, **parts, "lr": lr,
                            "grad_norm": grad_norm, "data_s": t1 - t0, "compute_s": t2 - t1}
@@ -322,8 +343,9 @@ def _fit(model, criterion, loader, out, hp, device, seed, progress, max_steps, l
                     running = loss if running is None else 0.95 * running + 0.05 * loss
                     if step % log_every == 0 or step == total:
                         records.append(rec)
-                        logf.write(json.dumps(rec) + "\n")
-                        logf.flush()
+                        if main:
+                            logf.write(json.dumps(rec) + "\n")
+                            logf.flush()
                     bar.update(1)
                     bar.set_postfix(loss=f"{running:.4g}", lr=f"{lr:.2e}")
                 del it
@@ -336,6 +358,7 @@ def _fit(model, criterion, loader, out, hp, device, seed, progress, max_steps, l
         bar.close()
     if step == start and not (out / CHECKPOINT).is_file():
         save()
+    ddp.barrier()  # rank 0's files are complete when any rank returns
     busy = t_data + t_comp
     return {"steps": step, "epochs": step // spe, "total_steps": total, "done": step >= total,
             "resumed_from": start, "final_loss": sum(recent) / len(recent) if recent else None,
@@ -345,9 +368,11 @@ def _fit(model, criterion, loader, out, hp, device, seed, progress, max_steps, l
 
 
 def _step(model: nn.Module, criterion: nn.Module, opt: torch.optim.Optimizer, params: list,
-          batch: Any, hp: StageHParams, lr: float, rng_seed: int, step: int
-          ) -> tuple[float, dict[str, float], float]:
-    """One optimizer step at learning rate ``lr``; returns (loss, parts, gradient norm)."""
+          batch: Any, hp: StageHParams, lr: float, rng_seed: int, step: int, size: int,
+          local: int) -> tuple[float, dict[str, float], float]:
+    """One optimizer step at learning rate ``lr`` on this process's share (``local`` samples;
+    0: a stand-in sample of weight 0) of a global batch of ``size`` samples; returns the global
+    batch's (loss, parts) and the gradient norm."""
     for g in opt.param_groups:
         g["lr"] = lr
     torch.manual_seed(rng_seed)  # dropout etc.: a function of (seed, step), so resume is exact
@@ -355,11 +380,13 @@ def _step(model: nn.Module, criterion: nn.Module, opt: torch.optim.Optimizer, pa
     if not torch.isfinite(loss):
         raise FloatingPointError(f"fit: loss is {float(loss)} at step {step + 1}")
     opt.zero_grad(set_to_none=True)
-    loss.backward()
+    (loss * ddp.local_loss_scale(local, size) if ddp.world_size() > 1 else loss).backward()
     clip = hp.grad_clip if hp.grad_clip > 0 else float("inf")
     grad_norm = float(nn.utils.clip_grad_norm_(params, clip))
     opt.step()
-    return float(loss.detach()), parts, grad_norm
+    if ddp.world_size() > 1:
+        parts = {k: ddp.global_mean(float(v), local, size) for k, v in parts.items()}
+    return ddp.global_mean(float(loss.detach()), local, size), parts, grad_norm
 
 
 def _batch_size(batch: Any) -> int:

@@ -18,6 +18,7 @@ Commands:
     warmup      compile the numba kernels ahead of time (first use in a fresh environment)
     aurora      AURORA: train (stages 0-5, pipeline), export weights, evaluate perception and
                 planning, ask / answer Chat-V2XBench questions
+    baselines   the paper's cooperative baselines (UniV2X): train, evaluate perception
 """
 
 from __future__ import annotations
@@ -25,10 +26,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-from v2xbench.cli import aurora, bench, data, drive, evaluation, warmup
+from v2xbench.cli import aurora, baselines, bench, data, drive, evaluation, warmup
 
 #: Sub-command modules, each with ``register(subparsers)``, in help order.
-COMMAND_MODULES = (drive, evaluation, bench, data, warmup, aurora)
+COMMAND_MODULES = (drive, evaluation, bench, data, warmup, aurora, baselines)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -27,11 +27,14 @@ def _train(args: argparse.Namespace) -> int:
         s = train_late_stage(args.data, args.out, args.stage, scale=args.scale,
                              device=args.device, max_steps=args.max_steps, stride=args.stride,
                              seed=args.seed, progress=not args.quiet, num_workers=args.workers,
-                             lm=args.lm, fusion=not args.no_fusion, cache=not args.no_cache)
+                             lm=args.lm, fusion=not args.no_fusion, cache=not args.no_cache,
+                             route_points=args.plan_route_points)
         print(format_late_summary(s))
         return 0
-    if args.lm is not None or args.no_fusion or args.no_cache:
-        raise ValueError("--lm, --no-fusion and --no-cache apply to stages 3-5")
+    if args.lm is not None or args.no_fusion or args.no_cache \
+            or args.plan_route_points is not None:
+        raise ValueError("--lm, --no-fusion, --no-cache and --plan-route-points apply to "
+                         "stages 3-5")
     s = train_stage(args.data, args.out, args.stage, scale=args.scale or "default",
                     device=args.device, max_steps=args.max_steps, stride=args.stride,
                     seed=args.seed, progress=not args.quiet, num_workers=args.workers)
@@ -42,9 +45,10 @@ def _train(args: argparse.Namespace) -> int:
 def _train_stage0(args: argparse.Namespace) -> int:
     from v2xbench.agents.aurora.stage0 import format_stage0_summary, train_stage0
 
-    if args.lm is not None or args.no_fusion or args.no_cache:
-        raise ValueError("--lm, --no-fusion and --no-cache apply to stages 3-5 (--lm replaces "
-                         "stage 0's model)")
+    if args.lm is not None or args.no_fusion or args.no_cache \
+            or args.plan_route_points is not None:
+        raise ValueError("--lm, --no-fusion, --no-cache and --plan-route-points apply to "
+                         "stages 3-5 (--lm replaces stage 0's model)")
     s = train_stage0(args.data, args.out, scale=args.scale or "default", chat=args.chat,
                      device=args.device, max_steps=args.max_steps, stride=args.stride,
                      seed=args.seed, progress=not args.quiet)
@@ -161,6 +165,10 @@ def register(sub) -> None:
                    "model (roadside messages dropped)")
     t.add_argument("--no-cache", action="store_true", help="stages 3-5: run the frozen "
                    "branches every step instead of caching their outputs")
+    t.add_argument("--plan-route-points", type=_int_in(0), default=None, metavar="K",
+                   help="stages 3-4: the planner's route input, K route points ahead (0: none, "
+                   "the paper's inputs; default: the run's, else the scale's); stage 5 keeps "
+                   "stage 4's")
     t.set_defaults(func=_train)
     _register_pipeline(asub)
     x = asub.add_parser("export", help="write what inference needs of a trained stage (weights "

@@ -1,0 +1,13 @@
+"""The paper's cooperative baselines (issue #34), each a CPU-sized variant of the published
+architecture, trained on the same expert data with AURORA's loop (:mod:`..aurora.trainer`) and
+driving behind the same agent interface, its roadside half as the ``"rsu"`` agent:
+
+- :mod:`.univ2x`: UniV2X (Yu et al., AAAI 2025), registered as ``univ2x``.
+
+Nothing heavy is imported here: each baseline's agent module loads torch in its constructor.
+"""
+
+#: Baselines with a training command (``v2xbench baselines train NAME``): name -> module.
+BASELINES = {"univ2x": "v2xbench.agents.baselines.univ2x"}
+
+__all__ = ["BASELINES"]

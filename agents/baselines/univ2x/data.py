@@ -1,0 +1,127 @@
+"""UniV2X's training and evaluation samples: one frame of a collected data set, both agents.
+
+Built from AURORA's samples (:class:`~v2xbench.agents.aurora.data.AuroraFrames`: images resized
+to the model's size, intrinsics and ``cam_to_frame`` from the recorded calibration, targets cut
+to each agent's range) plus the frame's planning data. Keys (shapes without the leading ``B``):
+
+=====================================  ===================================================
+key                                    content
+=====================================  ===================================================
+``ego/images``, ``ego/intrinsics``,    the ego's six cameras and ``gt/ego`` targets (ego
+``ego/cam_to_frame``, ``ego/det_*``    frame, ego range)
+``rsu/images``, ..., ``rsu/det_*``     the active unit's camera and ``gt/rsu`` in its ground
+                                       frame (zeros, identity calibration without a unit)
+``has_rsu``                            () bool: a unit serves the ego in this frame
+``rsu_to_ego``                         (4, 4) ``E_{r->e}`` (AURORA's ``cqaf.rsu_to_ego``;
+                                       identity without a unit)
+``det_boxes``, ``det_labels``,         ``gt/fused`` in the ego frame, cut to the ego range
+``det_mask``                           (the fused detection and occupancy targets)
+``command``, ``ego_speed``             () navigation command, speed (m/s)
+``route_points``                       (R, 2) the route points ahead (AURORA's planner input)
+``expert_waypoints``                   (8, 2) the expert's future positions, 0.5 s apart
+``frame_id``                           () global frame index
+=====================================  ===================================================
+
+Frames: every ``stride``-th frame of each episode of the split.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+from v2xbench.agents.aurora.cqaf import rsu_to_ego
+from v2xbench.agents.aurora.data import CALIB_KEYS, AuroraFrames, encode_targets, in_range
+from v2xbench.agents.aurora.route_input import route_points_ahead
+from v2xbench.collectors.dataset.loader import V2XDataset
+
+from .config import UniV2XConfig
+
+EXTRA_KEYS = ("ego_speed", "command", "route", "expert_waypoints", ("gt", "fused", "boxes"),
+              ("gt", "fused", "class"), ("gt", "fused", "mask"))
+_DROP = ("map_points", "map_labels", "map_mask", "map_closed", "light", "frame_id")
+
+
+class UniV2XFrames(Dataset):
+    """Samples of both agents over one split (module docstring).
+
+    Args:
+        root: data set folder (``v2xbench collect --out``). split: ``train``, ``val``, ``test``
+            or ``all``. cfg: the model configuration. stride: every ``stride``-th frame.
+
+    Raises:
+        FileNotFoundError: no data set at ``root``. ValueError: a data set without camera
+            images, an unknown split, a bad stride (AURORA's messages name the problem).
+    """
+
+    def __init__(self, root: str | Path, split: str, cfg: UniV2XConfig, stride: int = 1) -> None:
+        self.cfg, self.dcfg = cfg, cfg.data_config()
+        self.ego = AuroraFrames(root, split, "ego", self.dcfg, stride=stride)
+        try:
+            self.rsu: AuroraFrames | None = AuroraFrames(root, split, "rsu", self.dcfg)
+        except ValueError:  # no frame of the split has an active unit
+            self.rsu = None
+        self.extra = V2XDataset(root, split, keys=list(EXTRA_KEYS))
+        self.frame_ids = self.ego.frame_ids
+        self.range = tuple(float(v) for v in cfg.ego_range)
+        self._blank: dict[str, torch.Tensor] | None = None
+
+    def __len__(self) -> int:
+        return len(self.frame_ids)
+
+    @property
+    def recorded_size(self) -> tuple[int, int]:
+        """``(width, height)`` of the recorded camera images."""
+        return self.ego.recorded_size
+
+    def _blank_rsu(self, like: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        if self._blank is None:
+            w, h = self.cfg.image_size
+            m = like["det_boxes"].shape[0]
+            boxes = torch.zeros(m, 10)
+            boxes[:, 3:6], boxes[:, 7] = 1.0, 1.0  # padding rows: 1 m boxes, yaw 0
+            self._blank = {"images": torch.zeros(1, 3, h, w), "intrinsics": torch.eye(3)[None],
+                           "cam_to_frame": torch.eye(4)[None], "det_boxes": boxes,
+                           "det_labels": torch.zeros(m, dtype=torch.long),
+                           "det_mask": torch.zeros(m, dtype=torch.bool)}
+        return {k: v.clone() for k, v in self._blank.items()}
+
+    def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
+        fid = int(self.frame_ids[index])
+        td = self.ego.ds[fid]
+        calib = {k: td["calib", k].numpy() for k in CALIB_KEYS}
+        ego = self.ego.sample(td, calib, fid)
+        has = self.rsu is not None and int(calib["rsu_unit"]) >= 0
+        rsu = self.rsu.sample(self.rsu.ds[fid], calib, fid) if has else self._blank_rsu(ego)
+        x = self.extra[fid]
+        out = {f"ego/{k}": v for k, v in ego.items() if k not in _DROP}
+        out.update({f"rsu/{k}": v for k, v in rsu.items() if k not in _DROP})
+        out.update(self._fused_targets(x))
+        e = rsu_to_ego(calib["T_world_ego"], calib["T_world_rsu"]) if has else torch.eye(4)
+        out.update(
+            has_rsu=torch.tensor(has), rsu_to_ego=e.float(),
+            command=torch.tensor(int(x["command"]), dtype=torch.long),
+            ego_speed=torch.tensor(float(x["ego_speed"]), dtype=torch.float32),
+            route_points=route_points_ahead(x["route"], self.cfg.plan_route_points,
+                                            self.cfg.plan_route_spacing),
+            expert_waypoints=x["expert_waypoints"].float(), frame_id=torch.tensor(fid))
+        return out
+
+    def _fused_targets(self, x) -> dict[str, torch.Tensor]:
+        """``gt/fused`` (ego frame) cut to the ego range, in AURORA's target layout."""
+        mask = x["gt", "fused", "mask"].numpy().astype(bool)
+        boxes = x["gt", "fused", "boxes"].numpy()
+        keep = mask & in_range(boxes[:, :3], self.range)
+        m, n = len(mask), int(keep.sum())
+        det = np.zeros((m, 10), np.float32)
+        det[:, 3:6], det[:, 7] = 1.0, 1.0
+        det[:n] = encode_targets(boxes[keep])
+        labels = np.zeros(m, np.int64)
+        labels[:n] = x["gt", "fused", "class"].numpy()[keep]
+        return {"det_boxes": torch.from_numpy(det), "det_labels": torch.from_numpy(labels),
+                "det_mask": torch.arange(m) < n}
+
+
+__all__ = ["EXTRA_KEYS", "UniV2XFrames"]

@@ -1,0 +1,210 @@
+"""UniV2X baseline (issue #34): Lift-Splat geometry, the roadside reference point and occupancy in
+the ego frame, the message's bytes through the channel, oversized messages, overfitting two
+samples, and `v2xbench baselines train univ2x` -> `v2xbench eval --agent univ2x`."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+
+import numpy as np
+import pytest
+import torch
+from v2xbench.agents.aurora.position import lid_depths
+from v2xbench.agents.baselines.univ2x.bev import LiftSplatEncoder, box_occupancy
+from v2xbench.agents.baselines.univ2x.config import UniV2XConfig
+from v2xbench.agents.baselines.univ2x.fusion import AgentFusion, OccupancyFusion
+from v2xbench.agents.baselines.univ2x.message import (
+    deserialize_message,
+    rsu_message,
+    serialize_message,
+)
+from v2xbench.agents.baselines.univ2x.model import RoadsideNet, UniV2X
+from v2xbench.envs.v2x_intersection.channel import Channel, ChannelConfig, validate_message
+from v2xbench.envs.v2x_intersection.geometry import pose_matrix
+from v2xbench.envs.v2x_intersection.wire import FORMAT_RAW, HEADER_SIZE, encode_message
+
+from v2xbench.cli import main
+
+torch.set_num_threads(1)
+CFG = UniV2XConfig.for_scale("tiny")
+
+
+def _forward_camera() -> tuple[torch.Tensor, torch.Tensor]:
+    """A 64 x 32 camera at the frame's origin looking along +x (fx = fy = 32, centre 32, 16)."""
+    k = torch.tensor([[32.0, 0, 32], [0, 32, 16], [0, 0, 1]])
+    c2f = torch.eye(4)
+    c2f[:3, :3] = torch.tensor([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]])  # optical -> x fwd, y left
+    return k[None, None], c2f[None, None]
+
+
+def test_lift_splat_puts_a_feature_at_a_known_pixel_and_depth_into_its_bev_cell():
+    enc = LiftSplatEncoder(CFG, "rsu")  # range x 0..80, y -40..40 m, 16 x 16 cells of 5 m
+    k, c2f = _forward_camera()
+    tokens = (64 // 8) * (32 // 8)
+    depth = torch.zeros(1, 1, tokens, CFG.depth_bins)
+    t, d = 1 * 8 + 3, 3  # token row 1, column 3: pixel centre (28, 12); depth bin 3
+    depth[0, 0, t, d] = 1.0
+    context = torch.randn(1, 1, tokens, CFG.bev_channels)
+    bev = enc.lift_splat(depth, context, k, c2f)
+    z = float(lid_depths(CFG.depth_bins, CFG.depth_near, CFG.rsu_depth_far)[d])
+    assert abs(z - 37.2) < 1e-4  # 2 + 88 * 3 * 4 / 30
+    x, y = z, -(28 - 32) / 32 * z  # 37.2 m ahead, 4.65 m to the left (and 4.65 m up)
+    i, j = math.floor(x / 5.0), math.floor((y + 40.0) / 5.0)
+    assert (i, j) == (7, 8)
+    assert torch.allclose(bev[0, :, i, j], context[0, 0, t], atol=1e-6)
+    bev[0, :, i, j] = 0.0
+    assert float(bev.abs().max()) == 0.0  # nothing anywhere else
+    depth[0, 0, t] = 0.0
+    depth[0, 0, t, CFG.depth_bins - 1] = 1.0  # 90 m: beyond the range, dropped
+    assert float(enc.lift_splat(depth, context, k, c2f).abs().max()) == 0.0
+
+
+def test_roadside_reference_points_reach_the_right_ego_points_and_associate():
+    fusion = AgentFusion(CFG)
+    e = torch.from_numpy(pose_matrix(10.0, 5.0, 0.0, math.pi / 2).astype(np.float32))[None]
+    k = CFG.msg_topk
+    msg = {"queries": torch.randn(1, k, CFG.width), "ref": torch.zeros(1, k, 3),
+           "scores": torch.full((1, k), 0.9), "mask": torch.zeros(1, k, dtype=torch.bool),
+           "occ": torch.zeros(1, *CFG.msg_occ)}
+    msg["ref"][0, 0] = torch.tensor([3.0, 0.0, 0.0])  # -> ego (10, 8, 0)
+    msg["ref"][0, 1] = torch.tensor([3.0, 2.0, 0.5])  # -> ego (8, 8, 0.5)
+    msg["mask"][0, :2] = True
+    q = CFG.num_queries
+    ego_ref = torch.full((1, q, 3), 40.0)
+    ego_ref[0, 0] = torch.tensor([8.5, 8.0, 0.0])  # one confident ego agent near roadside agent 1
+    scores = torch.zeros(1, q)
+    scores[0, 0] = 0.9
+    out = fusion(torch.randn(1, q, CFG.width), ego_ref, scores, msg, e)
+    assert torch.allclose(out["rsu_ref"][0, 0], torch.tensor([10.0, 8.0, 0.0]), atol=1e-5)
+    assert torch.allclose(out["rsu_ref"][0, 1], torch.tensor([8.0, 8.0, 0.5]), atol=1e-5)
+    assert out["match"][0, 0] == 1 and (out["match"][0, 1:] == -1).all()
+    appended = out["mask"][0, q:]
+    assert appended[0] and not appended[1] and not appended[2:].any()  # 1 fused, 0 appended
+    assert torch.allclose(out["ref"][0, q], torch.tensor([10.0, 8.0, 0.0]), atol=1e-5)
+
+
+def test_roadside_occupancy_warps_onto_the_ego_cell_of_its_object():
+    occ_f = OccupancyFusion(CFG)
+    e = torch.from_numpy(pose_matrix(-20.0, 10.0, 0.0, math.pi / 2).astype(np.float32))[None]
+    box = torch.tensor([[[25.0, -15.0, 0.0, 4.0, 2.0, 1.5, 0.0, 1.0, 0.0, 0.0]]])
+    occ = box_occupancy(box, torch.zeros(1, 1, dtype=torch.long), torch.ones(1, 1, dtype=bool),
+                        CFG.rsu_range, CFG.msg_occ)  # an object in the unit's frame
+    assert int(occ.sum()) >= 1
+    warped = occ_f.warp(occ, e)
+    ego_xy = (-20.0 + 15.0, 10.0 + 25.0)  # Rz(90 deg) (25, -15) + (-20, 10)
+    cell = 102.4 / 16
+    i, j = math.floor((ego_xy[0] + 51.2) / cell), math.floor((ego_xy[1] + 51.2) / cell)
+    prob = warped[0, 0]
+    assert prob[i, j] > 0.5 and divmod(int(prob.argmax()), 16) == (i, j)
+    assert warped[0, 1, i, j] == 1.0 and warped[0, 1, 0, 0] == 0.0  # inside / outside the range
+
+
+def _rsu_payload() -> tuple[np.ndarray, dict]:
+    torch.manual_seed(0)
+    net = RoadsideNet(CFG).eval()
+    k, c2f = _forward_camera()
+    with torch.no_grad():
+        out = net({"images": torch.rand(1, 1, 3, 32, 64), "intrinsics": k, "cam_to_frame": c2f})
+    msg = rsu_message(out, CFG)
+    return serialize_message(msg), msg
+
+
+def test_message_bytes_are_what_the_channel_counts():
+    payload, msg = _rsu_payload()
+    f = CFG.message_floats()
+    assert payload.shape == (f,) and f == 6 + CFG.msg_topk * (4 + CFG.width) + 8 * 8
+    ch = Channel(ChannelConfig(max_payload_floats=f), np.random.default_rng(0))
+    sent = ch.send(0, 0, f, payload, FORMAT_RAW)
+    assert sent == HEADER_SIZE + 2 * f == len(encode_message(0, 0, payload, fmt=FORMAT_RAW))
+    assert ch.stats()["bytes_sent_total"] == sent
+    back = deserialize_message(payload, CFG)
+    for key in ("queries", "ref", "scores", "occ"):
+        assert torch.allclose(back[key], msg[key].to(torch.float16).float(), atol=1e-6)
+    with pytest.raises(ValueError, match="not a UniV2X roadside message"):
+        deserialize_message(np.r_[1717.0, payload[1:]], CFG)
+    with pytest.raises(ValueError, match="K=3"):  # another model's sizes
+        deserialize_message(serialize_message({k: v[:, :3] if k != "occ" else v
+                                               for k, v in msg.items()}), CFG)
+
+
+def test_an_oversized_message_is_refused():
+    payload, _ = _rsu_payload()
+    f = len(payload)
+    small = ChannelConfig(max_payload_floats=f - 1)
+    with pytest.raises(ValueError, match=f"oversized message: length {f} .*{f - 1}"):
+        Channel(small, np.random.default_rng(0)).send(0, 0, f, payload, FORMAT_RAW)
+    with pytest.raises(ValueError, match="oversized"):
+        validate_message({"length": f, "payload": np.zeros(f - 1, np.float32)}, small)
+    with pytest.raises(ValueError, match="max_payload_floats <= 65535"):
+        UniV2XConfig.for_scale("tiny", msg_topk=16, width=4096, heads=2)
+    from v2xbench.agents.baselines.univ2x.policy import UniV2XDriver
+
+    driver = UniV2XDriver(UniV2X(CFG).ego, CFG, (32, 16))
+    obs = {"v2x_payload": np.zeros(f - 1, np.float32), "v2x_info": np.zeros(8)}
+    with pytest.raises(ValueError, match=f"--set max_payload_floats={f}"):
+        driver._message(obs)
+
+
+def test_tiny_model_overfits_two_samples(tiny_dataset):
+    from v2xbench.agents.aurora.data import collate
+    from v2xbench.agents.baselines.univ2x.data import UniV2XFrames
+    from v2xbench.agents.baselines.univ2x.losses import UniV2XCriterion
+
+    ds = UniV2XFrames(tiny_dataset, "all", CFG, stride=5)
+    with_unit = [i for i in range(len(ds)) if bool(ds[i]["has_rsu"])]
+    assert with_unit, "the tiny data set has no frame with a roadside unit"
+    batch = collate([ds[with_unit[0]], ds[with_unit[-1]]])
+    torch.manual_seed(0)
+    model, crit = UniV2X(CFG), UniV2XCriterion(CFG)
+    opt = torch.optim.AdamW(model.parameters(), lr=3e-3)
+    losses = []
+    for _ in range(60):
+        loss, parts = crit(model(batch), batch)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(float(loss.detach()))
+    assert parts["rsu_cls"] > 0 and parts["plan_l1"] >= 0  # the roadside half trained too
+    assert losses[-1] < 0.5 * losses[0], losses[::10]
+
+
+def test_cli_trains_resumes_round_trips_and_drives_a_route(tiny_dataset, tmp_path, capsys):
+    from v2xbench.agents.aurora.trainer import load_weights, save_checkpoint
+    from v2xbench.agents.baselines.univ2x.train import load_run
+
+    data, run = tmp_path / "data", tmp_path / "run"
+    shutil.copytree(tiny_dataset, data)
+    base = ["baselines", "train", "univ2x", "--data", str(data), "--out", str(run), "--scale",
+            "tiny", "--quiet", "--threads", "1"]
+    assert main([*base, "--max-steps", "3"]) == 0
+    assert "step 3/" in capsys.readouterr().out
+    assert main(base) == 0  # resumes at step 3 and finishes the epoch
+    out = capsys.readouterr().out
+    log = [json.loads(x) for x in (run / "log.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in log] == list(range(1, len(log) + 1)) and "(done)" in out
+    assert (run / "loss.png").is_file()
+    assert main([*base, "--seed", "1"]) == 2  # another run's settings on the same folder
+    assert "seed differ" in capsys.readouterr().err
+    model, cfg, info = load_run(run)  # checkpoint round trip: same weights, same outputs
+    save_checkpoint(model, tmp_path / "again.safetensors")
+    other = UniV2X(cfg)
+    load_weights(other, tmp_path / "again.safetensors")
+    for (name, a), b in zip(model.state_dict().items(), other.state_dict().values()):
+        assert torch.equal(a, b), name
+    assert info["camera_size"] == [32, 16]
+    conf = tmp_path / "univ2x.json"
+    conf.write_text(json.dumps({"run": str(run)}))
+    res_dir = tmp_path / "eval"
+    assert main(["eval", "--agent", "univ2x", "--agent-config", str(conf), "--suite", "test50",
+                 "--max-routes", "1", "--set", "max_steps=15", "--out", str(res_dir),
+                 "--quiet"]) == 0
+    route = json.loads(next((res_dir / "routes").glob("*.json")).read_text())
+    assert route["error"] is None and route["ticks"] == 15
+    summ = json.loads((res_dir / "summary.json").read_text())
+    f = cfg.message_floats()
+    assert summ["config_overrides"]["max_payload_floats"] == f
+    assert summ["rsu_policy"] == "custom:UniV2XRoadside"
+    sent = route["record"]["bytes_sent"]  # the channel's count: whole messages of 16 + 2F bytes
+    assert sent > 0 and sent % (HEADER_SIZE + 2 * f) == 0 and summ["metrics"]["bps"] > 0

@@ -1,0 +1,90 @@
+"""``v2xbench baselines``: train the paper's cooperative baselines (issue #34) and measure their
+perception. Each method trains with AURORA's loop (resume, logs, plots) and drives through
+``v2xbench eval --agent NAME --agent-config FILE`` with ``{"run": RUN}``."""
+
+from __future__ import annotations
+
+import argparse
+
+from v2xbench.cli.data import _int_in
+
+#: Methods with a command here (name -> what it is).
+METHODS = {"univ2x": "UniV2X (Yu et al., AAAI 2025): camera, sparse agent queries + dense "
+           "occupancy, query planner"}
+
+
+def _threads(n: int | None) -> None:
+    import torch
+
+    torch.set_num_threads(n if n is not None else 1)
+
+
+def _train(args: argparse.Namespace) -> int:
+    from v2xbench.agents.baselines.univ2x.train import format_summary, train_univ2x
+
+    _threads(args.threads)
+    s = train_univ2x(args.data, args.out, scale=args.scale, device=args.device,
+                     max_steps=args.max_steps, stride=args.stride, seed=args.seed,
+                     progress=not args.quiet, num_workers=args.workers)
+    print(format_summary(s))
+    return 0
+
+
+def _eval_perception(args: argparse.Namespace) -> int:
+    from v2xbench.agents.baselines.univ2x.train import evaluate_perception
+
+    _threads(args.threads)
+    r = evaluate_perception(args.run, args.data, args.split, out=args.out, stride=args.stride,
+                            top_k=args.top_k, batch_size=args.batch_size, device=args.device,
+                            progress=not args.quiet)
+    print(r["markdown"], end="")
+    print(f"message: {r['message_floats']:,d} floats = {r['message_bytes']:,d} bytes on air; "
+          f"written: {r['out']}/perception.json, perception.md")
+    return 0
+
+
+def register(sub) -> None:
+    """Add ``baselines train`` and ``baselines eval-perception`` to the ``v2xbench`` parser."""
+    p = sub.add_parser("baselines", help="the paper's cooperative baselines: train, evaluate "
+                       "perception (drive them with `v2xbench eval --agent NAME`)",
+                       description=__doc__)
+    bsub = p.add_subparsers(dest="baselines_command", required=True)
+    t = bsub.add_parser("train", help="train a baseline on the train split of a data set",
+                        description="Train a baseline end to end (both the roadside and the ego "
+                        "half) with AURORA's loop: checkpoints every epoch and when stopped; the "
+                        "same command on the same --out resumes. Methods: " + "; ".join(
+                            f"{k}: {v}" for k, v in METHODS.items()))
+    t.add_argument("method", choices=sorted(METHODS), help="the baseline")
+    t.add_argument("--data", required=True, help="data set folder (v2xbench collect --out)")
+    t.add_argument("--out", required=True, help="run folder RUN")
+    t.add_argument("--scale", default="default", choices=("tiny", "default", "paper"),
+                   help="model size and training settings (default: default)")
+    t.add_argument("--max-steps", type=_int_in(1), default=None,
+                   help="stop after N optimizer steps in total (run again to go on)")
+    t.add_argument("--stride", type=_int_in(1), default=None,
+                   help="every K-th frame of each episode (default: the scale's)")
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--device", default="cpu", help="torch device (default: cpu)")
+    t.add_argument("--workers", type=_int_in(0), default=None,
+                   help="data-loader worker processes (default: the scale's)")
+    t.add_argument("--threads", type=_int_in(1), default=None,
+                   help="torch threads (default: 1)")
+    t.add_argument("--quiet", action="store_true", help="no progress bar")
+    t.set_defaults(func=_train)
+    e = bsub.add_parser("eval-perception", help="detection metrics of a trained baseline on a "
+                        "split (AURORA's metrics code)", description="Run the trained model over "
+                        "every K-th frame of a split and score its fused detections against "
+                        "gt/fused (ego range) with the nuScenes-style metrics AURORA uses; writes "
+                        "perception.json and perception.md.")
+    e.add_argument("method", choices=sorted(METHODS), help="the baseline")
+    e.add_argument("--run", required=True, help="trained run folder")
+    e.add_argument("--data", required=True, help="data set folder")
+    e.add_argument("--split", default="test", help="train | val | test | all (default: test)")
+    e.add_argument("--stride", type=_int_in(1), default=5, help="every K-th frame (default: 5)")
+    e.add_argument("--top-k", type=_int_in(1), default=50, help="predictions per frame")
+    e.add_argument("--batch-size", type=_int_in(1), default=4)
+    e.add_argument("--out", default=None, help="output folder (default: RUN/eval_<split>)")
+    e.add_argument("--device", default="cpu")
+    e.add_argument("--threads", type=_int_in(1), default=None, help="torch threads (default: 1)")
+    e.add_argument("--quiet", action="store_true")
+    e.set_defaults(func=_eval_perception)

@@ -14,10 +14,10 @@ import torch
 from v2xbench.agents.aurora.config import AuroraConfig, same_config
 from v2xbench.agents.aurora.route_input import planner_route_points, route_points_ahead
 from v2xbench.collectors.chat.export import build as build_qa
-from v2xbench.envs.v2x_intersection.config import make_config
-from v2xbench.envs.v2x_intersection.geometry import world_to_local_2d
-from v2xbench.envs.v2x_intersection.observations import ego_observation
-from v2xbench.envs.v2x_intersection.world import World
+from v2xbench.envs.v2x_intersection.api.observations import ego_observation
+from v2xbench.envs.v2x_intersection.core.geometry import world_to_local_2d
+from v2xbench.envs.v2x_intersection.sim.config import make_config
+from v2xbench.envs.v2x_intersection.sim.world import World
 
 CFG2 = AuroraConfig.for_scale("tiny", plan_route_points=2, plan_route_spacing=10.0)
 

@@ -21,9 +21,9 @@ from v2xbench.agents.baselines.univ2x.message import (
     serialize_message,
 )
 from v2xbench.agents.baselines.univ2x.model import RoadsideNet, UniV2X
-from v2xbench.envs.v2x_intersection.channel import Channel, ChannelConfig, validate_message
-from v2xbench.envs.v2x_intersection.geometry import pose_matrix
-from v2xbench.envs.v2x_intersection.wire import FORMAT_RAW, HEADER_SIZE, encode_message
+from v2xbench.envs.v2x_intersection.core.geometry import pose_matrix
+from v2xbench.envs.v2x_intersection.v2x.channel import Channel, ChannelConfig, validate_message
+from v2xbench.envs.v2x_intersection.v2x.wire import FORMAT_RAW, HEADER_SIZE, encode_message
 
 from v2xbench.cli import main
 

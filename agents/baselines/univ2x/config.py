@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from v2xbench.agents.aurora.config import AuroraConfig, StageHParams, check_branch
-from v2xbench.envs.v2x_intersection.classes import GROUPS, NUM_CLASSES
-from v2xbench.envs.v2x_intersection.config import FIELD_RULES
+from v2xbench.envs.v2x_intersection.core.classes import GROUPS, NUM_CLASSES
+from v2xbench.envs.v2x_intersection.sim.config import FIELD_RULES
 from v2xbench.envs.v2x_intersection.town.model import COMMAND_NAMES
 
 SCALES = ("tiny", "default", "paper")

@@ -35,7 +35,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from v2xbench.agents.aurora.cqaf import query_scores
-from v2xbench.envs.v2x_intersection.wire import PAYLOAD_LIMIT
+from v2xbench.envs.v2x_intersection.v2x.wire import PAYLOAD_LIMIT
 
 from .config import MESSAGE_HEADER_FLOATS, UniV2XConfig
 

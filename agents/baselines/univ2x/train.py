@@ -138,14 +138,14 @@ def evaluate_perception(run: str | Path, data: str | Path, split: str = "test", 
     Per frame the ``top_k`` fused agents by score
     (:func:`~v2xbench.agents.aurora.eval_perception.decode_detections`) against ``gt/fused`` in
     the ego range (frames without a unit get the empty message, as in closed loop), matched by
-    :func:`~v2xbench.envs.v2x_intersection.metrics_perception.detection_metrics`; the table has
+    :func:`~v2xbench.envs.v2x_intersection.evaluation.metrics_perception.detection_metrics`; the table has
     AURORA's (the seed paper's) columns (AURORA's :func:`~v2xbench.agents.aurora.eval_perception.
     predict` runs the model: its outputs and the samples have the keys it reads). Also the bytes
     of one message on air (float16, the channel's 16-byte header). Writes ``perception.json``
     and ``perception.md`` in ``out`` (default ``RUN/eval_<split>``).
     """
     from v2xbench.agents.aurora.eval_perception import _finite, markdown_table, predict, table_row
-    from v2xbench.envs.v2x_intersection.metrics_perception import detection_metrics
+    from v2xbench.envs.v2x_intersection.evaluation.metrics_perception import detection_metrics
 
     from .data import UniV2XFrames
 

@@ -116,6 +116,15 @@ def worker_main(env_fn: Callable, policy: Any, frames_per_batch: int, lifeline: 
     except OSError:  # pragma: no cover - already a group leader
         pass
     exit_when_closed(lifeline)
+    collect_jobs(env_fn, policy, frames_per_batch)
+
+
+def collect_jobs(env_fn: Callable, policy: Any, frames_per_batch: int) -> None:
+    """Build the :class:`~.eval_env.EvalEnv` of ``env_fn`` and run a ``Collector`` over it with
+    ``policy`` until it finds no job left in its queue (the env writes each job's result). The
+    work of one evaluation worker: a local worker process (:func:`worker_main`) or a Ray task
+    (``eval_ray.py``). An exception that escapes the collector (a TorchRL policy's) fails the
+    running job with it, then propagates."""
     import torch
     from torchrl.collectors import Collector
 

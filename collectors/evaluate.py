@@ -18,7 +18,10 @@ them (``eval_workers.py``): a job that runs longer than ``route_timeout`` second
 or whose worker dies (``os._exit`` in the agent, a crash), is recorded as that job's failure
 (result ``failure = "timeout"`` / ``"error"``, ``ended_by = "error"``, DS 0) and a new worker
 takes the remaining jobs. When every job has a result it writes ``<out>/summary.json`` and
-``<out>/summary.md`` (``eval_summary.py``).
+``<out>/summary.md`` (``eval_summary.py``). With ``backend="ray"`` (``--backend ray
+[--address ADDR]``) each job is a Ray task on a local or remote Ray cluster running the same
+worker code, whose result the driver writes into ``<out>`` (``eval_ray.py``): the same results,
+resume and failure handling; ``summary["run"]`` records the backend (and the Ray address).
 
 The run holds ``v2xbench.locks.dir_lock(out)`` from start to end: a second evaluation on the same
 ``out`` is refused (``DirectoryLocked`` names the holder).
@@ -87,6 +90,7 @@ from .agent_fingerprint import (
 )
 from .agent_sensors import apply_agent_channel, apply_agent_sensors
 from .eval_env import agent_label, copy_policy, instantiate_agent, make_env_factory
+from .eval_ray import check_backend, ray_address, run_jobs_ray
 from .eval_summary import per_scenario, summarize, summary_markdown, write_summary
 from .eval_workers import DEFAULT_ROUTE_TIMEOUT_S, check_route_timeout, run_jobs
 from .roadside import policy_label, roadside_component
@@ -242,6 +246,8 @@ def evaluate(
     v2x_only: bool = False,
     overwrite: bool = False,
     retry_failed: bool = False,
+    backend: str = "local",
+    address: str | None = None,
 ) -> dict:
     """Evaluate ``agent`` on ``suite`` and return the summary (see module docstring).
 
@@ -263,12 +269,17 @@ def evaluate(
             one of these scenario types. v2x_only: only routes with a V2X scenario type.
         overwrite: delete the results already in ``out`` first (whatever their fingerprint).
         retry_failed: run the selected jobs whose result is a failure again.
+        backend: ``"local"`` (worker processes, ``eval_workers.py``) or ``"ray"`` (one Ray task per
+            job, ``eval_ray.py``; the same results, resume and failures).
+        address: the Ray cluster of ``backend="ray"`` (``HEAD:6379``, ``auto``); ``None``: the
+            ``RAY_ADDRESS`` environment variable, or a local Ray instance with ``workers`` CPUs.
 
     Returns:
         The summary dict also written to ``<out>/summary.json``.
 
     Raises:
-        ValueError: a bad argument, agent, agent config, route selection or suite; ``out`` is a
+        ValueError: a bad argument, agent, agent config, route selection or suite (Ray not
+            installed for ``backend="ray"``: ``eval_ray.RayUnavailable``); ``out`` is a
             file or another run holds it (``v2xbench.locks.DirectoryLocked``); results of
             another fingerprint are in ``out`` (the message names what differs).
         FileNotFoundError: the agent config file does not exist.
@@ -283,6 +294,7 @@ def evaluate(
             "give one of them"
         )
     route_timeout = check_route_timeout(route_timeout)
+    check_backend(backend, address)
     out = check_output_dir(out, "evaluation output directory")
     suite_routes = load_suite_cached(str(suite))
     selection = select_routes(
@@ -409,6 +421,8 @@ def evaluate(
             )
             policy = agent if policy_mode else copy_policy()
             record = _failure_recorder(out, manifest, suite_routes)
+            run_kw = {} if backend == "local" else {"backend": backend, "address": address,
+                                                    "code": code}
             stats = _run(
                 env_fn,
                 policy,
@@ -420,6 +434,7 @@ def evaluate(
                 name,
                 route_timeout,
                 record,
+                **run_kw,
             )
             _clean(out)
         wall = time.perf_counter() - t0
@@ -427,6 +442,8 @@ def evaluate(
         ran, ticks = len(new), sum(int(r["ticks"]) for r in new)
         summary = summarize(out, jobs, n_boot=n_boot, selection=selection.record)
         summary["run"] = {
+            "backend": backend,
+            **({"ray_address": ray_address(address)} if backend == "ray" else {}),
             "workers": workers,
             "wall_seconds": round(wall, 2),
             "jobs_run": ran,
@@ -479,9 +496,18 @@ def _run(
     name: str,
     route_timeout: float,
     record_failure: Callable,
+    backend: str = "local",
+    address: str | None = None,
+    code: dict | None = None,
 ) -> dict:
-    """Run the jobs in supervised workers until every job has a result (``eval_workers.py``);
-    ``record_failure`` writes the result of a job whose worker timed out or died."""
+    """Run the jobs in supervised workers until every job has a result (``eval_workers.py``, or
+    Ray tasks with ``backend="ray"``: ``eval_ray.py``); ``record_failure`` writes the result of a
+    job whose worker timed out or died."""
+    if backend == "ray":
+        return run_jobs_ray(env_fn, policy, workers=workers, out=out, jobs=jobs,
+                            record_failure=record_failure, route_timeout=route_timeout,
+                            frames_per_batch=fpb, progress=progress, desc=f"eval {name}",
+                            address=address, code=code)
     return run_jobs(
         env_fn,
         policy,

@@ -30,7 +30,8 @@ def _eval(args: argparse.Namespace) -> int:
                        isolate_agent=args.isolate_agent, route_timeout=args.route_timeout,
                        agent_config=args.agent_config, routes=args.routes, scenario=args.scenario,
                        v2x_only=args.v2x_only, overwrite=args.overwrite,
-                       retry_failed=args.retry_failed)
+                       retry_failed=args.retry_failed, backend=args.backend,
+                       address=args.address)
     print(summary_markdown(summary))
     print(f"results: {Path(args.out) / 'routes'}, summary: {Path(args.out) / 'summary.md'}")
     failed = summary["failed"]
@@ -71,7 +72,8 @@ def register(sub) -> None:
     ev.add_argument("--suite", default="test50", help="suite name (test50, val, train) or suite JSON path")
     ev.add_argument("--seeds", type=int, default=1,
                     help="number of seeds per route (seed indices 0..N-1; default 1)")
-    ev.add_argument("--workers", type=int, default=1, help="worker processes running routes at a time")
+    ev.add_argument("--workers", type=int, default=1,
+                    help="worker processes (or Ray tasks) running routes at a time")
     ev.add_argument("--out", default=None,
                     help="output folder (default: results/<agent name>, e.g. results/expert)")
     ev.add_argument("--video", action="store_true", help="save a top-down GIF per route in OUT/videos")
@@ -105,6 +107,13 @@ def register(sub) -> None:
     ev.add_argument("--route-timeout", type=float, default=DEFAULT_ROUTE_TIMEOUT_S, metavar="SECONDS",
                     help="wall-clock limit of one route (default %(default)g s): a route that "
                     "runs longer is killed and recorded as failed (timeout), and the run goes on")
+    ev.add_argument("--backend", choices=("local", "ray"), default="local",
+                    help="where the routes run: local worker processes (default) or Ray tasks on "
+                    "a Ray cluster, one CPU each (needs pip install -e \".[ray]\"; "
+                    "docs/evaluation.md); results are written here either way")
+    ev.add_argument("--address", default=None, metavar="ADDR",
+                    help="--backend ray: the Ray cluster to run on (HEAD:6379, or auto); default: "
+                    "RAY_ADDRESS, else a local Ray instance with --workers CPUs")
     ev.add_argument("--quiet", action="store_true", help="no progress bar")
     ev.set_defaults(func=_eval)
     lb = sub.add_parser("leaderboard", help="leaderboard table and plots from evaluation result dirs")

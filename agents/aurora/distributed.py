@@ -28,6 +28,7 @@ import torch.distributed as dist
 from torch import nn
 
 T = TypeVar("T")
+_device = torch.device("cpu")  # this process's device once :func:`setup` ran (collectives use it)
 
 
 def world_size() -> int:
@@ -54,14 +55,16 @@ def is_main() -> bool:
 def setup(device: str | torch.device) -> torch.device:
     """Join the process group when launched by ``torchrun`` (idempotent) and return this
     process's device: ``cuda:LOCAL_RANK`` for a CUDA ``device``, else ``device`` itself."""
+    global _device
     device = torch.device(device)
     if world_size() == 1:
         return device
     if device.type == "cuda":
         device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
-        torch.cuda.set_device(device)
+        torch.accelerator.set_device_index(device.index)
     if not dist.is_initialized():
         dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
+    _device = device
     return device
 
 
@@ -92,7 +95,7 @@ def global_mean(value: float, local: int, global_: int) -> float:
     """The batch mean of a per-process mean ``value`` over ``local`` of ``global_`` samples."""
     if world_size() == 1:
         return value
-    t = torch.tensor([value * local / global_], dtype=torch.float64)
+    t = torch.tensor([value * local / global_], dtype=torch.float64, device=_device)
     dist.all_reduce(t)
     return float(t.item())
 

@@ -148,6 +148,23 @@ def test_interrupted_training_resumes_at_the_same_step(tmp_path):
         run(tmp_path / "cut", h=hp(epochs=4))
 
 
+def test_resume_drops_a_log_line_cut_off_by_a_crash(tmp_path):
+    """A full disk or a kill mid-write leaves half a JSON line at the log's end: resuming drops
+    it (it came after the last checkpoint); a corrupt line before the end is an error."""
+    h = hp(epochs=3)
+    run(tmp_path / "full", h=h)
+    run(tmp_path / "cut", h=h, max_steps=4)
+    log = tmp_path / "cut" / "log.jsonl"
+    log.write_text(log.read_text() + '{"step": 5, "epoch": 1, "lo')
+    _, rest = run(tmp_path / "cut", h=h)
+    assert rest["resumed_from"] == 4 and rest["done"]
+    assert losses(tmp_path / "cut") == losses(tmp_path / "full")
+    lines = log.read_text().splitlines()
+    log.write_text("\n".join([lines[0], "{broken", *lines[1:]]) + "\n")
+    with pytest.raises(ValueError, match="line 2 is not JSON"):
+        run(tmp_path / "cut", h=h)
+
+
 def test_fit_rejects_bad_setups(tmp_path):
     loader = DataLoader(SyntheticFrames("rsu"), batch_size=3)
     model, crit = PerceptionBranch(CFG, "rsu"), SetCriterion(CFG, "rsu")

@@ -132,7 +132,16 @@ def _read_log(path: Path, upto: int) -> list[dict]:
     """Log records with ``step <= upto`` (later lines came after the last checkpoint)."""
     if not path.is_file():
         return []
-    recs = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    lines = [line for line in path.read_text().splitlines() if line.strip()]
+    recs = []
+    for i, line in enumerate(lines):
+        try:
+            recs.append(json.loads(line))
+        except json.JSONDecodeError:
+            if i == len(lines) - 1:  # cut off by a crash or a full disk: logged after the
+                break  # last checkpoint anyway, so dropped like every later line
+            raise ValueError(f"fit: {path} line {i + 1} is not JSON; the run's log is "
+                             "corrupt") from None
     return [r for r in recs if r["step"] <= upto]
 
 

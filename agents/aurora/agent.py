@@ -32,6 +32,7 @@ import numpy as np
 #: Exported weights (:mod:`.export`) each agent loads when no run is given.
 SHIPPED_NAME = {True: "aurora", False: "no_fusion"}
 OBS_KEYS = ("cameras", "ego", "route", "v2x_info", "v2x_payload")
+LATERAL = ("planner", "route")
 
 
 class AuroraAgent:
@@ -44,6 +45,11 @@ class AuroraAgent:
         stage: with ``run``: a stage to use instead of the latest (3, 4 or 5).
         device: torch device.
         weights: a folder of exported weights (``v2xbench aurora export``) instead of a run.
+        lateral: ``"planner"`` (default: the planner's waypoints are the path) or ``"route"``
+            (a diagnostic variant: the planner sets only the speed and how far each waypoint
+            lies along the path; the path itself is the observed route, so the controller
+            steers along the route. It separates what the planner gets wrong laterally from
+            what it gets wrong in speed; results say which was used: the fingerprint).
     """
 
     obs_mode = "sensors"
@@ -51,7 +57,8 @@ class AuroraAgent:
     fusion = True
 
     def __init__(self, run: str | None = None, stage: int | None = None,
-                 device: str = "cpu", weights: str | None = None) -> None:
+                 device: str = "cpu", weights: str | None = None,
+                 lateral: str = "planner") -> None:
         from .export import SHIPPED, load_export
         from .policy import policy_module
         from .rsu_agent import AuroraRoadside
@@ -59,6 +66,9 @@ class AuroraAgent:
 
         if run is not None and weights is not None:
             raise ValueError("AURORA agent: give either run or weights, not both")
+        if lateral not in LATERAL:
+            raise ValueError(f"AURORA agent: lateral={lateral!r} is not one of {LATERAL}")
+        self.lateral = lateral
         if run is not None:
             system, tok, info = load_system(run, stage, device)
         else:
@@ -100,8 +110,9 @@ class AuroraAgent:
         route = ""
         if self.cfg.plan_route_points:
             route = (f" route={self.cfg.plan_route_points}x{self.cfg.plan_route_spacing:g}m")
+        lateral = "" if self.lateral == "planner" else f" lateral={self.lateral}"
         return (f"stage={self.info['stage']} fusion={self.fusion} planner={self.cfg.planner} "
-                f"speed={TARGET_SPEED_RULE}{route}")
+                f"speed={TARGET_SPEED_RULE}{route}{lateral}")
 
     def reset(self, route_info: dict) -> None:
         """A new route (the model keeps no state between ticks)."""
@@ -118,9 +129,25 @@ class AuroraAgent:
             out = self.policy(td)
         wps = out["waypoints"][0].cpu().numpy().astype(np.float64)
         speed = float(out["target_speed"][0])
+        if self.lateral == "route":
+            wps = route_guided(wps, np.asarray(obs["route"], np.float64))
         self.infer_s += time.perf_counter() - t0
         self.ticks += 1
         return {"waypoints": wps, "speed": speed}
+
+
+def route_guided(waypoints: np.ndarray, route: np.ndarray) -> np.ndarray:
+    """``waypoints (K, 2)`` moved onto the ``route`` rows' polyline (``(R, >=2)`` ego frame),
+    each at the arc length the planner's path reaches there (the ``lateral="route"`` variant)."""
+    from .route_input import route_points_ahead
+
+    steps = np.linalg.norm(np.diff(np.vstack([[0.0, 0.0], waypoints]), axis=0), axis=1)
+    dist = np.cumsum(steps)
+    fine = route_points_ahead(route, 200, 0.25).numpy().astype(np.float64)  # 0.25 .. 50 m
+    idx = np.clip(np.round(dist / 0.25).astype(int) - 1, 0, len(fine) - 1)
+    out = fine[idx]
+    out[dist < 0.125] = waypoints[dist < 0.125]  # standing: keep the planner's (tiny) path
+    return out
 
 
 class NoFusionAgent(AuroraAgent):
@@ -131,8 +158,9 @@ class NoFusionAgent(AuroraAgent):
     fusion = False
 
     def __init__(self, run: str | None = None, stage: int | None = None,
-                 device: str = "cpu", weights: str | None = None) -> None:
-        super().__init__(run, stage, device, weights)
+                 device: str = "cpu", weights: str | None = None,
+                 lateral: str = "planner") -> None:
+        super().__init__(run, stage, device, weights, lateral)
 
 
-__all__ = ["SHIPPED_NAME", "AuroraAgent", "NoFusionAgent"]
+__all__ = ["LATERAL", "SHIPPED_NAME", "AuroraAgent", "NoFusionAgent", "route_guided"]

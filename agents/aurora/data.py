@@ -223,6 +223,23 @@ class AuroraFrames(Dataset):
         return out
 
 
+def fused_targets(sample, pc_range: Sequence[float]) -> dict[str, torch.Tensor]:
+    """A frame's ``gt/fused`` boxes (ego frame) cut to ``pc_range``, in part 1's target layout
+    (``det_boxes`` (M, 10) encoded, padding rows 1 m boxes at yaw 0; ``det_labels``;
+    ``det_mask``): the fused heads' targets of AURORA's stages and the baselines."""
+    mask = sample["gt", "fused", "mask"].numpy().astype(bool)
+    boxes = sample["gt", "fused", "boxes"].numpy()
+    keep = mask & in_range(boxes[:, :3], pc_range)
+    m, n = len(mask), int(keep.sum())
+    det = np.zeros((m, 10), np.float32)
+    det[:, 3:6], det[:, 7] = 1.0, 1.0  # padding rows: 1 m boxes, yaw 0
+    det[:n] = encode_targets(boxes[keep])
+    labels = np.zeros(m, np.int64)
+    labels[:n] = sample["gt", "fused", "class"].numpy()[keep]
+    return {"det_boxes": torch.from_numpy(det), "det_labels": torch.from_numpy(labels),
+            "det_mask": torch.arange(m) < n}
+
+
 def collate(samples: Sequence[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
     """Stack samples into a batch (every key gains a leading ``B``)."""
     if not samples:
@@ -246,4 +263,5 @@ def make_loader(dataset: Dataset, batch_size: int, *, shuffle: bool = True, seed
                       persistent_workers=num_workers > 0)
 
 
-__all__ = ["AuroraFrames", "collate", "encode_targets", "in_range", "make_loader", "model_images"]
+__all__ = ["AuroraFrames", "collate", "encode_targets", "fused_targets", "in_range", "make_loader",
+           "model_images"]

@@ -57,7 +57,7 @@ from v2xbench.collectors.dataset.loader import V2XDataset
 
 from .config import AuroraConfig
 from .cqaf import rsu_to_ego
-from .data import CALIB_KEYS, AuroraFrames, encode_targets, in_range
+from .data import CALIB_KEYS, AuroraFrames, fused_targets
 from .language import IGNORE, encode_qa
 from .planner_losses import constant_velocity_futures
 from .prompt import PLAN_QUESTION, build_prompt
@@ -208,7 +208,7 @@ class AuroraPairs(Dataset):
         ids, labels = encode_qa(self.tok, prompt, answer, cfg.lm_max_len)
         out = {f"ego/{k}": v for k, v in ego.items() if k != "frame_id"}
         out.update({f"rsu/{k}": v for k, v in rsu.items()})
-        out.update(self._fused_targets(x))
+        out.update(fused_targets(x, self.range))
         out.update({k: ego[k] for k in ("map_points", "map_labels", "map_mask", "map_closed")})
         fut, fmask = constant_velocity_futures(out["det_boxes"][None], out["det_mask"][None],
                                                cfg.plan_waypoints, cfg.plan_dt)
@@ -225,20 +225,6 @@ class AuroraPairs(Dataset):
         if self.cache is not None:
             out.update(self.cache.row(fid))
         return out
-
-    def _fused_targets(self, x) -> dict[str, torch.Tensor]:
-        """``gt/fused`` (ego frame) cut to the ego range, in part 1's target layout."""
-        mask = x["gt", "fused", "mask"].numpy().astype(bool)
-        boxes = x["gt", "fused", "boxes"].numpy()
-        keep = mask & in_range(boxes[:, :3], self.range)
-        m, n = len(mask), int(keep.sum())
-        det = np.zeros((m, 10), np.float32)
-        det[:, 3:6], det[:, 7] = 1.0, 1.0  # padding rows: 1 m boxes, yaw 0
-        det[:n] = encode_targets(boxes[keep])
-        labels = np.zeros(m, np.int64)
-        labels[:n] = x["gt", "fused", "class"].numpy()[keep]
-        return {"det_boxes": torch.from_numpy(det), "det_labels": torch.from_numpy(labels),
-                "det_mask": torch.arange(m) < n}
 
 
 def collate_pairs(samples: Sequence[dict[str, torch.Tensor]], pad_id: int

@@ -29,11 +29,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import torch
 from torch.utils.data import Dataset
 from v2xbench.agents.aurora.cqaf import rsu_to_ego
-from v2xbench.agents.aurora.data import CALIB_KEYS, AuroraFrames, encode_targets, in_range
+from v2xbench.agents.aurora.data import CALIB_KEYS, AuroraFrames, fused_targets
 from v2xbench.agents.aurora.route_input import route_points_ahead
 from v2xbench.collectors.dataset.loader import V2XDataset
 
@@ -98,7 +97,7 @@ class UniV2XFrames(Dataset):
         x = self.extra[fid]
         out = {f"ego/{k}": v for k, v in ego.items() if k not in _DROP}
         out.update({f"rsu/{k}": v for k, v in rsu.items() if k not in _DROP})
-        out.update(self._fused_targets(x))
+        out.update(fused_targets(x, self.range))
         e = rsu_to_ego(calib["T_world_ego"], calib["T_world_rsu"]) if has else torch.eye(4)
         out.update(
             has_rsu=torch.tensor(has), rsu_to_ego=e.float(),
@@ -108,20 +107,6 @@ class UniV2XFrames(Dataset):
                                             self.cfg.plan_route_spacing),
             expert_waypoints=x["expert_waypoints"].float(), frame_id=torch.tensor(fid))
         return out
-
-    def _fused_targets(self, x) -> dict[str, torch.Tensor]:
-        """``gt/fused`` (ego frame) cut to the ego range, in AURORA's target layout."""
-        mask = x["gt", "fused", "mask"].numpy().astype(bool)
-        boxes = x["gt", "fused", "boxes"].numpy()
-        keep = mask & in_range(boxes[:, :3], self.range)
-        m, n = len(mask), int(keep.sum())
-        det = np.zeros((m, 10), np.float32)
-        det[:, 3:6], det[:, 7] = 1.0, 1.0
-        det[:n] = encode_targets(boxes[keep])
-        labels = np.zeros(m, np.int64)
-        labels[:n] = x["gt", "fused", "class"].numpy()[keep]
-        return {"det_boxes": torch.from_numpy(det), "det_labels": torch.from_numpy(labels),
-                "det_mask": torch.arange(m) < n}
 
 
 __all__ = ["EXTRA_KEYS", "UniV2XFrames"]

@@ -167,7 +167,7 @@ def evaluate_perception(run: str | Path, data: str | Path, split: str = "test", 
     atomic_write_json(out / "perception.json", _finite(res), indent=1)
     atomic_write_text(out / "perception.md", f"# UniV2X perception: {data} ({split})\n\n"
                       f"Run `{run}`, top-{top_k} fused agents per frame, nuScenes-style metrics "
-                      f"(envs/v2x_intersection/metrics_perception.py); message {msg_bytes:,d} "
+                      f"(envs/v2x_intersection/evaluation/metrics_perception.py); message {msg_bytes:,d} "
                       f"bytes on air ({10 * msg_bytes:,d} B/s at 10 Hz while a unit serves).\n\n"
                       + table)
     res["out"], res["markdown"] = str(out), table

@@ -120,11 +120,10 @@ def _same_config(old, new: dict) -> bool:
 
 def format_summary(s: dict) -> str:
     """One line about a training call."""
-    loss = "n/a" if s.get("final_loss") is None else f"{s['final_loss']:.4g}"
-    return (f"stage {s['stage']} ({s['branch']} branch, {s['scale']}): step {s['steps']}/"
-            f"{s['total_steps']} ({'done' if s['done'] else 'stopped'}), {s['frames']} frames, "
-            f"loss {loss}, {s['samples_per_s']:.2f} samples/s, data loading "
-            f"{100 * s['data_share']:.0f}% of step time, {s['wall_s']:.0f} s -> {s['out_dir']}")
+    from .trainer import loss_text, progress_text, speed_text
+
+    return (f"stage {s['stage']} ({s['branch']} branch, {s['scale']}): {progress_text(s)}, "
+            f"{s['frames']} frames, loss {loss_text(s)}, {speed_text(s)}")
 
 
 __all__ = ["STAGES", "check_stage", "format_summary", "train_stage"]

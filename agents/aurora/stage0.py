@@ -329,10 +329,11 @@ def _train(cfg, hp, data, qa_path, items, docs, stage_dir, scale, device, max_st
 
 def format_stage0_summary(s: dict) -> str:
     """One line about a stage-0 training call."""
-    loss = "n/a" if s.get("final_loss") is None else f"{s['final_loss']:.4g}"
-    return (f"stage 0 (language model, {s['scale']}): step {s['steps']}/{s['total_steps']} "
-            f"({'done' if s['done'] else 'stopped'}), {s['documents']} QA documents, "
-            f"{s['tokens']} tokens in {s['blocks']} blocks, loss {loss}, "
+    from .trainer import loss_text, progress_text
+
+    return (f"stage 0 (language model, {s['scale']}): {progress_text(s)}, "
+            f"{s['documents']} QA documents, "
+            f"{s['tokens']} tokens in {s['blocks']} blocks, loss {loss_text(s)}, "
             f"{s['samples_per_s'] * s['tokens'] / max(s['blocks'], 1):.0f} tokens/s, "
             f"{s['wall_s'] + s['prepare_s']:.0f} s -> {s['lm_dir']} (from_pretrained)")
 

@@ -368,7 +368,8 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
 
 def format_late_summary(s: dict) -> str:
     """Lines about a stage 3-5 training call (base LM, cache, progress)."""
-    loss = "n/a" if s.get("final_loss") is None else f"{s['final_loss']:.4g}"
+    from .trainer import loss_text, progress_text, speed_text
+
     lines = []
     if s["stage"] == 3:
         src = s["lm"]["source"]
@@ -384,12 +385,9 @@ def format_late_summary(s: dict) -> str:
                      f"frozen branches would cost {c['branch_s_per_epoch_without_cache']:.0f} s "
                      "per epoch")
     fusion = "" if s.get("fusion", True) else ", no fusion"
-    lines.append(f"stage {s['stage']} ({s['branch']}, {s['scale']}{fusion}): step {s['steps']}/"
-                 f"{s['total_steps']} ({'done' if s['done'] else 'stopped'}), "
+    lines.append(f"stage {s['stage']} ({s['branch']}, {s['scale']}{fusion}): {progress_text(s)}, "
                  f"{s['samples']['qa']} QA + {s['samples']['plan']} planning samples on "
-                 f"{s['frames']} frames, loss {loss}, {s['samples_per_s']:.2f} samples/s, data "
-                 f"loading {100 * s['data_share']:.0f}% of step time, {s['wall_s']:.0f} s -> "
-                 f"{s['out_dir']}")
+                 f"{s['frames']} frames, loss {loss_text(s)}, {speed_text(s)}")
     return "\n".join(lines)
 
 

@@ -376,6 +376,25 @@ def _fit(model, criterion, loader, out, hp, device, seed, progress, max_steps, l
             "data_share": t_data / busy if busy > 0 else 0.0, "out_dir": str(out)}
 
 
+def progress_text(summary: dict) -> str:
+    """``"step N/M (done|stopped)"`` of a :func:`fit` summary (the training commands' lines)."""
+    state = "done" if summary["done"] else "stopped"
+    return f"step {summary['steps']}/{summary['total_steps']} ({state})"
+
+
+def loss_text(summary: dict) -> str:
+    """The summary's final loss (4 significant digits), ``"n/a"`` when no step ran."""
+    loss = summary.get("final_loss")
+    return "n/a" if loss is None else f"{loss:.4g}"
+
+
+def speed_text(summary: dict) -> str:
+    """Samples/s, the share of step time spent waiting for data, wall seconds and the folder."""
+    return (f"{summary['samples_per_s']:.2f} samples/s, data loading "
+            f"{100 * summary['data_share']:.0f}% of step time, {summary['wall_s']:.0f} s -> "
+            f"{summary['out_dir']}")
+
+
 def _step(model: nn.Module, criterion: nn.Module, opt: torch.optim.Optimizer, params: list,
           batch: Any, hp: StageHParams, lr: float, rng_seed: int, step: int, size: int,
           local: int) -> tuple[float, dict[str, float], float]:

@@ -99,12 +99,10 @@ def train_univ2x(data: str | Path, out: str | Path, *, scale: str = "default",
 
 def format_summary(s: dict) -> str:
     """One line about a training call."""
-    loss = "n/a" if s.get("final_loss") is None else f"{s['final_loss']:.4g}"
-    return (f"univ2x ({s['scale']}, {s['parameters']['total']:,d} parameters): step "
-            f"{s['steps']}/{s['total_steps']} ({'done' if s['done'] else 'stopped'}), "
-            f"{s['frames']} frames, loss {loss}, {s['samples_per_s']:.2f} samples/s, data "
-            f"loading {100 * s['data_share']:.0f}% of step time, {s['wall_s']:.0f} s -> "
-            f"{s['out_dir']}")
+    from v2xbench.agents.aurora.trainer import loss_text, progress_text, speed_text
+
+    return (f"univ2x ({s['scale']}, {s['parameters']['total']:,d} parameters): "
+            f"{progress_text(s)}, {s['frames']} frames, loss {loss_text(s)}, {speed_text(s)}")
 
 
 def load_run(run: str | Path, device: str = "cpu"):

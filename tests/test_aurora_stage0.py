@@ -30,9 +30,13 @@ CFG = AuroraConfig.for_scale("tiny")
 
 
 @pytest.fixture(scope="module")
-def data(tiny_dataset):
-    build(tiny_dataset, seed=0)
-    return tiny_dataset
+def data(tiny_dataset, tmp_path_factory):
+    """A copy of the session's tiny data set with its QA items (the shared one stays without:
+    the pipeline test needs a data set that has none yet)."""
+    root = tmp_path_factory.mktemp("stage0") / "data"
+    shutil.copytree(tiny_dataset, root)
+    build(root, seed=0)
+    return root
 
 
 @pytest.fixture(scope="module")

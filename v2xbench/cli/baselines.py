@@ -8,9 +8,20 @@ import argparse
 
 from v2xbench.cli.data import _int_in
 
-#: Methods with a command here (name -> what it is).
+#: Methods with a command here (name -> what it is). Each one's module (``BASELINES[name]`` in
+#: :mod:`v2xbench.agents.baselines`) has a ``train`` submodule with ``train(data, out, **kw)``,
+#: ``format_summary(summary)`` and ``evaluate_perception(run, data, split, **kw)``.
 METHODS = {"univ2x": "UniV2X (Yu et al., AAAI 2025): camera, sparse agent queries + dense "
            "occupancy, query planner"}
+
+
+def _train_module(method: str):
+    """The ``train`` module of a baseline (imported on use: torch loads only then)."""
+    import importlib
+
+    from v2xbench.agents.baselines import BASELINES
+
+    return importlib.import_module(BASELINES[method] + ".train")
 
 
 def _threads(n: int | None) -> None:
@@ -20,21 +31,19 @@ def _threads(n: int | None) -> None:
 
 
 def _train(args: argparse.Namespace) -> int:
-    from v2xbench.agents.baselines.univ2x.train import format_summary, train_univ2x
-
+    m = _train_module(args.method)
     _threads(args.threads)
-    s = train_univ2x(args.data, args.out, scale=args.scale, device=args.device,
+    s = m.train(args.data, args.out, scale=args.scale, device=args.device,
                      max_steps=args.max_steps, stride=args.stride, seed=args.seed,
                      progress=not args.quiet, num_workers=args.workers)
-    print(format_summary(s))
+    print(m.format_summary(s))
     return 0
 
 
 def _eval_perception(args: argparse.Namespace) -> int:
-    from v2xbench.agents.baselines.univ2x.train import evaluate_perception
-
+    m = _train_module(args.method)
     _threads(args.threads)
-    r = evaluate_perception(args.run, args.data, args.split, out=args.out, stride=args.stride,
+    r = m.evaluate_perception(args.run, args.data, args.split, out=args.out, stride=args.stride,
                             top_k=args.top_k, batch_size=args.batch_size, device=args.device,
                             progress=not args.quiet)
     print(r["markdown"], end="")

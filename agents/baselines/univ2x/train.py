@@ -97,6 +97,10 @@ def train_univ2x(data: str | Path, out: str | Path, *, scale: str = "default",
     return summary
 
 
+#: The name ``v2xbench baselines train`` calls (every baseline's ``train`` module has one).
+train = train_univ2x
+
+
 def format_summary(s: dict) -> str:
     """One line about a training call."""
     from v2xbench.agents.aurora.trainer import loss_text, progress_text, speed_text

@@ -83,7 +83,6 @@ V2X_INFO_FEATURES = ("received", "age_ticks", "num_objects", "rsu_x", "rsu_y", "
 _PAYLOAD_LENGTH = V2X_INFO_FEATURES.index("payload_length")
 UNIT_FEATURES = ("unit_id", "x", "y", "z", "yaw", "pitch")
 BIG = OBS_BOUND  # bound of the observation boxes (1e4; received objects are clipped to it)
-_RSU_BASE = ("unit", "calibration", "objects")
 #: received objects stay in the observation this many ticks after their delivery (then zeroed)
 V2X_HOLD_TICKS = 5
 #: ``light_state`` value for a stop sign (other values: -1 none, 0 green, 1 yellow, 2 red)
@@ -402,7 +401,10 @@ def rsu_observation(world, slot: int = 0) -> dict[str, np.ndarray]:
     """Fill the observation of the RSU agent in ``slot`` (zeros when no unit is active)."""
     cfg, t = world.config, world.table
     u = int(world.active_rsu[slot])
-    obs = {k: np.zeros(s.shape, np.float32) for k, s in rsu_space(cfg).spaces.items() if k in _RSU_BASE}
+    # the base keys' shapes (as ``rsu_space``), without building the space every tick
+    obs = {"unit": np.zeros(len(UNIT_FEATURES), np.float32),
+           "calibration": np.zeros((2, 4, 4), np.float32),
+           "objects": np.zeros((cfg.max_objects, len(OBJECT_FEATURES)), np.float32)}
     if cfg.obs_mode == "sensors":  # the rig captures slot 0's unit; further slots get blank sensors
         s = sensor_observation(world)
         obs["lidar"] = s["lidars"]["rsu_lidar"]

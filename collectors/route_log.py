@@ -72,6 +72,7 @@ class RouteLog:
         self.bg_speed: list[float] = []
         self.route_s: list[float] = []
         self.pass_tick = [-1] * len(world.scenarios)
+        self.v2x_age: list[int] = []  # per tick: age (ticks) of the ego's last message, -1: none
         self.video_every, self.video_size = int(video_every), int(video_size)
         self.frames: list[np.ndarray] = []
         self._frame()
@@ -91,6 +92,7 @@ class RouteLog:
         self.speed.append(float(t.speed[0]))
         self.bg_speed.append(surrounding_mean_speed(t))
         self.route_s.append(float(w.route.s[w.monitor.progress]))
+        self.v2x_age.append(-1 if w.inbox is None else int(w.tick - w.inbox[1]))
         for k, sc in enumerate(w.scenarios):
             if sc.passed and self.pass_tick[k] < 0:
                 self.pass_tick[k] = w.tick
@@ -137,6 +139,22 @@ class RouteLog:
             })
         return out
 
+    def v2x_summary(self) -> dict:
+        """The channel as the route saw it: its settings, message counters and the age of the
+        message the ego held (``world.inbox``), in ticks, over the ticks that held one."""
+        w = self.world
+        st = w.channel.stats()
+        age = np.asarray([a for a in self.v2x_age if a >= 0], np.float64)
+        return {
+            "latency_ticks": int(w.config.latency_ticks), "loss_prob": float(w.config.loss_prob),
+            "bandwidth_bytes_per_s": w.config.bandwidth_bytes_per_s,
+            **{k: int(st[k]) for k in ("messages_sent", "messages_lost",
+                                       "messages_dropped_bandwidth", "messages_delivered")},
+            "ticks_with_message": int(len(age)),
+            "message_age_ticks": {"min": float(age.min()), "mean": float(age.mean()),
+                                  "max": float(age.max())} if len(age) else None,
+        }
+
     def save_video(self, path: Path) -> str | None:
         """Write the frames as a GIF (``None`` when there are none)."""
         if not self.frames:
@@ -175,7 +193,9 @@ def build_result(*, job, spec, seed: int, suite: str, agent: str, agent_name: st
     score of 0 (the suite's DS counts it as 0 too); the RC reached before the error is kept.
     ``failure`` says how it failed (:data:`FAILURE_KINDS`; default ``"error"`` when there is an
     ``error``, ``None`` for a route that ran to its end). ``fingerprint`` is the digest of the
-    run's fingerprint (``agent_fingerprint.py``): the results of a directory share one.
+    run's fingerprint (``agent_fingerprint.py``): the results of a directory share one. ``v2x``
+    is what the channel did on the route (:meth:`RouteLog.v2x_summary`: settings, message
+    counts, the age of the ego's last message).
     """
     if failure is not None and failure not in FAILURE_KINDS:
         raise ValueError(f"failure={failure!r} must be one of {FAILURE_KINDS}")
@@ -206,4 +226,5 @@ def build_result(*, job, spec, seed: int, suite: str, agent: str, agent_name: st
         "traceback": None if error is None else "".join(
             traceback.format_exception(type(error), error, error.__traceback__)),
         "video": video, "config_overrides": dict(config or {}), "fingerprint": fingerprint,
+        "v2x": log.v2x_summary() if log is not None else None,
     }

@@ -19,6 +19,7 @@ Commands:
     aurora      AURORA: train (stages 0-5, pipeline), export weights, evaluate perception and
                 planning, ask / answer Chat-V2XBench questions
     baselines   the paper's cooperative baselines (UniV2X): train, evaluate perception
+    experiments run a config of trainings and evaluations (resumable), build the paper's tables
 """
 
 from __future__ import annotations
@@ -26,10 +27,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-from v2xbench.cli import aurora, baselines, bench, data, drive, evaluation, warmup
+from v2xbench.cli import aurora, baselines, bench, data, drive, evaluation, experiments, warmup
 
 #: Sub-command modules, each with ``register(subparsers)``, in help order.
-COMMAND_MODULES = (drive, evaluation, bench, data, warmup, aurora, baselines)
+COMMAND_MODULES = (drive, evaluation, bench, data, warmup, aurora, baselines, experiments)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -95,7 +95,7 @@ def test_quick_pipeline_runs_end_to_end_and_writes_the_tables(exp, tmp_path):
         assert (out / f"{name}.md").is_file(), name
     md = (out / "report.md").read_text()
     assert "| AURORA | 2 x 2 |" in md and "| UniV2X | 2 x 2 |" in md
-    assert f"| CoDrivingLLM | not available (baseline '{UNREGISTERED}'" in md
+    assert f"| CoDriving | not available (baseline '{UNREGISTERED}'" in md
     assert "| 0 ms | 500 ms |" in md and "V2X-specific scenario types" in md
     for png in ("ds_vs_latency.png", "bps_vs_ds.png"):
         assert (out / png).stat().st_size > 1000
@@ -103,6 +103,12 @@ def test_quick_pipeline_runs_end_to_end_and_writes_the_tables(exp, tmp_path):
     data = json.loads((out / "report.json").read_text())["tables"]
     lat = {p["x"]: p for p in data["robustness"]["latency_ms"]["oracle_v2x"]}
     assert set(lat) == {0.0, 500.0}
+    # UniV2X has no sweep: its main run is a flat reference at every point, labelled so
+    ref = data["robustness"]["latency_ms"]["univ2x"]
+    assert [p["x"] for p in ref] == [0.0, 500.0] and all(p["reference"] for p in ref)
+    assert ref[0]["driving_score"] == ref[1]["driving_score"]
+    assert not any(p["reference"] for p in lat.values())
+    assert "| UniV2X (no sweep: its main run) |" in (out / "robustness.md").read_text()
     assert main(["experiments", "report", str(exp["dir"]), "--out", str(tmp_path / "cli"),
                  "--no-plots"]) == 0
 

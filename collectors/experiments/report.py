@@ -290,6 +290,12 @@ def _base(j: Job) -> dict:
     return {k: v for k, v in j.spec.items() if k not in ("id", "channel", "label")}
 
 
+def _main_job(res: _Results, m: str) -> Job | None:
+    """The method's closed-loop job without channel changes (``None``: it has none)."""
+    return next((j for j in res.cfg.jobs if j.method == m and j.kind == "closed_loop"
+                 and not j.get("channel")), None)
+
+
 def _sweep_points(res: _Results, m: str, key: str) -> list[tuple[float, Job]]:
     """The method's closed-loop jobs that change only ``key`` of the channel, with the job of
     the same settings and no channel changes as the 0 point (0 ms, 0 %, no cap)."""
@@ -319,11 +325,18 @@ def _robustness(res: _Results, methods: list[str]) -> tuple[str, dict]:
                 rows.append([res.cfg.label(m), "not available"] + [""] * (len(xs) - 1))
                 continue
             pts = {x: res.closed_loop(j) for x, j in _sweep_points(res, m, key)}
+            main = None if pts else _main_job(res, m)
+            if main is not None:  # a reference without a sweep (e.g. an ego-only agent, which
+                # the channel cannot reach): its main run, the same at every point
+                s = res.closed_loop(main)
+                pts = dict.fromkeys(xs, s)
             data[key][m] = [{"x": x, "driving_score": _m(s, "driving_score"),
                              "ci_low": _m(s, "driving_score_ci_low"),
-                             "ci_high": _m(s, "driving_score_ci_high"), "bps": _m(s, "bps")}
+                             "ci_high": _m(s, "driving_score_ci_high"), "bps": _m(s, "bps"),
+                             "reference": main is not None}
                             for x, s in pts.items()]
-            rows.append([res.cfg.label(m)] + [_ds(pts[x]) if x in pts else NA for x in xs])
+            label = res.cfg.label(m) + (" (no sweep: its main run)" if main is not None else "")
+            rows.append([label] + [_ds(pts[x]) if x in pts else NA for x in xs])
         md.append(f"**{title}** (DS [95% CI])\n\n"
                   + _table(["method"] + [f"{_f(x, 0)} {unit}" if x or unit != "B/s"
                                           else "no cap" for x in xs], rows))

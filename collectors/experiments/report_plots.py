@@ -52,6 +52,9 @@ def write_plots(data: dict, cfg: Config, out: Path) -> list[str]:
             y = np.array([_num(p["driving_score"]) for p in pts])
             lo = np.array([_num(p["ci_low"]) for p in pts])
             hi = np.array([_num(p["ci_high"]) for p in pts])
+            if pts[0].get("reference"):  # no sweep: its main run as a flat reference line
+                ax.plot(x, y, linestyle="--", label=cfg.label(m) + " (no sweep)")
+                continue
             err = np.nan_to_num(np.stack([y - lo, hi - y]), nan=0.0).clip(min=0.0)
             ax.errorbar(x, y, yerr=err, marker="o", capsize=3, label=cfg.label(m))
         ax.set_xlabel(xlabel)

@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from .aurora.agent import AuroraAgent, NoFusionAgent
+from .baselines.unimm_v2x.agent import UniMMV2XAgent
 from .baselines.univ2x.agent import UniV2XAgent
+from .baselines.v2x_vit.agent import V2XViTAgent
 from .interface import register_agent
 from .route_follower import RouteFollower
 
@@ -13,6 +15,8 @@ register_agent("route_follower")(RouteFollower)
 register_agent("aurora")(AuroraAgent)  # the learned model (agents/aurora/agent.py)
 register_agent("no_fusion")(NoFusionAgent)  # the same without the roadside input
 register_agent("univ2x")(UniV2XAgent)  # UniV2X baseline (agents/baselines/univ2x/agent.py)
+register_agent("unimm_v2x")(UniMMV2XAgent)  # UniMM-V2X (agents/baselines/unimm_v2x/agent.py)
+register_agent("v2x_vit")(V2XViTAgent)  # V2X-ViT (agents/baselines/v2x_vit/agent.py)
 
 
 @register_agent("random")

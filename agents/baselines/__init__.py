@@ -3,11 +3,15 @@ architecture, trained on the same expert data with AURORA's loop (:mod:`..aurora
 driving behind the same agent interface, its roadside half as the ``"rsu"`` agent:
 
 - :mod:`.univ2x`: UniV2X (Yu et al., AAAI 2025), registered as ``univ2x``.
+- :mod:`.unimm_v2x`: UniMM-V2X (Song et al., AAAI 2026), registered as ``unimm_v2x``.
+- :mod:`.v2x_vit`: V2X-ViT (Xu et al., ECCV 2022), registered as ``v2x_vit``.
 
 Nothing heavy is imported here: each baseline's agent module loads torch in its constructor.
 """
 
 #: Baselines with a training command (``v2xbench baselines train NAME``): name -> module.
-BASELINES = {"univ2x": "v2xbench.agents.baselines.univ2x"}
+BASELINES = {"univ2x": "v2xbench.agents.baselines.univ2x",
+             "unimm_v2x": "v2xbench.agents.baselines.unimm_v2x",
+             "v2x_vit": "v2xbench.agents.baselines.v2x_vit"}
 
 __all__ = ["BASELINES"]

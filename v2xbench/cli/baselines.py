@@ -12,7 +12,11 @@ from v2xbench.cli.data import _int_in
 #: :mod:`v2xbench.agents.baselines`) has a ``train`` submodule with ``train(data, out, **kw)``,
 #: ``format_summary(summary)`` and ``evaluate_perception(run, data, split, **kw)``.
 METHODS = {"univ2x": "UniV2X (Yu et al., AAAI 2025): camera, sparse agent queries + dense "
-           "occupancy, query planner"}
+           "occupancy, query planner",
+           "unimm_v2x": "UniMM-V2X (Song et al., AAAI 2026): camera, MoE BEV and motion decoder, "
+           "perception + prediction queries shared, query planner",
+           "v2x_vit": "V2X-ViT (Xu et al., ECCV 2022): LiDAR pillars, roadside BEV features "
+           "(1x1 bottleneck), HMSA + multi-scale window attention, delay encoding"}
 
 
 def _train_module(method: str):

@@ -37,7 +37,7 @@ def _check_same_run(path: Path, info: dict) -> None:
     diff = [k for k in _SAME if old.get(k) != json.loads(json.dumps(info[k]))]
     if diff:
         show = [(k, old.get(k), info[k]) for k in diff if k != "config"]
-        raise ValueError(f"univ2x train: {path.parent} holds a run with other settings ("
+        raise ValueError(f"{info['method']} train: {path.parent} holds a run with other settings ("
                          f"{', '.join(diff)} differ{': ' + str(show) if show else ''}); use the "
                          "same settings to resume, or another --out")
 

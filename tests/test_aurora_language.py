@@ -183,7 +183,8 @@ def test_gradient_flows_from_planner_loss_through_wp_to_fused_tokens(tok):
     gt = torch.stack([torch.arange(1, 7) * 2.0, torch.zeros(6)], -1).expand(2, 6, 2)
     route = torch.zeros(2, CFG.plan_route_points, 2)  # straight ahead
     route[..., 0] = torch.arange(1, CFG.plan_route_points + 1) * CFG.plan_route_spacing
-    plan = planner(h_wp, torch.tensor([3, 1]), gt, route=route)
+    path = torch.stack([torch.arange(40) * 2.0, torch.zeros(40)], -1).expand(2, -1, -1)
+    plan = planner(h_wp, torch.tensor([3, 1]), gt, route=route, path=path)  # plan_frame="route"
     (plan["waypoints"] - gt).abs().mean().backward()  # the planner's L1
     assert float(h_wp.grad.abs().sum()) > 0
     assert bool((det.grad.abs().sum(-1) > 0).all())  # every fused detection token

@@ -136,7 +136,7 @@ def two_samples(cfg: AuroraConfig) -> tuple[torch.Tensor, torch.Tensor, dict]:
 
 @pytest.mark.parametrize("name", ["vae", "mlp", "diffusion"])
 def test_each_planner_overfits_two_samples(name):
-    cfg = AuroraConfig.for_scale("tiny", planner=name)
+    cfg = AuroraConfig.for_scale("tiny", planner=name, plan_frame="ego")
     torch.manual_seed(0)
     planner = build_planner(cfg, cfg.lm_width)
     h, command, batch = two_samples(cfg)
@@ -178,7 +178,7 @@ def test_each_planner_overfits_two_samples(name):
 
 # ---------------------------------------------------------------------- criterion and errors
 def test_plan_mask_and_errors():
-    cfg = AuroraConfig.for_scale("tiny", planner="mlp")
+    cfg = AuroraConfig.for_scale("tiny", planner="mlp", plan_frame="ego")
     planner = build_planner(cfg, cfg.lm_width)
     h, command, batch = two_samples(cfg)
     route = batch["route_points"]
@@ -193,14 +193,14 @@ def test_plan_mask_and_errors():
         planner(h[:, :-1], command, route=route)
     with pytest.raises(ValueError, match="agent_future"):
         PlanningCriterion(cfg)(out, {k: v for k, v in batch.items() if k != "agent_future"})
-    diff_cfg = AuroraConfig.for_scale("tiny", planner="diffusion")
+    diff_cfg = AuroraConfig.for_scale("tiny", planner="diffusion", plan_frame="ego")
     with pytest.raises(ValueError, match="no anchors"):
         build_planner(diff_cfg, cfg.lm_width)(h, command, route=route)
     with pytest.raises(ValueError, match="cannot give"):
         fit_anchors(torch.zeros(2, T, 2), 4)
     with pytest.raises(ValueError, match="known planners"):
         AuroraConfig.for_scale("tiny", planner="rnn")
-    vae_cfg = AuroraConfig.for_scale("tiny")
+    vae_cfg = AuroraConfig.for_scale("tiny", plan_frame="ego")
     vae = build_planner(vae_cfg, vae_cfg.lm_width)
     with pytest.raises(ValueError, match="without the expert trajectory"):
         PlanningCriterion(vae_cfg)(vae(h, command, route=route), batch)
@@ -214,7 +214,7 @@ def test_plan_mask_and_errors():
 def test_planner_overfits_two_samples_that_differ_only_in_their_route(name):
     """The same ``h_wp`` and command (straight), a straight and a left-bending route: only the
     route points tell the two expert trajectories apart."""
-    cfg = AuroraConfig.for_scale("tiny", planner=name)
+    cfg = AuroraConfig.for_scale("tiny", planner=name, plan_frame="ego")
     assert cfg.plan_route_points > 0  # on at the tiny scale (as at every scale)
     torch.manual_seed(0)
     planner = build_planner(cfg, cfg.lm_width)

@@ -13,7 +13,7 @@ from v2xbench.agents.aurora.language import AuroraLM, add_lora, build_lm
 from v2xbench.agents.aurora.planner_losses import PlanningCriterion
 from v2xbench.agents.aurora.policy import IN_KEYS, policy_module
 from v2xbench.agents.aurora.prompt import template_texts
-from v2xbench.agents.aurora.route_input import planner_route_points
+from v2xbench.agents.aurora.route_input import planner_route_path, planner_route_points
 from v2xbench.agents.aurora.rsu_agent import (
     HEADER_FLOATS,
     AuroraRoadside,
@@ -175,6 +175,7 @@ def _batch(tok, b: int = 2, with_msg: bool = True) -> dict:
             "input_ids": enc["input_ids"], "attention_mask": enc["attention_mask"],
             "command": torch.zeros(b, dtype=torch.long), "plan_mask": torch.ones(b, dtype=bool),
             "route_points": planner_route_points(_route_rows(b), CFG),
+            "route_path": planner_route_path(_route_rows(b), CFG),  # plan_frame="route"
             "ego_speed": torch.full((b,), 4.0),
             "expert_waypoints": torch.linspace(0, 10, 16).view(1, 8, 2).expand(b, 8, 2).clone(),
             "map_points": torch.zeros(b, CFG.num_map_queries, CFG.map_points, 2),
@@ -296,11 +297,12 @@ def test_policy_gives_the_planner_the_route_points_of_its_observation(tok):
     system = _system(tok).eval()
     with torch.no_grad():  # an untrained encoder's effect is small: make it visible
         system.planner.route[-1].weight.mul_(50.0)
-    seen = []
+    seen, paths = [], []
     planner_forward = system.planner.forward
 
     def spy(*args, **kw):
         seen.append(kw["route"].clone())
+        paths.append(kw["path"].clone())  # the route-frame planner's polyline (default)
         return planner_forward(*args, **kw)
 
     system.planner.forward = spy
@@ -322,4 +324,5 @@ def test_policy_gives_the_planner_the_route_points_of_its_observation(tok):
     assert torch.equal(seen[0], planner_route_points(straight, CFG))
     assert torch.equal(seen[1], planner_route_points(left, CFG))
     assert seen[0].shape == (1, CFG.plan_route_points, 2)
+    assert torch.equal(paths[1], planner_route_path(left, CFG))
     assert torch.equal(a, a2) and float((a - b).abs().max()) > 1e-3

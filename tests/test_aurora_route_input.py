@@ -140,7 +140,7 @@ def test_planner_errors_name_the_route_input():
         planner(h, cmd)
     with pytest.raises(ValueError, match="route points have shape"):
         planner(h, cmd, route=torch.zeros(2, cfg.plan_route_points + 1, 2))
-    off = AuroraConfig.for_scale("tiny", plan_route_points=0)
+    off = AuroraConfig.for_scale("tiny", plan_route_points=0, plan_frame="ego")
     plain = build_planner(off, off.lm_width)
     assert not any(n.startswith("route.") for n, _ in plain.named_parameters())
     assert plain(h, cmd, route=torch.zeros(2, 0, 2))["waypoints"].shape == (2, 6, 2)

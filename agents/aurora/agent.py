@@ -103,13 +103,15 @@ class AuroraAgent:
 
     def fingerprint(self) -> str:
         """What else the behaviour depends on: the stage, fusion, planner and speed rule, and
-        the planner's route input where it has one (models without it keep their old
-        fingerprint)."""
+        the planner's route input and route output frame where it has them (models without
+        them keep their old fingerprint)."""
         from .policy import TARGET_SPEED_RULE
 
         route = ""
         if self.cfg.plan_route_points:
             route = (f" route={self.cfg.plan_route_points}x{self.cfg.plan_route_spacing:g}m")
+        if self.cfg.plan_frame != "ego":
+            route += f" frame={self.cfg.plan_frame}"
         lateral = "" if self.lateral == "planner" else f" lateral={self.lateral}"
         return (f"stage={self.info['stage']} fusion={self.fusion} planner={self.cfg.planner} "
                 f"speed={TARGET_SPEED_RULE}{route}{lateral}")

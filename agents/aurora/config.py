@@ -188,6 +188,11 @@ class AuroraConfig:
     #: the paper's inputs; a run file without the key is such a model: :meth:`from_dict`)
     plan_route_points: int = 4
     plan_route_spacing: float = 5.0  # m of arc length between them
+    #: the planner's output frame (:mod:`.route_input`, "Route-relative planning"): ``"route"``
+    #: predicts per waypoint an arc length along the observed route and a lateral offset from
+    #: it, turned into ego-frame x, y; ``"ego"`` predicts ego-frame x, y (a run file without the
+    #: key is such a model: :meth:`from_dict`)
+    plan_frame: str = "route"
     # --- losses and matching costs (PETR / MapTR weights)
     focal_alpha: float = 0.25
     focal_gamma: float = 2.0
@@ -295,6 +300,9 @@ class AuroraConfig:
                 and math.isfinite(self.plan_route_spacing) and self.plan_route_spacing > 0):
             raise ValueError(f"AuroraConfig: plan_route_spacing={self.plan_route_spacing!r} must "
                              "be a positive number (m)")
+        if self.plan_frame not in PLAN_FRAMES:
+            raise ValueError(f"AuroraConfig: plan_frame={self.plan_frame!r} must be one of "
+                             f"{PLAN_FRAMES}")
         if not (isinstance(self.plan_speed_dropout, (int, float))
                 and 0 <= self.plan_speed_dropout <= 1):
             raise ValueError(f"AuroraConfig: plan_speed_dropout={self.plan_speed_dropout!r} must "
@@ -376,7 +384,8 @@ class AuroraConfig:
 
 #: Fields whose absence in a run file means "off" (not the scale's default): a model trained
 #: before the field existed has no weights for it (:meth:`AuroraConfig.from_dict`).
-ABSENT_MEANS_OFF: dict[str, Any] = {"plan_route_points": 0}
+ABSENT_MEANS_OFF: dict[str, Any] = {"plan_route_points": 0, "plan_frame": "ego"}
+PLAN_FRAMES = ("ego", "route")  # the planner's output frames (``plan_frame``)
 MAX_ROUTE_POINTS = 16  # the planner's route input: at most this many points
 
 

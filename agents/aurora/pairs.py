@@ -26,6 +26,9 @@ key                        content
                            ``cfg.plan_route_points`` points ahead on the recorded
                            ``route``, ego frame (:func:`~.route_input.
                            planner_route_points`, as the policy at run time)
+``route_path``             (N, 2) float32, route-frame planners only (``cfg.plan_frame
+                           = "route"``): the route polyline the planner's ``(s, d)``
+                           refer to (:func:`~.route_input.planner_route_path`)
 ``ego_speed``              () float32 the ego's speed (m/s; the planning loss's
                            start-from-rest weight reads it, whatever the prompt says)
 ``expert_waypoints``       (8, 2) the expert's future positions, ego frame, 0.5 s apart
@@ -61,7 +64,7 @@ from .data import CALIB_KEYS, AuroraFrames, fused_targets
 from .language import IGNORE, encode_qa
 from .planner_losses import constant_velocity_futures
 from .prompt import PLAN_QUESTION, build_prompt
-from .route_input import ROUTE_KEY, planner_route_points
+from .route_input import PATH_KEY, ROUTE_KEY, planner_route_path, planner_route_points
 
 QA_FILE = Path("chat") / "qa.jsonl"
 EXTRA_KEYS = ("ego_speed", "command", "route", "expert_waypoints", ("gt", "fused", "boxes"),
@@ -222,6 +225,8 @@ class AuroraPairs(Dataset):
             expert_waypoints=x["expert_waypoints"].float(),
             agent_future=fut[0], agent_future_mask=fmask[0],
             plan_mask=torch.tensor(question is None), frame_id=torch.tensor(fid))
+        if cfg.plan_frame == "route":
+            out[PATH_KEY] = planner_route_path(x["route"], cfg)
         if self.cache is not None:
             out.update(self.cache.row(fid))
         return out

@@ -25,6 +25,12 @@ L1 median of a standing frame is "stay standing" (the planner learned "stopped s
 - ``plan_kl`` (VAE): ``KL(N_future || N_present)`` summed over latent dimensions.
 - ``plan_cls`` / ``plan_reg`` (diffusion): cross-entropy of the mode logits against the anchor
   nearest to the expert trajectory, and L1 of that mode's denoised trajectory.
+
+All terms read ego-frame x, y, also for a route-frame planner (``cfg.plan_frame = "route"``,
+:mod:`.planners`, whose outputs are converted differentiably): the L1 stays the error the
+controller sees and comparable with the ego-frame runs', the boundary and collision costs need
+x, y anyway, and no expert waypoint has to be projected onto the route (ambiguous at corners
+and where the expert leaves it).
 """
 
 from __future__ import annotations
@@ -195,7 +201,8 @@ class PlanningCriterion(nn.Module):
         terms: dict[str, torch.Tensor] = {}
         if cfg.planner == "diffusion":
             trajs = out["mode_trajs"]
-            anchors = out["anchors"][None]  # (1, K, T, 2)
+            anchors = out["anchors"]  # (K, T, 2), or each sample's (B, K, T, 2) (route frame)
+            anchors = anchors[None] if anchors.dim() == 3 else anchors
             target = (anchors - gt[:, None]).norm(dim=-1).mean(-1).argmin(1)  # (B,)
             chosen = trajs[torch.arange(b), target]
             terms["plan_cls"] = cfg.plan_cls_weight * _masked_mean(

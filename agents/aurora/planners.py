@@ -9,6 +9,19 @@ waypoints ``cfg.plan_dt`` apart (``(B, T, 2)`` metres: the data set's
 plan_traj_scale)`` with K > 0; K = 0 builds no route encoder: the paper's inputs and the weights
 of runs made before it); trajectories are handled normalized by ``cfg.plan_traj_scale``.
 
+Output frame (``cfg.plan_frame``): ``"ego"`` (runs made before it): the trajectories are
+ego-frame x, y. ``"route"`` (the default): they are route-frame ``(s, d)`` per waypoint, the arc
+length along the observed route (the ``(B, N, 2)`` polyline ``path``,
+:func:`~.route_input.planner_route_path`, batch key ``route_path``) and the lateral offset from
+it, turned into ego-frame x, y by :func:`~.route_input.route_to_ego` (differentiable); the
+outputs (``waypoints``, ``per_command``, ``mode_trajs``) are ego-frame x, y in both frames, so
+the losses (:mod:`.planner_losses`) and open-loop metrics are unchanged, and ``route_sd`` holds
+the chosen trajectory's ``(s, d)``. The MLP and VAE keep ``s`` at or above 0 and non-decreasing
+(each step along the route is a softplus, sharpness :data:`SOFT_BETA`); the diffusion planner's
+anchors are route-frame k-means centres (``s >= 0``) and its inference output's ``s`` is
+clipped at 0. A route-frame planner following the route by default learns only deviations from
+it and the speed along it (docs/aurora.md, "A fourth run").
+
 - :class:`MLPPlanner`: direct regression; one trajectory per command (the output is the given
   command's: "command-conditioned", as VAD / ORION), each the cumulative sum of predicted steps.
 - :class:`VAEPlanner` (the default): a present Gaussian ``N(mu_p, sigma_p)`` from the context
@@ -36,11 +49,13 @@ from torch import nn
 
 from .config import AuroraConfig
 from .det_decoder import mlp
+from .route_input import PATH_KEY, PATH_SPACING, ego_to_route, route_to_ego
 
 LOGVAR_CLAMP = 10.0
 INIT_LOGVAR = -4.0  # initial log-variance of the VAE's Gaussians
 DIFFUSION_STEPS = 1000  # DDPM schedule length
 TRUNCATE = 50  # truncated diffusion: steps used around the anchors
+SOFT_BETA = 10.0  # route frame: sharpness of the softplus of a step along the route (normalized)
 
 
 class Planner(nn.Module):
@@ -57,6 +72,34 @@ class Planner(nn.Module):
         self.k_route = cfg.plan_route_points
         if self.k_route:  # the route points ahead (module docstring)
             self.route = mlp([2 * self.k_route, h, h])
+        self.frame = cfg.plan_frame
+
+    def check_path(self, path: torch.Tensor | None, b: int) -> torch.Tensor | None:
+        """The route polyline ``(B, N, 2)`` of a route-frame planner (``None`` in the ego
+        frame); ``ValueError`` when it is missing or misshapen."""
+        if self.frame == "ego":
+            return None
+        if path is None:
+            raise ValueError(f"{type(self).__name__}: no route path; this planner plans in the "
+                             f"route frame (plan_frame='route'; batch key {PATH_KEY!r}, shape "
+                             f"({b}, N, 2): route_input.planner_route_path)")
+        if path.dim() != 3 or path.shape[0] != b or path.shape[1] < 2 or path.shape[2] != 2:
+            raise ValueError(f"{type(self).__name__}: route path has shape {tuple(path.shape)}; "
+                             f"expected ({b}, N >= 2, 2)")
+        return path
+
+    def to_ego(self, traj: torch.Tensor, path: torch.Tensor | None) -> torch.Tensor:
+        """Trajectories ``(B, ..., T, 2)`` m of the planner's frame -> ego-frame x, y."""
+        return traj if path is None else route_to_ego(traj, path, PATH_SPACING)
+
+    def steps_to_traj(self, steps: torch.Tensor) -> torch.Tensor:
+        """Normalized per-waypoint steps ``(B, C, T, 2)`` -> trajectories (m) of the planner's
+        frame: their cumulative sum; in the route frame the step along the route is first made
+        non-negative (a softplus: ``s`` starts at 0 and never decreases)."""
+        if self.frame == "route":
+            along = nn.functional.softplus(steps[..., :1], beta=SOFT_BETA)
+            steps = torch.cat([along, steps[..., 1:]], -1)
+        return steps.cumsum(-2) * self.scale
 
     def context(self, h_wp: torch.Tensor, command: torch.Tensor,
                 route: torch.Tensor | None = None) -> torch.Tensor:
@@ -113,13 +156,19 @@ class MLPPlanner(Planner):
         self.head = mlp([h, h, self.c * self.t * 2])
 
     def forward(self, h_wp: torch.Tensor, command: torch.Tensor,
-                target: torch.Tensor | None = None, *, route: torch.Tensor | None = None
-                ) -> dict[str, torch.Tensor]:
-        """``waypoints`` ``(B, T, 2)`` m of the command, ``per_command`` ``(B, C, T, 2)``."""
+                target: torch.Tensor | None = None, *, route: torch.Tensor | None = None,
+                path: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """``waypoints`` ``(B, T, 2)`` m of the command, ``per_command`` ``(B, C, T, 2)``
+        (ego frame; ``route_sd``: the command's ``(s, d)`` in the route frame)."""
         x = self.context(h_wp, command, route)
+        path = self.check_path(path, h_wp.shape[0])
         steps = self.head(torch.relu(x)).view(-1, self.c, self.t, 2)
-        per = steps.cumsum(2) * self.scale
-        return {"waypoints": self.select(per, command), "per_command": per}
+        native = self.steps_to_traj(steps)
+        per = self.to_ego(native, path)
+        out = {"waypoints": self.select(per, command), "per_command": per}
+        if path is not None:
+            out["route_sd"] = self.select(native, command)
+        return out
 
 
 class VAEPlanner(Planner):
@@ -145,26 +194,30 @@ class VAEPlanner(Planner):
         return mu, logvar.clamp(-LOGVAR_CLAMP, LOGVAR_CLAMP)
 
     def decode(self, ctx: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
-        """GRU roll-out of latent ``z`` ``(B, Z)``: ``(B, C, T, 2)`` metres."""
+        """GRU roll-out of latent ``z`` ``(B, Z)``: ``(B, C, T, 2)`` metres (planner's frame)."""
         hid = torch.tanh(self.init(torch.cat([ctx, z], -1)))
         steps = []
         for i in range(self.t):
             inp = torch.cat([z, self.step_embed.weight[i].expand(z.shape[0], -1)], -1)
             hid = self.gru(inp, hid)
             steps.append(self.out(hid).view(-1, self.c, 2))
-        return torch.stack(steps, 2).cumsum(2) * self.scale
+        return self.steps_to_traj(torch.stack(steps, 2))
 
     def forward(self, h_wp: torch.Tensor, command: torch.Tensor,
                 target: torch.Tensor | None = None, sample: bool = False, *,
-                route: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+                route: torch.Tensor | None = None, path: torch.Tensor | None = None
+                ) -> dict[str, torch.Tensor]:
         """``waypoints`` ``(B, T, 2)`` m, ``per_command``, ``mu_p`` / ``logvar_p`` and, with a
-        ``target`` (expert waypoints, ``(B, >= T, 2)`` m), ``mu_f`` / ``logvar_f``."""
+        ``target`` (expert waypoints, ``(B, >= T, 2)`` m, ego frame; the future Gaussian reads
+        them in the planner's frame), ``mu_f`` / ``logvar_f``."""
         ctx = self.context(h_wp, command, route)
+        path = self.check_path(path, h_wp.shape[0])
         mu_p, logvar_p = self._gaussian(self.present(torch.relu(ctx)))
         out = {"mu_p": mu_p, "logvar_p": logvar_p}
         target = self.check_target(target, h_wp.shape[0])
         if target is not None:
-            enc = self.traj_enc((target / self.scale).flatten(1))
+            native = target if path is None else ego_to_route(target, path, PATH_SPACING)
+            enc = self.traj_enc((native / self.scale).flatten(1))
             mu_f, logvar_f = self._gaussian(self.future(torch.relu(torch.cat([ctx, enc], -1))))
             out.update(mu_f=mu_f, logvar_f=logvar_f)
             mu, logvar = mu_f, logvar_f
@@ -172,8 +225,11 @@ class VAEPlanner(Planner):
         else:
             mu, logvar = mu_p, logvar_p
         z = mu + torch.randn_like(mu) * (0.5 * logvar).exp() if sample else mu
-        per = self.decode(ctx, z)
+        native = self.decode(ctx, z)
+        per = self.to_ego(native, path)
         out.update(waypoints=self.select(per, command), per_command=per)
+        if path is not None:
+            out["route_sd"] = self.select(native, command)
         return out
 
 
@@ -241,7 +297,9 @@ class DiffusionPlanner(Planner):
         nn.init.zeros_(self.reg.bias)
 
     def set_anchors(self, anchors: torch.Tensor) -> None:
-        """Install anchors ``(K, T, 2)`` metres (e.g. :func:`fit_anchors` of the train split)."""
+        """Install anchors ``(K, T, 2)`` metres in the planner's frame (e.g. :func:`fit_anchors`
+        of the train split's expert trajectories; route frame: their ``(s, d)``,
+        :func:`~.route_input.ego_to_route`)."""
         if tuple(anchors.shape) != tuple(self.anchors.shape):
             raise ValueError(f"DiffusionPlanner: anchors have shape {tuple(anchors.shape)}; "
                              f"expected {tuple(self.anchors.shape)}")
@@ -262,17 +320,19 @@ class DiffusionPlanner(Planner):
         return ab.sqrt() * x0 + (1 - ab).sqrt() * noise
 
     def forward(self, h_wp: torch.Tensor, command: torch.Tensor,
-                target: torch.Tensor | None = None, *, route: torch.Tensor | None = None
-                ) -> dict[str, torch.Tensor]:
+                target: torch.Tensor | None = None, *, route: torch.Tensor | None = None,
+                path: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """``waypoints`` ``(B, T, 2)`` m of the best mode, ``mode_logits`` ``(B, K)``,
-        ``mode_trajs`` ``(B, K, T, 2)`` m, ``anchors`` ``(K, T, 2)`` m. In training mode the
-        anchors are noised to a random step; in eval mode :attr:`steps` DDIM steps run from the
-        anchors."""
+        ``mode_trajs`` ``(B, K, T, 2)`` m, ``anchors`` m (ego frame: ``(K, T, 2)``; route frame:
+        each sample's ``(B, K, T, 2)``, and ``route_sd`` the best mode's ``(s, d)``). In training
+        mode the anchors are noised to a random step; in eval mode :attr:`steps` DDIM steps run
+        from the anchors (route frame: ``s`` clipped at 0 at the end)."""
         if not bool(self.anchors_set):
             raise ValueError("DiffusionPlanner: no anchors (set_anchors(fit_anchors(train "
                              "trajectories, cfg.plan_anchors)) before use)")
         ctx = self.context(h_wp, command, route)
         b = ctx.shape[0]
+        path = self.check_path(path, b)
         x0 = (self.anchors / self.scale).expand(b, -1, -1, -1)
         if self.training:
             t = torch.randint(TRUNCATE, (b,), device=ctx.device)
@@ -288,10 +348,17 @@ class DiffusionPlanner(Planner):
                     eps = (x_t - ab.sqrt() * clean) / (1 - ab).sqrt()
                     t_next = torch.full((b,), ts[i + 1], device=ctx.device)
                     x_t = self._noised(clean, t_next, eps)
-        trajs = clean * self.scale
+        native = clean * self.scale
         best = logits.argmax(1)
+        if path is None:
+            return {"waypoints": native[torch.arange(b), best], "mode_logits": logits,
+                    "mode_trajs": native, "anchors": self.anchors}
+        if not self.training:  # s >= 0 (training keeps the gradient of a negative s)
+            native = torch.cat([native[..., :1].clamp_min(0.0), native[..., 1:]], -1)
+        trajs = self.to_ego(native, path)
         return {"waypoints": trajs[torch.arange(b), best], "mode_logits": logits,
-                "mode_trajs": trajs, "anchors": self.anchors}
+                "mode_trajs": trajs, "route_sd": native[torch.arange(b), best],
+                "anchors": self.to_ego(self.anchors.expand(b, -1, -1, -1), path)}
 
 
 PLANNER_CLASSES = {"vae": VAEPlanner, "mlp": MLPPlanner, "diffusion": DiffusionPlanner}

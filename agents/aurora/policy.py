@@ -93,7 +93,7 @@ class AuroraPolicyNet(nn.Module):
         """``IN_KEYS`` tensors (batched) -> ``(waypoints (B, T, 2), target_speed (B,))``."""
         from .data import model_images
         from .prompt import PLAN_QUESTION, build_prompt
-        from .route_input import ROUTE_KEY, planner_route_points
+        from .route_input import PATH_KEY, ROUTE_KEY, planner_route_path, planner_route_points
         from .system import MSG_FEATURES
 
         cams, (ego, route, info, payload) = args[:len(EGO_CAMERA_NAMES)], args[-4:]
@@ -127,6 +127,8 @@ class AuroraPolicyNet(nn.Module):
                  ROUTE_KEY: planner_route_points(route.cpu(), cfg).to(dev),
                  "rsu_to_ego": torch.stack([e if e is not None else torch.eye(4)
                                             for e in poses]).to(dev)}
+        if cfg.plan_frame == "route":
+            batch[PATH_KEY] = planner_route_path(route.cpu(), cfg).to(dev)
         if bool(has.any()):
             like = next(m for m in msgs if m is not None)
             for k in MSG_FEATURES:

@@ -182,7 +182,8 @@ def _route_config(run: Path, stage: int, cfg: AuroraConfig, requested: int | Non
                              f"(drop --plan-route-points {requested}, or retrain stage 4 with it "
                              "in another run folder)")
         return dataclasses.replace(cfg, plan_route_points=prev.plan_route_points,
-                                   plan_route_spacing=prev.plan_route_spacing)
+                                   plan_route_spacing=prev.plan_route_spacing,
+                                   plan_frame=prev.plan_frame)
     if requested is None:
         return cfg
     return dataclasses.replace(cfg, plan_route_points=requested)
@@ -229,8 +230,9 @@ def _check_same_run(path: Path, info: dict) -> None:
     if not _same_config(old.get("config"), info["config"]):
         diff.append("config")
     else:  # a run file without the key trained a planner without route input
-        k_old = AuroraConfig.from_dict(old["config"]).plan_route_points
-        if k_old != info["config"]["plan_route_points"]:
+        was = AuroraConfig.from_dict(old["config"])
+        if was.plan_route_points != info["config"]["plan_route_points"] \
+                or was.plan_frame != info["config"]["plan_frame"]:  # absent: "ego"
             diff.append("config")
     if diff:
         raise ValueError(f"aurora train: {path.parent} holds a run with other settings "
@@ -336,8 +338,14 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
                      cache=feature_cache, speed_dropout=cfg.plan_speed_dropout, seed=seed)
     if stage == 4 and cfg.planner == "diffusion" and not bool(system.planner.anchors_set):
         wps = torch.stack([ds.extra[fid]["expert_waypoints"] for fid, _, _ in items])
-        system.planner.set_anchors(fit_anchors(wps[:, :cfg.plan_waypoints], cfg.plan_anchors,
-                                               seed=seed))
+        wps = wps[:, :cfg.plan_waypoints].float()
+        if cfg.plan_frame == "route":  # anchors of the route-frame (s, d) trajectories
+            from .route_input import ego_to_route, planner_route_path
+
+            paths = torch.stack([planner_route_path(ds.extra[fid]["route"], cfg)
+                                 for fid, _, _ in items])
+            wps = ego_to_route(wps, paths)
+        system.planner.set_anchors(fit_anchors(wps, cfg.plan_anchors, seed=seed))
     n_qa = sum(q is not None for _, q, _ in items)
     info = {"format": "v2xbench-aurora-run/1", "stage": stage, "branch": STAGE_NAMES[stage],
             "scale": cfg.scale, "config": cfg.to_dict(), "data": str(data.resolve()),

@@ -35,7 +35,7 @@ from .config import AuroraConfig
 from .cqaf import CQAF, empty_message, rsu_message
 from .language import AuroraLM, add_lora, load_lm
 from .planners import build_planner
-from .route_input import ROUTE_KEY
+from .route_input import PATH_KEY, ROUTE_KEY
 from .rsu_agent import to_wire
 
 #: Ego-branch outputs CQAF and the LM read (the last decoder layer), per sample.
@@ -208,7 +208,8 @@ class AuroraSystem(nn.Module):
             target = batch.get("expert_waypoints") if self.training else None
             kw = {"sample": sample} if self.cfg.planner == "vae" and target is None else {}
             out["plan"] = self.planner(lm["h_wp"], batch["command"], target,
-                                       route=batch.get(ROUTE_KEY), **kw)
+                                       route=batch.get(ROUTE_KEY), path=batch.get(PATH_KEY),
+                                       **kw)
         return out
 
 

@@ -4,7 +4,6 @@ input, overfitting two samples, and `v2xbench baselines train unimm_v2x` -> `v2x
 
 from __future__ import annotations
 
-import json
 import shutil
 
 import numpy as np
@@ -21,9 +20,9 @@ from v2xbench.agents.baselines.unimm_v2x.message import (
 from v2xbench.agents.baselines.unimm_v2x.model import RoadsideNet, UniMMV2X
 from v2xbench.agents.baselines.unimm_v2x.moe import MoEFFN, balance_loss
 from v2xbench.agents.baselines.unimm_v2x.motion import MotionFusion
-from v2xbench.envs.v2x_intersection.v2x.channel import Channel, ChannelConfig, validate_message
-from v2xbench.envs.v2x_intersection.v2x.wire import FORMAT_RAW, HEADER_SIZE, encode_message
+from v2xbench.envs.v2x_intersection.v2x.channel import ChannelConfig, validate_message
 
+from tests import baselines_common as bc
 from v2xbench.cli import main
 
 torch.set_num_threads(1)
@@ -139,10 +138,7 @@ def test_message_bytes_are_what_the_channel_counts():
     payload, msg = _rsu_payload()
     f = CFG.message_floats()
     assert payload.shape == (f,) and f == 6 + CFG.msg_topk * (4 + 2 * CFG.width) + 8 * 8
-    ch = Channel(ChannelConfig(max_payload_floats=f), np.random.default_rng(0))
-    sent = ch.send(0, 0, f, payload, FORMAT_RAW)
-    assert sent == HEADER_SIZE + 2 * f == len(encode_message(0, 0, payload, fmt=FORMAT_RAW))
-    assert ch.stats()["bytes_sent_total"] == sent
+    bc.assert_channel_counts(payload, f)
     back = deserialize_message(payload, CFG)
     for key in ("queries", "motion", "ref", "scores", "occ"):
         assert torch.allclose(back[key], msg[key].to(torch.float16).float(), atol=1e-6), key
@@ -183,25 +179,13 @@ def test_bad_input_raises_a_clear_error():
 
 
 def test_tiny_model_overfits_two_samples(tiny_dataset):
-    from v2xbench.agents.aurora.data import collate
     from v2xbench.agents.baselines.unimm_v2x.data import UniMMV2XFrames
     from v2xbench.agents.baselines.unimm_v2x.losses import UniMMV2XCriterion
 
-    ds = UniMMV2XFrames(tiny_dataset, "all", CFG, stride=5)
-    with_unit = [i for i in range(len(ds)) if bool(ds[i]["has_rsu"])]
-    assert with_unit, "the tiny data set has no frame with a roadside unit"
-    batch = collate([ds[with_unit[0]], ds[with_unit[-1]]])
+    batch = bc.unit_batch(UniMMV2XFrames(tiny_dataset, "all", CFG, stride=5))
     torch.manual_seed(0)
-    model, crit = UniMMV2X(CFG), UniMMV2XCriterion(CFG)
-    opt = torch.optim.AdamW(model.parameters(), lr=3e-3)
-    losses, motion = [], []
-    for _ in range(60):
-        loss, parts = crit(model(batch), batch)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        losses.append(float(loss.detach()))
-        motion.append(parts["motion"])
+    losses, history = bc.overfit(UniMMV2X(CFG), UniMMV2XCriterion(CFG), batch)
+    motion, parts = [p["motion"] for p in history], history[-1]
     assert parts["rsu_cls"] > 0 and parts["moe"] >= 0
     seen = [m for m in motion if m > 0]  # steps where fused agents matched agents with futures
     assert len(seen) >= 20, motion[::5]  # the motion head is supervised ...
@@ -214,30 +198,9 @@ def test_cli_trains_resumes_and_drives_a_route(tiny_dataset, tmp_path, capsys):
 
     data, run = tmp_path / "data", tmp_path / "run"
     shutil.copytree(tiny_dataset, data)
-    base = ["baselines", "train", "unimm_v2x", "--data", str(data), "--out", str(run),
-            "--scale", "tiny", "--quiet", "--threads", "1"]
-    assert main([*base, "--max-steps", "3"]) == 0
-    assert "step 3/" in capsys.readouterr().out
-    assert main(base) == 0  # resumes at step 3 and finishes the epoch
-    out = capsys.readouterr().out
-    log = [json.loads(x) for x in (run / "log.jsonl").read_text().splitlines()]
-    assert [r["step"] for r in log] == list(range(1, len(log) + 1)) and "(done)" in out
+    base, log = bc.train_and_resume("unimm_v2x", data, run, capsys)
     assert log[-1]["motion"] >= 0 and log[-1]["moe"] >= 0  # the new loss parts are logged
-    assert main([*base, "--seed", "1"]) == 2
-    assert "unimm_v2x train" in capsys.readouterr().err
+    assert "unimm_v2x train" in bc.refused_error(base, capsys)
     model, cfg, info = load_run(run)
     assert isinstance(cfg, UniMMV2XConfig) and info["camera_size"] == [32, 16]
-    conf = tmp_path / "unimm_v2x.json"
-    conf.write_text(json.dumps({"run": str(run)}))
-    res_dir = tmp_path / "eval"
-    assert main(["eval", "--agent", "unimm_v2x", "--agent-config", str(conf), "--suite",
-                 "test50", "--max-routes", "1", "--set", "max_steps=15", "--out", str(res_dir),
-                 "--quiet"]) == 0
-    route = json.loads(next((res_dir / "routes").glob("*.json")).read_text())
-    assert route["error"] is None and route["ticks"] == 15
-    summ = json.loads((res_dir / "summary.json").read_text())
-    f = cfg.message_floats()
-    assert summ["config_overrides"]["max_payload_floats"] == f
-    assert summ["rsu_policy"] == "custom:UniMMV2XRoadside"
-    sent = route["record"]["bytes_sent"]  # whole messages of 16 + 2F bytes
-    assert sent > 0 and sent % (HEADER_SIZE + 2 * f) == 0 and summ["metrics"]["bps"] > 0
+    bc.drive_one_route("unimm_v2x", run, tmp_path, cfg.message_floats(), "UniMMV2XRoadside")

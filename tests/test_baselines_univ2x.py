@@ -4,7 +4,6 @@ samples, and `v2xbench baselines train univ2x` -> `v2xbench eval --agent univ2x`
 
 from __future__ import annotations
 
-import json
 import math
 import shutil
 
@@ -23,9 +22,9 @@ from v2xbench.agents.baselines.univ2x.message import (
 from v2xbench.agents.baselines.univ2x.model import RoadsideNet, UniV2X
 from v2xbench.envs.v2x_intersection.core.geometry import pose_matrix
 from v2xbench.envs.v2x_intersection.v2x.channel import Channel, ChannelConfig, validate_message
-from v2xbench.envs.v2x_intersection.v2x.wire import FORMAT_RAW, HEADER_SIZE, encode_message
+from v2xbench.envs.v2x_intersection.v2x.wire import FORMAT_RAW
 
-from v2xbench.cli import main
+from tests import baselines_common as bc
 
 torch.set_num_threads(1)
 CFG = UniV2XConfig.for_scale("tiny")
@@ -115,10 +114,7 @@ def test_message_bytes_are_what_the_channel_counts():
     payload, msg = _rsu_payload()
     f = CFG.message_floats()
     assert payload.shape == (f,) and f == 6 + CFG.msg_topk * (4 + CFG.width) + 8 * 8
-    ch = Channel(ChannelConfig(max_payload_floats=f), np.random.default_rng(0))
-    sent = ch.send(0, 0, f, payload, FORMAT_RAW)
-    assert sent == HEADER_SIZE + 2 * f == len(encode_message(0, 0, payload, fmt=FORMAT_RAW))
-    assert ch.stats()["bytes_sent_total"] == sent
+    bc.assert_channel_counts(payload, f)
     back = deserialize_message(payload, CFG)
     for key in ("queries", "ref", "scores", "occ"):
         assert torch.allclose(back[key], msg[key].to(torch.float16).float(), atol=1e-6)
@@ -148,63 +144,26 @@ def test_an_oversized_message_is_refused():
 
 
 def test_tiny_model_overfits_two_samples(tiny_dataset):
-    from v2xbench.agents.aurora.data import collate
     from v2xbench.agents.baselines.univ2x.data import UniV2XFrames
     from v2xbench.agents.baselines.univ2x.losses import UniV2XCriterion
 
-    ds = UniV2XFrames(tiny_dataset, "all", CFG, stride=5)
-    with_unit = [i for i in range(len(ds)) if bool(ds[i]["has_rsu"])]
-    assert with_unit, "the tiny data set has no frame with a roadside unit"
-    batch = collate([ds[with_unit[0]], ds[with_unit[-1]]])
+    batch = bc.unit_batch(UniV2XFrames(tiny_dataset, "all", CFG, stride=5))
     torch.manual_seed(0)
-    model, crit = UniV2X(CFG), UniV2XCriterion(CFG)
-    opt = torch.optim.AdamW(model.parameters(), lr=3e-3)
-    losses = []
-    for _ in range(60):
-        loss, parts = crit(model(batch), batch)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        losses.append(float(loss.detach()))
+    losses, parts = bc.overfit(UniV2X(CFG), UniV2XCriterion(CFG), batch)
+    parts = parts[-1]
     assert parts["rsu_cls"] > 0 and parts["plan_l1"] >= 0  # the roadside half trained too
     assert losses[-1] < 0.5 * losses[0], losses[::10]
 
 
 def test_cli_trains_resumes_round_trips_and_drives_a_route(tiny_dataset, tmp_path, capsys):
-    from v2xbench.agents.aurora.trainer import load_weights, save_checkpoint
     from v2xbench.agents.baselines.univ2x.train import load_run
 
     data, run = tmp_path / "data", tmp_path / "run"
     shutil.copytree(tiny_dataset, data)
-    base = ["baselines", "train", "univ2x", "--data", str(data), "--out", str(run), "--scale",
-            "tiny", "--quiet", "--threads", "1"]
-    assert main([*base, "--max-steps", "3"]) == 0
-    assert "step 3/" in capsys.readouterr().out
-    assert main(base) == 0  # resumes at step 3 and finishes the epoch
-    out = capsys.readouterr().out
-    log = [json.loads(x) for x in (run / "log.jsonl").read_text().splitlines()]
-    assert [r["step"] for r in log] == list(range(1, len(log) + 1)) and "(done)" in out
+    base, _ = bc.train_and_resume("univ2x", data, run, capsys)
     assert (run / "loss.png").is_file()
-    assert main([*base, "--seed", "1"]) == 2  # another run's settings on the same folder
-    assert "seed differ" in capsys.readouterr().err
+    assert "seed differ" in bc.refused_error(base, capsys)
     model, cfg, info = load_run(run)  # checkpoint round trip: same weights, same outputs
-    save_checkpoint(model, tmp_path / "again.safetensors")
-    other = UniV2X(cfg)
-    load_weights(other, tmp_path / "again.safetensors")
-    for (name, a), b in zip(model.state_dict().items(), other.state_dict().values()):
-        assert torch.equal(a, b), name
+    bc.assert_same_weights(model, UniV2X(cfg), tmp_path / "again.safetensors")
     assert info["camera_size"] == [32, 16]
-    conf = tmp_path / "univ2x.json"
-    conf.write_text(json.dumps({"run": str(run)}))
-    res_dir = tmp_path / "eval"
-    assert main(["eval", "--agent", "univ2x", "--agent-config", str(conf), "--suite", "test50",
-                 "--max-routes", "1", "--set", "max_steps=15", "--out", str(res_dir),
-                 "--quiet"]) == 0
-    route = json.loads(next((res_dir / "routes").glob("*.json")).read_text())
-    assert route["error"] is None and route["ticks"] == 15
-    summ = json.loads((res_dir / "summary.json").read_text())
-    f = cfg.message_floats()
-    assert summ["config_overrides"]["max_payload_floats"] == f
-    assert summ["rsu_policy"] == "custom:UniV2XRoadside"
-    sent = route["record"]["bytes_sent"]  # the channel's count: whole messages of 16 + 2F bytes
-    assert sent > 0 and sent % (HEADER_SIZE + 2 * f) == 0 and summ["metrics"]["bps"] > 0
+    bc.drive_one_route("univ2x", run, tmp_path, cfg.message_floats(), "UniV2XRoadside")

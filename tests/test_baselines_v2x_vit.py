@@ -23,9 +23,8 @@ from v2xbench.agents.baselines.v2x_vit.message import deserialize_message, seria
 from v2xbench.agents.baselines.v2x_vit.model import RoadsideNet, V2XViT
 from v2xbench.agents.baselines.v2x_vit.pillars import PillarEncoder, pillarize
 from v2xbench.envs.v2x_intersection.core.geometry import pose_matrix
-from v2xbench.envs.v2x_intersection.v2x.channel import Channel, ChannelConfig
-from v2xbench.envs.v2x_intersection.v2x.wire import FORMAT_RAW, HEADER_SIZE, encode_message
 
+from tests import baselines_common as bc
 from v2xbench.cli import main
 
 torch.set_num_threads(1)
@@ -96,10 +95,7 @@ def test_message_bytes_are_what_the_channel_counts():
     f = CFG.message_floats()
     assert feats.shape == (1, CFG.compress_channels, 16, 16)
     assert payload.shape == (f,) and f == 5 + 4 * 16 * 16
-    ch = Channel(ChannelConfig(max_payload_floats=f), np.random.default_rng(0))
-    sent = ch.send(0, 0, f, payload, FORMAT_RAW)
-    assert sent == HEADER_SIZE + 2 * f == len(encode_message(0, 0, payload, fmt=FORMAT_RAW))
-    assert ch.stats()["bytes_sent_total"] == sent
+    bc.assert_channel_counts(payload, f)
     back = deserialize_message(payload, CFG)
     assert torch.allclose(back, feats.to(torch.float16).float(), atol=1e-6)
     with pytest.raises(ValueError, match="not a V2X-ViT roadside message"):
@@ -173,23 +169,13 @@ def test_data_set_and_closed_loop_put_the_lidars_in_the_same_frames(lidar_datase
 
 
 def test_tiny_model_overfits_two_samples(lidar_dataset):
-    from v2xbench.agents.aurora.data import collate
     from v2xbench.agents.baselines.v2x_vit.data import V2XViTFrames
     from v2xbench.agents.baselines.v2x_vit.losses import V2XViTCriterion
 
-    ds = V2XViTFrames(lidar_dataset, "all", CFG, stride=5, delay=0)
-    with_unit = [i for i in range(len(ds)) if bool(ds[i]["has_rsu"])]
-    batch = collate([ds[with_unit[0]], ds[with_unit[-1]]])
+    batch = bc.unit_batch(V2XViTFrames(lidar_dataset, "all", CFG, stride=5, delay=0))
     torch.manual_seed(0)
-    model, crit = V2XViT(CFG), V2XViTCriterion(CFG)
-    opt = torch.optim.AdamW(model.parameters(), lr=3e-3)
-    losses = []
-    for _ in range(60):
-        loss, parts = crit(model(batch), batch)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        losses.append(float(loss.detach()))
+    model = V2XViT(CFG)
+    losses, _ = bc.overfit(model, V2XViTCriterion(CFG), batch)
     assert model.rsu.compress.weight.grad.abs().sum() > 0  # the roadside half trained too
     assert losses[-1] < 0.5 * losses[0], losses[::10]
 
@@ -226,45 +212,19 @@ def test_bad_input_raises_clear_errors(tiny_dataset, lidar_dataset):
 
 
 def test_cli_trains_resumes_and_drives_a_route(lidar_dataset, tmp_path, capsys):
-    from v2xbench.agents.aurora.trainer import load_weights, save_checkpoint
     from v2xbench.agents.baselines.v2x_vit.train import load_run
 
     data, run = tmp_path / "data", tmp_path / "run"
     shutil.copytree(lidar_dataset, data)
-    base = ["baselines", "train", "v2x_vit", "--data", str(data), "--out", str(run), "--scale",
-            "tiny", "--quiet", "--threads", "1"]
-    assert main([*base, "--max-steps", "3"]) == 0
-    assert "step 3/" in capsys.readouterr().out
-    assert main(base) == 0  # resumes at step 3 and finishes the epoch
-    out = capsys.readouterr().out
-    log = [json.loads(x) for x in (run / "log.jsonl").read_text().splitlines()]
-    assert [r["step"] for r in log] == list(range(1, len(log) + 1)) and "(done)" in out
+    base, log = bc.train_and_resume("v2x_vit", data, run, capsys)
     assert {"heat", "box", "plan_l1", "plan_col"} <= set(log[-1])
-    assert main([*base, "--seed", "1"]) == 2  # another run's settings on the same folder
-    assert "seed differ" in capsys.readouterr().err
+    assert "seed differ" in bc.refused_error(base, capsys)
     model, cfg, info = load_run(run)  # checkpoint round trip
-    save_checkpoint(model, tmp_path / "again.safetensors")
-    other = V2XViT(cfg)
-    load_weights(other, tmp_path / "again.safetensors")
-    for (name, a), b in zip(model.state_dict().items(), other.state_dict().values()):
-        assert torch.equal(a, b), name
+    bc.assert_same_weights(model, V2XViT(cfg), tmp_path / "again.safetensors")
     assert info["lidar_scale"] == 0.5
     assert main(["baselines", "eval-perception", "v2x_vit", "--run", str(run), "--data",
                  str(data), "--split", "val", "--stride", "10", "--quiet"]) == 0
     res = json.loads((run / "eval_val" / "perception.json").read_text())
     assert res["message_bytes"] == 16 + 2 * cfg.message_floats() and res["frames"] > 0
-    conf = tmp_path / "v2x_vit.json"
-    conf.write_text(json.dumps({"run": str(run)}))
-    res_dir = tmp_path / "eval"
-    assert main(["eval", "--agent", "v2x_vit", "--agent-config", str(conf), "--suite", "test50",
-                 "--max-routes", "1", "--set", "max_steps=15", "--out", str(res_dir),
-                 "--quiet"]) == 0
-    route = json.loads(next((res_dir / "routes").glob("*.json")).read_text())
-    assert route["error"] is None and route["ticks"] == 15
-    summ = json.loads((res_dir / "summary.json").read_text())
-    f = cfg.message_floats()
-    assert summ["config_overrides"]["max_payload_floats"] == f
+    summ = bc.drive_one_route("v2x_vit", run, tmp_path, cfg.message_floats(), "V2XViTRoadside")
     assert summ["config_overrides"]["lidar_scale"] == 0.5
-    assert summ["rsu_policy"] == "custom:V2XViTRoadside"
-    sent = route["record"]["bytes_sent"]  # the channel's count: whole messages of 16 + 2F bytes
-    assert sent > 0 and sent % (HEADER_SIZE + 2 * f) == 0 and summ["metrics"]["bps"] > 0

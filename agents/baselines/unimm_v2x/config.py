@@ -13,16 +13,18 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
+from ..common.config import check_ints
 from ..univ2x.config import _SCALE_FIELDS as _UNIV2X_SCALES
-from ..univ2x.config import MESSAGE_HEADER_FLOATS, SCALES, UniV2XConfig
+from ..univ2x.config import MESSAGE_HEADER_FLOATS, UniV2XConfig
 
 
 @dataclass(frozen=True)
 class UniMMV2XConfig(UniV2XConfig):
     """UniV2X's configuration plus MoE, motion and prediction-fusion settings."""
 
+    TITLE: ClassVar[str] = "UniMM-V2X"
     # --- Mixture of Experts (BEV encoder and motion decoder): router + expert FFNs, top-k
     num_experts: int = 4
     moe_topk: int = 2
@@ -39,15 +41,10 @@ class UniMMV2XConfig(UniV2XConfig):
     motion_match_radius: float = 4.0  # m: a predicted agent supervised by the gt agent this near
 
     def __post_init__(self) -> None:
-        for name in ("num_experts", "moe_topk", "moe_hidden", "motion_layers", "motion_modes",
-                     "motion_steps"):
-            v = getattr(self, name)
-            if not isinstance(v, int) or isinstance(v, bool) or v < 1:
-                raise ValueError(f"UniMMV2XConfig: {name}={v!r} must be an int >= 1")
-        if isinstance(self.bev_moe_layers, bool) or not isinstance(self.bev_moe_layers, int) \
-                or self.bev_moe_layers < 0:
-            raise ValueError(f"UniMMV2XConfig: bev_moe_layers={self.bev_moe_layers!r} must be an "
-                             "int >= 0")
+        who = "UniMMV2XConfig"
+        check_ints(self, who, ("num_experts", "moe_topk", "moe_hidden", "motion_layers",
+                               "motion_modes", "motion_steps"))
+        check_ints(self, who, ("bev_moe_layers",), lo=0)
         if self.moe_topk > self.num_experts:
             raise ValueError(f"UniMMV2XConfig: moe_topk={self.moe_topk} exceeds num_experts="
                              f"{self.num_experts}")
@@ -68,17 +65,6 @@ class UniMMV2XConfig(UniV2XConfig):
         ox, oy = self.msg_occ
         return MESSAGE_HEADER_FLOATS + self.msg_topk * (4 + 2 * self.width) + ox * oy
 
-    @classmethod
-    def for_scale(cls, name: str, **overrides: Any) -> UniMMV2XConfig:
-        """The named scale with field ``overrides`` (unknown scale or field: ``ValueError``)."""
-        if name not in _SCALE_FIELDS:
-            raise ValueError(f"unknown UniMM-V2X scale {name!r}; known scales: "
-                             f"{', '.join(SCALES)}")
-        unknown = set(overrides) - {f.name for f in dataclasses.fields(cls)}
-        if unknown:
-            raise ValueError(f"UniMMV2XConfig: unknown fields {sorted(unknown)}")
-        return cls(**{**_SCALE_FIELDS[name], "scale": name, **overrides})
-
 
 _SCALE_FIELDS: dict[str, dict[str, Any]] = {
     "tiny": {**_UNIV2X_SCALES["tiny"]},
@@ -89,5 +75,7 @@ _SCALE_FIELDS: dict[str, dict[str, Any]] = {
     "paper": {**_UNIV2X_SCALES["paper"], "moe_hidden": 512, "num_experts": 8, "moe_topk": 2,
               "bev_moe_layers": 3, "motion_layers": 3, "motion_modes": 6, "motion_steps": 12},
 }
+
+UniMMV2XConfig.SCALE_FIELDS = _SCALE_FIELDS
 
 __all__ = ["UniMMV2XConfig"]

@@ -27,8 +27,8 @@ from collections.abc import Mapping
 
 import numpy as np
 import torch
-from v2xbench.envs.v2x_intersection.v2x.wire import PAYLOAD_LIMIT
 
+from ..common.message import read_header, to_payload
 from ..univ2x import message as univ2x_message
 from .config import MESSAGE_HEADER_FLOATS, UniMMV2XConfig
 
@@ -89,7 +89,7 @@ def serialize_message(msg: Mapping[str, torch.Tensor]) -> np.ndarray:
     agents = torch.cat([ref[0], sc[0, :, None], q[0], m[0]], -1).reshape(-1)
     flat = torch.cat([head, agents.detach().float().cpu(),
                       occ[0].reshape(-1).detach().float().cpu()]).numpy()
-    return np.clip(flat, -PAYLOAD_LIMIT, PAYLOAD_LIMIT).astype(np.float16).astype(np.float32)
+    return to_payload(flat)
 
 
 def deserialize_message(payload: np.ndarray, cfg: UniMMV2XConfig) -> dict[str, torch.Tensor]:
@@ -99,11 +99,8 @@ def deserialize_message(payload: np.ndarray, cfg: UniMMV2XConfig) -> dict[str, t
         ValueError: not a UniMM-V2X message (magic, version), sizes other than ``cfg``'s, or a
             length that disagrees with them.
     """
-    x = np.asarray(payload, np.float32).reshape(-1)
-    if x.shape[0] < MESSAGE_HEADER_FLOATS or x[0] != MAGIC or x[1] != VERSION:
-        raise ValueError(f"UniMM-V2X deserialize_message: not a UniMM-V2X roadside message "
-                         f"(header {x[:2].tolist()}, expected [{MAGIC}, {VERSION}])")
-    k, d, ox, oy = (int(v) for v in x[2:6])
+    x, (k, d, ox, oy) = read_header(payload, MAGIC, VERSION, MESSAGE_HEADER_FLOATS,
+                                    "UniMM-V2X")
     want = (cfg.msg_topk, cfg.width, *cfg.msg_occ)
     if (k, d, ox, oy) != want:
         raise ValueError(f"UniMM-V2X deserialize_message: the message has K={k}, D={d}, "

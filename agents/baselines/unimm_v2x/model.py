@@ -25,13 +25,14 @@ from __future__ import annotations
 import torch
 from torch import nn
 from v2xbench.agents.aurora.cqaf import query_scores
-from v2xbench.agents.aurora.det_decoder import DetectionDecoder, focal_bias
+from v2xbench.agents.aurora.det_decoder import DetectionDecoder
 from v2xbench.agents.aurora.fused_heads import FusedDetHead
-from v2xbench.agents.aurora.rsu_agent import to_wire
 
+from ..common.model import parameter_counts
 from ..univ2x.bev import LiftSplatEncoder
 from ..univ2x.fusion import AgentFusion, OccupancyFusion
-from ..univ2x.model import BEVTokens
+from ..univ2x.model import BEVTokens, UniV2X
+from ..univ2x.model import RoadsideNet as UniV2XRoadsideNet
 from ..univ2x.planner import QueryPlanner
 from .config import UniMMV2XConfig
 from .message import check_message, empty_message, rsu_message
@@ -71,25 +72,21 @@ class MoEPerception(nn.Module):
                 "det_boxes": dec["boxes"], "queries": dec["queries"], "balance": bal}
 
 
-class RoadsideNet(nn.Module):
-    """The roadside half (module docstring); ``branch = "rsu"``."""
+class RoadsideNet(UniV2XRoadsideNet):
+    """The roadside half (module docstring); ``branch = "rsu"``: UniV2X's (occupancy head) on
+    MoE-BEV perception, plus the MotionMoE decoder."""
 
-    branch = "rsu"
+    perception_cls = MoEPerception
 
     def __init__(self, cfg: UniMMV2XConfig) -> None:
-        super().__init__()
-        self.cfg = cfg
-        self.perception = MoEPerception(cfg, "rsu")
-        self.occ_head = nn.Conv2d(cfg.width, 1, 1)
-        nn.init.constant_(self.occ_head.bias, focal_bias())  # cells start at p = 0.01
+        super().__init__(cfg)
         self.motion = MotionDecoder(cfg, cfg.rsu_range)
 
     def forward(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         """``images`` ``(B, 1, 3, H, W)``, ``intrinsics``, ``cam_to_frame`` (the unit's ground
         frame) -> the perception outputs, ``occ_logits`` ``(B, nx, ny)``, ``motion_q``,
         ``traj``, ``mode_logits`` and ``balance`` (both MoE parts)."""
-        out = self.perception(batch["images"], batch["intrinsics"], batch["cam_to_frame"])
-        out["occ_logits"] = self.occ_head(out["bev"])[:, 0]
+        out = super().forward(batch)
         q = out["queries"]
         mask = torch.ones(q.shape[:2], dtype=torch.bool, device=q.device)
         mot = self.motion(q, out["det_boxes"][-1][..., :3], mask, out["bev_tokens"],
@@ -146,43 +143,13 @@ class EgoNet(nn.Module):
                 "balance": p["balance"] + bal}
 
 
-class UniMMV2X(nn.Module):
-    """Both halves, trained end to end (module docstring)."""
+class UniMMV2X(UniV2X):
+    """Both halves, trained end to end (module docstring): UniV2X's training model
+    (:class:`~..univ2x.model.UniV2X`: the message of the rows with a unit, float16 as on air)
+    with UniMM-V2X's halves and message."""
 
-    def __init__(self, cfg: UniMMV2XConfig) -> None:
-        super().__init__()
-        self.cfg = cfg
-        self.rsu = RoadsideNet(cfg)
-        self.ego = EgoNet(cfg)
-
-    def message(self, batch: dict[str, torch.Tensor]
-                ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor] | None, torch.Tensor]:
-        """The batch's messages (empty for rows without a unit), the roadside outputs of the
-        rows with one (``None`` if none) and those rows' indices."""
-        has = batch["has_rsu"].bool()
-        msg = empty_message(self.cfg, has.shape[0], has.device)
-        rows = has.nonzero().squeeze(1)
-        if not len(rows):
-            return msg, None, rows
-        out = self.rsu({k: batch[f"rsu/{k}"][rows] for k in
-                        ("images", "intrinsics", "cam_to_frame")})
-        for k, v in to_wire(rsu_message(out, self.cfg)).items():
-            msg[k] = msg[k].index_put((rows,), v.to(msg[k].dtype))
-        return msg, out, rows
-
-    def forward(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        """Training / evaluation pass over a batch of :class:`~.data.UniMMV2XFrames`."""
-        msg, rsu_out, rows = self.message(batch)
-        out = self.ego(batch, msg, batch["rsu_to_ego"], batch["has_rsu"].bool())
-        out.update(rsu=rsu_out, rsu_rows=rows)
-        return out
-
-
-def parameter_counts(model: UniMMV2X) -> dict[str, int]:
-    """Parameters of the roadside half, the ego half and the total."""
-    rsu = sum(p.numel() for p in model.rsu.parameters())
-    ego = sum(p.numel() for p in model.ego.parameters())
-    return {"rsu": rsu, "ego": ego, "total": rsu + ego}
+    roadside_net, ego_net = RoadsideNet, EgoNet
+    empty_message, rsu_message = staticmethod(empty_message), staticmethod(rsu_message)
 
 
 __all__ = ["EgoNet", "MoEPerception", "RoadsideNet", "UniMMV2X", "parameter_counts"]

@@ -15,132 +15,26 @@ settings on it are refused, naming what differs.
 
 from __future__ import annotations
 
-import dataclasses
-import json
-from pathlib import Path
-
-from v2xbench.files import atomic_write_json, atomic_write_text
-
-from ..univ2x.train import _check_same_run
+from ..common.train import CHECKPOINT
+from ..univ2x.train import UniV2XRun
 from .config import UniMMV2XConfig
 
 METHOD = "unimm_v2x"
 RUN_FILE = "unimm_v2x.json"
 FORMAT = "v2xbench-unimm-v2x-run/1"
-CHECKPOINT = "checkpoint.safetensors"
 
 
-def train_unimm_v2x(data: str | Path, out: str | Path, *, scale: str = "default",
-                    device: str = "cpu", max_steps: int | None = None,
-                    stride: int | None = None, seed: int = 0, progress: bool = True,
-                    num_workers: int | None = None) -> dict:
-    """Train UniMM-V2X on the ``train`` split of ``data`` into the run folder ``out``
-    (arguments, result and errors as :func:`~..univ2x.train.train_univ2x`)."""
-    import torch
-    from v2xbench.agents.aurora.data import make_loader
-    from v2xbench.agents.aurora.trainer import fit
+class UniMMV2XRun(UniV2XRun):
+    """UniV2X's run with UniMM-V2X's data set (motion targets), model and loss."""
 
-    from .data import UniMMV2XFrames
-    from .losses import UniMMV2XCriterion
-    from .model import UniMMV2X, parameter_counts
-
-    cfg = UniMMV2XConfig.for_scale(scale)
-    if not Path(data).is_dir():
-        raise FileNotFoundError(f"{METHOD} train: data directory {data} does not exist (collect "
-                                "one with `v2xbench collect --suite train --out DIR`)")
-    hp = cfg.train
-    if stride is not None:
-        hp = dataclasses.replace(hp, frame_stride=stride)
-    if num_workers is not None:
-        hp = dataclasses.replace(hp, num_workers=num_workers)
-    ds = UniMMV2XFrames(data, "train", cfg, stride=hp.frame_stride)
-    out = Path(out)
-    info = {"format": FORMAT, "method": METHOD, "scale": scale, "config": cfg.to_dict(),
-            "data": str(Path(data).resolve()), "split": "train", "frame_stride": hp.frame_stride,
-            "frames": len(ds), "seed": seed, "camera_size": list(ds.recorded_size)}
-    _check_same_run(out / RUN_FILE, info)
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(out / RUN_FILE, info, indent=1)
-    loader = make_loader(ds, hp.batch_size, shuffle=True, seed=seed, num_workers=hp.num_workers)
-    torch.manual_seed(seed)  # the initial weights are part of the run
-    model = UniMMV2X(cfg)
-    summary = fit(model, UniMMV2XCriterion(cfg), loader, out, hp, device=device, seed=seed,
-                  progress=progress, max_steps=max_steps)
-    summary.update(scale=scale, frames=len(ds), parameters=parameter_counts(model))
-    atomic_write_json(out / "train_summary.json", summary, indent=1)
-    return summary
+    method, title, run_format, config_cls = METHOD, "UniMM-V2X", FORMAT, UniMMV2XConfig
+    frames_cls, model_cls = "data:UniMMV2XFrames", "model:UniMMV2X"
+    criterion_cls = "losses:UniMMV2XCriterion"
 
 
-#: The name ``v2xbench baselines train`` calls.
-train = train_unimm_v2x
+RUN = UniMMV2XRun()
+train, format_summary, load_run, evaluate_perception = RUN.commands()
+train_unimm_v2x = train
 
-
-def format_summary(s: dict) -> str:
-    """One line about a training call."""
-    from v2xbench.agents.aurora.trainer import loss_text, progress_text, speed_text
-
-    return (f"{METHOD} ({s['scale']}, {s['parameters']['total']:,d} parameters): "
-            f"{progress_text(s)}, {s['frames']} frames, loss {loss_text(s)}, {speed_text(s)}")
-
-
-def load_run(run: str | Path, device: str = "cpu"):
-    """``(model, cfg, info)``: the trained :class:`~.model.UniMMV2X` of a run folder (eval mode).
-
-    Raises:
-        FileNotFoundError: no ``unimm_v2x.json`` or checkpoint in ``run``.
-    """
-    from v2xbench.agents.aurora.trainer import load_weights
-
-    from .model import UniMMV2X
-
-    run = Path(run)
-    if not (run / RUN_FILE).is_file() or not (run / CHECKPOINT).is_file():
-        raise FileNotFoundError(f"{METHOD}: {run} is not a trained UniMM-V2X run (no {RUN_FILE} "
-                                f"or {CHECKPOINT}; train one with `v2xbench baselines train "
-                                f"{METHOD} --data DIR --out {run}`)")
-    info = json.loads((run / RUN_FILE).read_text())
-    cfg = UniMMV2XConfig.from_dict(info["config"])
-    model = UniMMV2X(cfg)
-    load_weights(model, run / CHECKPOINT, device)
-    info["checkpoint"] = str(run / CHECKPOINT)
-    return model.to(device).eval(), cfg, info
-
-
-def evaluate_perception(run: str | Path, data: str | Path, split: str = "test", *,
-                        out: str | Path | None = None, stride: int = 1, top_k: int = 50,
-                        batch_size: int = 4, device: str = "cpu", progress: bool = True) -> dict:
-    """The fused detections of a run on a split with AURORA's metrics code; the same keys and
-    files as UniV2X's :func:`~..univ2x.train.evaluate_perception` (frames without a unit get
-    the empty message, as in closed loop)."""
-    from v2xbench.agents.aurora.eval_perception import _finite, markdown_table, predict, table_row
-    from v2xbench.envs.v2x_intersection.evaluation.metrics_perception import detection_metrics
-
-    from .data import UniMMV2XFrames
-
-    model, cfg, _ = load_run(run, device)
-    ds = UniMMV2XFrames(data, split, cfg, stride=stride)
-    if progress:
-        print(f"{METHOD} eval-perception: {len(ds)} frames of {data} ({split})")
-    res = predict(model, ds, top_k=top_k, batch_size=batch_size, device=device)
-    metrics = detection_metrics(res["preds"], res["gts"])
-    row = table_row(metrics)
-    msg_bytes = 16 + 2 * cfg.message_floats()
-    table = markdown_table({f"{METHOD} (fused, ego frame)": row})
-    res = {"run": str(run), "data": str(data), "split": split, "stride": stride, "top_k": top_k,
-           "frames": len(ds), "table": row, "metrics": metrics,
-           "message_floats": cfg.message_floats(), "message_bytes": msg_bytes,
-           "bps_per_unit_frame": 10 * msg_bytes}
-    out = Path(out) if out is not None else Path(run) / f"eval_{split}"
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(out / "perception.json", _finite(res), indent=1)
-    atomic_write_text(out / "perception.md", f"# UniMM-V2X perception: {data} ({split})\n\n"
-                      f"Run `{run}`, top-{top_k} fused agents per frame, nuScenes-style metrics "
-                      f"(envs/v2x_intersection/evaluation/metrics_perception.py); message "
-                      f"{msg_bytes:,d} bytes on air ({10 * msg_bytes:,d} B/s at 10 Hz while a "
-                      "unit serves).\n\n" + table)
-    res["out"], res["markdown"] = str(out), table
-    return res
-
-
-__all__ = ["METHOD", "RUN_FILE", "evaluate_perception", "format_summary", "load_run",
-           "train_unimm_v2x"]
+__all__ = ["CHECKPOINT", "METHOD", "RUN", "RUN_FILE", "UniMMV2XRun", "evaluate_perception",
+           "format_summary", "load_run", "train", "train_unimm_v2x"]

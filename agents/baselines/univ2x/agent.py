@@ -15,57 +15,20 @@ This module imports nothing heavy: the model loads in the constructor.
 
 from __future__ import annotations
 
-import time
-from pathlib import Path
+from ..common.agent import BaselineAgent
 
 
-class UniV2XAgent:
-    """UniV2X (Yu et al., AAAI 2025) as a driver (module docstring).
+class UniV2XAgent(BaselineAgent):
+    """UniV2X (Yu et al., AAAI 2025) as a driver (module docstring;
+    :class:`~..common.agent.BaselineAgent`)."""
 
-    Args:
-        run: a trained run folder (``v2xbench baselines train univ2x --out RUN``).
-        device: torch device.
-    """
+    method = "univ2x"
+    driver_cls, roadside_cls = "UniV2XDriver", "UniV2XRoadside"
 
-    obs_mode = "sensors"
-    privileged = False
-
-    def __init__(self, run: str | None = None, device: str = "cpu") -> None:
-        if run is None:
-            raise FileNotFoundError('univ2x agent: no run given; pass a trained run with '
-                                    '--agent-config FILE holding {"run": "runs/univ2x"} (train '
-                                    'one with `v2xbench baselines train univ2x --data DIR --out '
-                                    'runs/univ2x`)')
-        from .policy import UniV2XDriver, UniV2XRoadside
-        from .train import load_run
-
-        model, cfg, info = load_run(run, device)
-        self.run, self.cfg, self.info = str(Path(run)), cfg, info
+    def _sensors(self, info: dict):
+        """The sensors declaration and the setting its driver takes."""
         size = tuple(int(v) for v in info["camera_size"])
-        self.sensors = {"camera_size": size, "camera_images": ("rgb",)}
-        self.channel = {"max_payload_floats": cfg.message_floats()}
-        self.checkpoint = [info["checkpoint"]]
-        self.driver = UniV2XDriver(model.ego, cfg, size)
-        self.rsu_policy = UniV2XRoadside(model.rsu, cfg, size, checkpoint=[info["checkpoint"]])
-        self.ticks, self.infer_s = 0, 0.0
-
-    def fingerprint(self) -> str:
-        """The scale and the target-speed rule (the weights are in ``checkpoint``)."""
-        from v2xbench.agents.aurora.policy import TARGET_SPEED_RULE
-
-        return f"univ2x scale={self.cfg.scale} speed={TARGET_SPEED_RULE}"
-
-    def reset(self, route_info: dict) -> None:
-        """A new route (the model keeps no state between ticks)."""
-        self.ticks, self.infer_s = 0, 0.0
-
-    def act(self, obs: dict) -> dict:
-        """``{"waypoints": (6, 2) ego frame, "speed": m/s}`` for the shared controller."""
-        t0 = time.perf_counter()
-        wps, speed = self.driver.plan(obs)
-        self.infer_s += time.perf_counter() - t0
-        self.ticks += 1
-        return {"waypoints": wps, "speed": speed}
+        return {"camera_size": size, "camera_images": ("rgb",)}, size
 
 
 __all__ = ["UniV2XAgent"]

@@ -16,31 +16,27 @@ ymax)`` of its range with ``(nx, ny)`` cells; tensors are laid out ``(..., nx, n
 
 from __future__ import annotations
 
-import dataclasses
-import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 from v2xbench.agents.aurora.config import AuroraConfig, StageHParams, check_branch
 from v2xbench.envs.v2x_intersection.core.classes import GROUPS, NUM_CLASSES
-from v2xbench.envs.v2x_intersection.sim.config import FIELD_RULES
 from v2xbench.envs.v2x_intersection.town.model import COMMAND_NAMES
 
-SCALES = ("tiny", "default", "paper")
+from ..common import config as checks
+from ..common.config import TINY_TRAIN, ScaledConfig, grid_ok
+
+SCALES = ScaledConfig.SCALES
 #: Classes an occupancy cell is occupied by: the dynamic agents (vehicles and VRUs).
 OCC_CLASSES = tuple(sorted(GROUPS["vehicle"] + GROUPS["vru"]))
 MESSAGE_HEADER_FLOATS = 6
 
 
-def _grid_ok(g: tuple[int, int]) -> bool:
-    return len(g) == 2 and all(isinstance(v, int) and not isinstance(v, bool) and v >= 1
-                               for v in g)
-
-
 @dataclass(frozen=True)
-class UniV2XConfig:
+class UniV2XConfig(ScaledConfig):
     """Sizes, ranges, loss weights and training settings of UniV2X (module docstring)."""
 
+    TITLE: ClassVar[str] = "UniV2X"
     scale: str = "tiny"
     # --- cameras and image backbone (AURORA's ViT, conv stem; one token per stride^2 pixels)
     image_size: tuple[int, int] = (64, 32)  # (width, height), both agents
@@ -96,17 +92,16 @@ class UniV2XConfig:
     plan_start_speed: float = 0.5  # m/s
     plan_start_dist: float = 1.0  # m
     # --- training (AURORA's loop; frame_stride keeps every k-th frame of each episode)
-    train: StageHParams = field(default_factory=lambda: _TINY_TRAIN)
+    train: StageHParams = field(default_factory=lambda: TINY_TRAIN)
 
     def __post_init__(self) -> None:
         if self.scale not in SCALES:
             raise ValueError(f"UniV2XConfig: scale={self.scale!r}; known scales: {SCALES}")
-        for name in ("stride", "vit_width", "vit_depth", "vit_heads", "depth_bins",
-                     "bev_channels", "width", "heads", "ffn", "det_layers", "num_queries",
-                     "num_classes", "msg_topk", "num_commands", "plan_waypoints", "plan_layers"):
-            v = getattr(self, name)
-            if not isinstance(v, int) or isinstance(v, bool) or v < 1:
-                raise ValueError(f"UniV2XConfig: {name}={v!r} must be an int >= 1")
+        who = "UniV2XConfig"
+        checks.check_ints(self, who, ("stride", "vit_width", "vit_depth", "vit_heads",
+                                      "depth_bins", "bev_channels", "width", "heads", "ffn",
+                                      "det_layers", "num_queries", "num_classes", "msg_topk",
+                                      "num_commands", "plan_waypoints", "plan_layers"))
         if self.stride & (self.stride - 1):
             raise ValueError(f"UniV2XConfig: stride={self.stride} must be a power of two")
         w, h = self.image_size
@@ -116,14 +111,10 @@ class UniV2XConfig:
         if self.vit_width % self.vit_heads or self.width % self.heads:
             raise ValueError("UniV2XConfig: vit_width / width must be divisible by their heads")
         for name in ("ego_bev", "rsu_bev", "msg_occ"):
-            if not _grid_ok(getattr(self, name)):
+            if not grid_ok(getattr(self, name)):
                 raise ValueError(f"UniV2XConfig: {name}={getattr(self, name)!r} must be two "
                                  "ints >= 1 (cells along x, y)")
-        for name in ("ego_range", "rsu_range"):
-            r = getattr(self, name)
-            if len(r) != 6 or not all(r[i] < r[i + 3] for i in range(3)):
-                raise ValueError(f"UniV2XConfig: {name}={r!r} must be (xmin, ymin, zmin, xmax, "
-                                 "ymax, zmax) with min < max")
+        checks.check_ranges(self, who)
         if not 0 < self.depth_near < min(self.ego_depth_far, self.rsu_depth_far):
             raise ValueError("UniV2XConfig: need 0 < depth_near < ego_depth_far, rsu_depth_far")
         if self.msg_topk > self.num_queries:
@@ -131,26 +122,10 @@ class UniV2XConfig:
                              f"{self.num_queries}")
         if not 0 <= self.ego_score <= 1 or not 0 <= self.dropout < 1:
             raise ValueError("UniV2XConfig: ego_score must be in [0, 1], dropout in [0, 1)")
-        for name in ("match_radius", "plan_dt", "plan_route_spacing"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"UniV2XConfig: {name}={v!r} must be a positive number")
-        if isinstance(self.plan_route_points, bool) or not 0 <= self.plan_route_points <= 16:
-            raise ValueError(f"UniV2XConfig: plan_route_points={self.plan_route_points!r} must "
-                             "be an int in [0, 16]")
-        if len(self.det_code_weights) != 10:
-            raise ValueError("UniV2XConfig: det_code_weights needs 10 values")
-        limit = FIELD_RULES["max_payload_floats"].hi
-        if self.message_floats() > limit:
-            raise ValueError(f"UniV2XConfig: the roadside message has {self.message_floats()} "
-                             f"floats, more than a channel carries (max_payload_floats <= "
-                             f"{limit}); lower msg_topk, width or msg_occ")
+        checks.check_planning(self, who, ("match_radius", "plan_dt", "plan_route_spacing"),
+                              "det_code_weights", "msg_topk, width or msg_occ")
 
-    # ------------------------------------------------------------------ views
-    def pc_range(self, branch: str) -> tuple[float, ...]:
-        """The agent's perception range ``(xmin, ymin, zmin, xmax, ymax, zmax)``."""
-        return self.ego_range if check_branch(branch) == "ego" else self.rsu_range
-
+    # ------------------------------------------------------------------ views (and pc_range)
     def bev_size(self, branch: str) -> tuple[int, int]:
         """``(nx, ny)`` cells of the agent's BEV grid."""
         return self.ego_bev if check_branch(branch) == "ego" else self.rsu_bev
@@ -183,35 +158,6 @@ class UniV2XConfig:
             det_cls_weight=self.det_cls_weight, det_box_weight=self.det_box_weight,
             det_code_weights=tuple(self.det_code_weights), lm_width=2 * self.heads)
 
-    # ------------------------------------------------------------------ construction
-    @classmethod
-    def for_scale(cls, name: str, **overrides: Any) -> UniV2XConfig:
-        """The named scale with field ``overrides`` (unknown scale or field: ``ValueError``)."""
-        if name not in _SCALE_FIELDS:
-            raise ValueError(f"unknown UniV2X scale {name!r}; known scales: {', '.join(SCALES)}")
-        unknown = set(overrides) - {f.name for f in dataclasses.fields(cls)}
-        if unknown:
-            raise ValueError(f"UniV2XConfig: unknown fields {sorted(unknown)}")
-        return cls(**{**_SCALE_FIELDS[name], "scale": name, **overrides})
-
-    def to_dict(self) -> dict[str, Any]:
-        """Plain-JSON form; :meth:`from_dict` reads it back."""
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> UniV2XConfig:
-        """Inverse of :meth:`to_dict`; unknown keys raise ``ValueError`` naming them."""
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(d) - names
-        if unknown:
-            raise ValueError(f"UniV2XConfig: unknown keys {sorted(unknown)}")
-        kw = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
-        if isinstance(kw.get("train"), dict):
-            kw["train"] = StageHParams.from_dict(kw["train"])
-        return cls(**kw)
-
-
-_TINY_TRAIN = StageHParams(batch_size=2, epochs=1, lr=1e-3, warmup_iters=0, num_workers=0)
 
 _SCALE_FIELDS: dict[str, dict[str, Any]] = {
     "tiny": {},
@@ -228,5 +174,7 @@ _SCALE_FIELDS: dict[str, dict[str, Any]] = {
         msg_topk=100, msg_occ=(50, 50), plan_layers=3, dropout=0.1,
         train=StageHParams(batch_size=1, epochs=20, lr=2e-4, warmup_iters=500)),
 }
+
+UniV2XConfig.SCALE_FIELDS = _SCALE_FIELDS
 
 __all__ = ["MESSAGE_HEADER_FLOATS", "OCC_CLASSES", "SCALES", "UniV2XConfig"]

@@ -33,9 +33,9 @@ import torch
 from torch.utils.data import Dataset
 from v2xbench.agents.aurora.cqaf import rsu_to_ego
 from v2xbench.agents.aurora.data import CALIB_KEYS, AuroraFrames, fused_targets
-from v2xbench.agents.aurora.route_input import route_points_ahead
 from v2xbench.collectors.dataset.loader import V2XDataset
 
+from ..common.data import planning_sample
 from .config import UniV2XConfig
 
 EXTRA_KEYS = ("ego_speed", "command", "route", "expert_waypoints", ("gt", "fused", "boxes"),
@@ -99,13 +99,8 @@ class UniV2XFrames(Dataset):
         out.update({f"rsu/{k}": v for k, v in rsu.items() if k not in _DROP})
         out.update(fused_targets(x, self.range))
         e = rsu_to_ego(calib["T_world_ego"], calib["T_world_rsu"]) if has else torch.eye(4)
-        out.update(
-            has_rsu=torch.tensor(has), rsu_to_ego=e.float(),
-            command=torch.tensor(int(x["command"]), dtype=torch.long),
-            ego_speed=torch.tensor(float(x["ego_speed"]), dtype=torch.float32),
-            route_points=route_points_ahead(x["route"], self.cfg.plan_route_points,
-                                            self.cfg.plan_route_spacing),
-            expert_waypoints=x["expert_waypoints"].float(), frame_id=torch.tensor(fid))
+        out.update(has_rsu=torch.tensor(has), rsu_to_ego=e.float())
+        out.update(planning_sample(x, self.cfg, fid))
         return out
 
 

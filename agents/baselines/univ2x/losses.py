@@ -23,12 +23,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 from v2xbench.agents.aurora.losses import SetCriterion, sigmoid_focal_loss
-from v2xbench.agents.aurora.planner_losses import (
-    collision_loss,
-    constant_velocity_futures,
-    start_weights,
-)
 
+from ..common.losses import planning_terms
 from .bev import box_occupancy
 from .config import UniV2XConfig
 
@@ -95,14 +91,8 @@ class UniV2XCriterion(nn.Module):
         else:  # no unit in this batch: the parts stay in the log as zeros
             for k in ("rsu_cls", "rsu_box", "rsu_occ"):
                 terms[k] = out["det_logits"].new_zeros(())
-        wps = out["waypoints"]
-        gt = batch["expert_waypoints"][:, :cfg.plan_waypoints].float()
-        w = start_weights(batch, cfg).to(wps.device)
-        terms["plan_l1"] = cfg.plan_l1_weight * ((wps - gt).abs().mean((1, 2)) * w).sum() / w.sum()
-        fut, fmask = constant_velocity_futures(batch["det_boxes"], batch["det_mask"],
-                                               cfg.plan_waypoints, cfg.plan_dt)
-        terms["plan_col"] = cfg.plan_col_weight * collision_loss(
-            wps, fut, fmask, cfg.plan_col_radius).mean()
+        terms.update(planning_terms(out["waypoints"], batch, batch["det_boxes"],
+                                    batch["det_mask"], cfg))
         total = sum(terms.values())
         return total, {k: float(v.detach()) for k, v in terms.items()}
 

@@ -35,8 +35,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from v2xbench.agents.aurora.cqaf import query_scores
-from v2xbench.envs.v2x_intersection.v2x.wire import PAYLOAD_LIMIT
 
+from ..common.message import read_header, to_payload
 from .config import MESSAGE_HEADER_FLOATS, UniV2XConfig
 
 MAGIC = 2025.0  # an integer float16 holds exactly (AURORA's messages start with 1717)
@@ -82,7 +82,7 @@ def serialize_message(msg: Mapping[str, torch.Tensor]) -> np.ndarray:
     agents = torch.cat([ref[0], sc[0, :, None], q[0]], -1).reshape(-1)
     flat = torch.cat([head, agents.detach().float().cpu(), occ[0].reshape(-1).detach().float()
                       .cpu()]).numpy()
-    return np.clip(flat, -PAYLOAD_LIMIT, PAYLOAD_LIMIT).astype(np.float16).astype(np.float32)
+    return to_payload(flat)
 
 
 def deserialize_message(payload: np.ndarray, cfg: UniV2XConfig) -> dict[str, torch.Tensor]:
@@ -93,11 +93,7 @@ def deserialize_message(payload: np.ndarray, cfg: UniV2XConfig) -> dict[str, tor
         ValueError: not a UniV2X message (magic, version), sizes other than ``cfg``'s (``K``,
             ``D``, ``Ox``, ``Oy``), or a length that disagrees with them.
     """
-    x = np.asarray(payload, np.float32).reshape(-1)
-    if x.shape[0] < MESSAGE_HEADER_FLOATS or x[0] != MAGIC or x[1] != VERSION:
-        raise ValueError(f"UniV2X deserialize_message: not a UniV2X roadside message (header "
-                         f"{x[:2].tolist()}, expected [{MAGIC}, {VERSION}])")
-    k, d, ox, oy = (int(v) for v in x[2:6])
+    x, (k, d, ox, oy) = read_header(payload, MAGIC, VERSION, MESSAGE_HEADER_FLOATS, "UniV2X")
     want = (cfg.msg_topk, cfg.width, *cfg.msg_occ)
     if (k, d, ox, oy) != want:
         raise ValueError(f"UniV2X deserialize_message: the message has K={k}, D={d}, occupancy "

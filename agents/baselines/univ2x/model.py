@@ -30,6 +30,7 @@ from v2xbench.agents.aurora.det_decoder import DetectionDecoder, focal_bias, mlp
 from v2xbench.agents.aurora.fused_heads import FusedDetHead
 from v2xbench.agents.aurora.rsu_agent import to_wire
 
+from ..common.model import parameter_counts
 from .bev import LiftSplatEncoder, cell_centres
 from .config import UniV2XConfig
 from .fusion import AgentFusion, OccupancyFusion
@@ -81,11 +82,13 @@ class RoadsideNet(nn.Module):
     """The roadside half (module docstring); ``branch = "rsu"``."""
 
     branch = "rsu"
+    #: The per-agent perception (UniMM-V2X's roadside half swaps in its MoE perception).
+    perception_cls = AgentPerception
 
     def __init__(self, cfg: UniV2XConfig) -> None:
         super().__init__()
         self.cfg = cfg
-        self.perception = AgentPerception(cfg, "rsu")
+        self.perception = self.perception_cls(cfg, "rsu")
         self.occ_head = nn.Conv2d(cfg.width, 1, 1)
         nn.init.constant_(self.occ_head.bias, focal_bias())  # cells start at p = 0.01
 
@@ -137,42 +140,38 @@ class EgoNet(nn.Module):
 class UniV2X(nn.Module):
     """Both halves, trained end to end (module docstring)."""
 
+    #: The halves and the message's functions (UniMM-V2X's model swaps them).
+    roadside_net, ego_net = RoadsideNet, EgoNet
+    empty_message, rsu_message = staticmethod(empty_message), staticmethod(rsu_message)
+
     def __init__(self, cfg: UniV2XConfig) -> None:
         super().__init__()
         self.cfg = cfg
-        self.rsu = RoadsideNet(cfg)
-        self.ego = EgoNet(cfg)
+        self.rsu = self.roadside_net(cfg)
+        self.ego = self.ego_net(cfg)
 
     def message(self, batch: dict[str, torch.Tensor]
                 ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor] | None, torch.Tensor]:
         """The batch's messages (empty for rows without a unit), the roadside outputs of the
         rows with one (``None`` if none) and those rows' indices."""
         has = batch["has_rsu"].bool()
-        b = has.shape[0]
-        msg = empty_message(self.cfg, b, has.device)
+        msg = self.empty_message(self.cfg, has.shape[0], has.device)
         rows = has.nonzero().squeeze(1)
         if not len(rows):
             return msg, None, rows
         out = self.rsu({k: batch[f"rsu/{k}"][rows] for k in
                         ("images", "intrinsics", "cam_to_frame")})
-        sent = to_wire(rsu_message(out, self.cfg))
-        for k, v in sent.items():
+        for k, v in to_wire(self.rsu_message(out, self.cfg)).items():
             msg[k] = msg[k].index_put((rows,), v.to(msg[k].dtype))
         return msg, out, rows
 
     def forward(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        """Training / evaluation pass over a batch of :class:`~.data.UniV2XFrames`."""
+        """Training / evaluation pass over a batch of :class:`~.data.UniV2XFrames` (or
+        UniMM-V2X's)."""
         msg, rsu_out, rows = self.message(batch)
         out = self.ego(batch, msg, batch["rsu_to_ego"], batch["has_rsu"].bool())
         out.update(rsu=rsu_out, rsu_rows=rows)
         return out
-
-
-def parameter_counts(model: UniV2X) -> dict[str, int]:
-    """Parameters of the roadside half, the ego half and the total."""
-    rsu = sum(p.numel() for p in model.rsu.parameters())
-    ego = sum(p.numel() for p in model.ego.parameters())
-    return {"rsu": rsu, "ego": ego, "total": rsu + ego}
 
 
 __all__ = ["AgentPerception", "BEVTokens", "EgoNet", "RoadsideNet", "UniV2X", "parameter_counts"]

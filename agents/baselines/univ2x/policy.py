@@ -24,15 +24,12 @@ import numpy as np
 import torch
 from v2xbench.agents.aurora.calib import frame_camera_tensors, spec_calib
 from v2xbench.agents.aurora.data import model_images
-from v2xbench.agents.aurora.policy import target_speed
-from v2xbench.agents.aurora.route_input import route_points_ahead
-from v2xbench.agents.aurora.rsu_agent import AuroraRoadside, received_payload, received_pose
+from v2xbench.agents.aurora.rsu_agent import AuroraRoadside, received_pose
 from v2xbench.envs.v2x_intersection.sensors import EGO_CAMERA_NAMES
 
+from ..common.policy import planning_inputs, received_message, waypoints_and_speed
+from . import message as univ2x_message
 from .config import UniV2XConfig
-from .message import deserialize_message, empty_message, rsu_message, serialize_message
-
-SPEED, COMMAND = 0, 2  # obs["ego"][SPEED]; obs["route"][:, COMMAND]
 
 
 class UniV2XRoadside(AuroraRoadside):
@@ -42,6 +39,9 @@ class UniV2XRoadside(AuroraRoadside):
         net: the trained :class:`~.model.RoadsideNet`. cfg: its configuration.
         camera_size: the env's ``(width, height)``. checkpoint: the weight files it came from.
     """
+
+    #: The method's message module (``rsu_message``, ``serialize_message``).
+    wire = univ2x_message
 
     def __init__(self, net: torch.nn.Module, cfg: UniV2XConfig,
                  camera_size: tuple[int, int] = (128, 64),
@@ -53,13 +53,13 @@ class UniV2XRoadside(AuroraRoadside):
     def message(self, rsu_obs: Mapping) -> dict[str, torch.Tensor]:
         """The message tensors (:func:`~.message.rsu_message`, batch 1) of one observation."""
         t0 = time.perf_counter()
-        msg = rsu_message(self.branch(self.inputs(rsu_obs)), self.ucfg)
+        msg = self.wire.rsu_message(self.branch(self.inputs(rsu_obs)), self.ucfg)
         self.infer_s += time.perf_counter() - t0
         return msg
 
     def act(self, rsu_obs: Mapping) -> np.ndarray:
         """The message of this tick as a raw payload (:func:`~.message.serialize_message`)."""
-        payload = serialize_message(self.message(rsu_obs))
+        payload = self.wire.serialize_message(self.message(rsu_obs))
         self.messages += 1
         return payload
 
@@ -72,6 +72,10 @@ class UniV2XDriver:
         camera_size: the env's ``(width, height)``. fusion: use the received message.
     """
 
+    #: The method's name in messages and its message module (``empty_message``,
+    #: ``deserialize_message``).
+    title, wire = "UniV2X", univ2x_message
+
     def __init__(self, ego: torch.nn.Module, cfg: UniV2XConfig, camera_size: tuple[int, int],
                  fusion: bool = True) -> None:
         self.ego, self.cfg, self.fusion = ego.eval(), cfg, bool(fusion)
@@ -82,15 +86,11 @@ class UniV2XDriver:
         self.need_floats = cfg.message_floats()
 
     def _message(self, obs: Mapping) -> tuple[dict[str, torch.Tensor], torch.Tensor, bool]:
-        payload = np.asarray(obs["v2x_payload"])
-        if self.fusion and payload.shape[-1] < self.need_floats:
-            raise ValueError(f"UniV2X: v2x_payload holds {payload.shape[-1]} floats; the roadside "
-                             f"message needs {self.need_floats}: evaluate with --set "
-                             f"max_payload_floats={self.need_floats}")
-        raw = received_payload(obs) if self.fusion else None
-        if raw is None:
-            return empty_message(self.cfg, 1), torch.eye(4)[None], False
-        return deserialize_message(raw, self.cfg), received_pose(obs["v2x_info"])[None], True
+        msg = received_message(obs, self.fusion, self.need_floats, self.title,
+                               lambda raw: self.wire.deserialize_message(raw, self.cfg))
+        if msg is None:
+            return self.wire.empty_message(self.cfg, 1), torch.eye(4)[None], False
+        return msg, received_pose(obs["v2x_info"])[None], True
 
     @torch.no_grad()
     def plan(self, obs: Mapping) -> tuple[np.ndarray, float]:
@@ -99,17 +99,10 @@ class UniV2XDriver:
         rgb = torch.stack([torch.as_tensor(np.asarray(cams[n]["rgb"])) for n in EGO_CAMERA_NAMES])
         images = model_images(rgb, tuple(self.cfg.image_size))[None]
         msg, e, has = self._message(obs)
-        route = np.asarray(obs["route"], np.float32)
         batch = {"ego/images": images, "ego/intrinsics": self.intrinsics,
-                 "ego/cam_to_frame": self.cam_to_frame,
-                 "command": torch.tensor([int(round(float(route[0, COMMAND])))]),
-                 "ego_speed": torch.tensor([float(obs["ego"][SPEED])]),
-                 "route_points": route_points_ahead(route, self.cfg.plan_route_points,
-                                                    self.cfg.plan_route_spacing)[None]}
+                 "ego/cam_to_frame": self.cam_to_frame, **planning_inputs(obs, self.cfg)}
         out = self.ego(batch, msg, e, torch.tensor([has]))
-        wps = out["waypoints"]
-        speed = float(target_speed(wps, self.cfg.plan_dt)[0])
-        return wps[0].numpy().astype(np.float64), speed
+        return waypoints_and_speed(out["waypoints"], self.cfg)
 
 
 __all__ = ["UniV2XDriver", "UniV2XRoadside"]

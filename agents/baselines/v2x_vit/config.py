@@ -17,17 +17,17 @@ coarser (:meth:`V2XViTConfig.feature_size`).
 
 from __future__ import annotations
 
-import dataclasses
-import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 from v2xbench.agents.aurora.config import StageHParams, check_branch
 from v2xbench.envs.v2x_intersection.core.classes import NUM_CLASSES
-from v2xbench.envs.v2x_intersection.sim.config import FIELD_RULES
 from v2xbench.envs.v2x_intersection.town.model import COMMAND_NAMES
 
-SCALES = ("tiny", "default", "paper")
+from ..common import config as checks
+from ..common.config import TINY_TRAIN, ScaledConfig, grid_ok
+
+SCALES = ScaledConfig.SCALES
 MESSAGE_HEADER_FLOATS = 5
 #: Point features the pillar encoder reads: ``x, y, z`` (m, the agent's frame) and intensity (the
 #: LiDAR's semantic and instance ids are ground truth and never reach the model).
@@ -35,15 +35,11 @@ POINT_FEATURES = 4
 TICK_S = 0.1  # s per simulator tick (a message's age is counted in ticks)
 
 
-def _grid_ok(g: tuple[int, int]) -> bool:
-    return len(g) == 2 and all(isinstance(v, int) and not isinstance(v, bool) and v >= 1
-                               for v in g)
-
-
 @dataclass(frozen=True)
-class V2XViTConfig:
+class V2XViTConfig(ScaledConfig):
     """Sizes, ranges, loss weights and training settings of V2X-ViT (module docstring)."""
 
+    TITLE: ClassVar[str] = "V2X-ViT"
     scale: str = "tiny"
     # --- LiDAR pillars (PointPillars) and the BEV backbone
     ego_range: tuple[float, ...] = (-51.2, -51.2, -3.0, 51.2, 51.2, 5.0)
@@ -87,31 +83,23 @@ class V2XViTConfig:
     # --- training: a message's age is drawn from 0..train_max_delay ticks (the unit's LiDAR of
     # that many ticks earlier); frame_stride keeps every k-th frame of each episode
     train_max_delay: int = 3
-    train: StageHParams = field(default_factory=lambda: _TINY_TRAIN)
+    train: StageHParams = field(default_factory=lambda: TINY_TRAIN)
 
     def __post_init__(self) -> None:
         if self.scale not in SCALES:
             raise ValueError(f"V2XViTConfig: scale={self.scale!r}; known scales: {SCALES}")
-        for name in ("bev_stride", "pillar_channels", "width", "vit_blocks", "heads",
-                     "num_classes", "num_commands", "plan_waypoints", "plan_hidden", "max_age"):
-            v = getattr(self, name)
-            if not isinstance(v, int) or isinstance(v, bool) or v < 1:
-                raise ValueError(f"V2XViTConfig: {name}={v!r} must be an int >= 1")
-        for name in ("compress_channels", "train_max_delay"):
-            v = getattr(self, name)
-            if not isinstance(v, int) or isinstance(v, bool) or v < 0:
-                raise ValueError(f"V2XViTConfig: {name}={v!r} must be an int >= 0")
+        who = "V2XViTConfig"
+        checks.check_ints(self, who, ("bev_stride", "pillar_channels", "width", "vit_blocks",
+                                      "heads", "num_classes", "num_commands", "plan_waypoints",
+                                      "plan_hidden", "max_age"))
+        checks.check_ints(self, who, ("compress_channels", "train_max_delay"), lo=0)
         if self.width % self.heads:
             raise ValueError(f"V2XViTConfig: width={self.width} must be divisible by heads="
                              f"{self.heads}")
-        for name in ("ego_range", "rsu_range"):
-            r = getattr(self, name)
-            if len(r) != 6 or not all(r[i] < r[i + 3] for i in range(3)):
-                raise ValueError(f"V2XViTConfig: {name}={r!r} must be (xmin, ymin, zmin, xmax, "
-                                 "ymax, zmax) with min < max")
+        checks.check_ranges(self, who)
         for name in ("ego_pillars", "rsu_pillars"):
             g = getattr(self, name)
-            if not _grid_ok(g):
+            if not grid_ok(g):
                 raise ValueError(f"V2XViTConfig: {name}={g!r} must be two ints >= 1")
             if any(v % self.bev_stride for v in g):
                 raise ValueError(f"V2XViTConfig: {name}={g!r} must be multiples of bev_stride="
@@ -129,26 +117,10 @@ class V2XViTConfig:
                              f"{nx} x {ny} (ego_pillars / bev_stride)")
         if not 0 <= self.dropout < 1 or not self.mlp_ratio > 0:
             raise ValueError("V2XViTConfig: dropout must be in [0, 1), mlp_ratio > 0")
-        for name in ("plan_dt", "plan_route_spacing", "min_sigma"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"V2XViTConfig: {name}={v!r} must be a positive number")
-        if isinstance(self.plan_route_points, bool) or not 0 <= self.plan_route_points <= 16:
-            raise ValueError(f"V2XViTConfig: plan_route_points={self.plan_route_points!r} must "
-                             "be an int in [0, 16]")
-        if len(self.box_code_weights) != 10:
-            raise ValueError("V2XViTConfig: box_code_weights needs 10 values")
-        limit = FIELD_RULES["max_payload_floats"].hi
-        if self.message_floats() > limit:
-            raise ValueError(f"V2XViTConfig: the roadside message has {self.message_floats()} "
-                             f"floats, more than a channel carries (max_payload_floats <= "
-                             f"{limit}); lower compress_channels or rsu_pillars")
+        checks.check_planning(self, who, ("plan_dt", "plan_route_spacing", "min_sigma"),
+                              "box_code_weights", "compress_channels or rsu_pillars")
 
-    # ------------------------------------------------------------------ views
-    def pc_range(self, branch: str) -> tuple[float, ...]:
-        """The agent's range ``(xmin, ymin, zmin, xmax, ymax, zmax)``."""
-        return self.ego_range if check_branch(branch) == "ego" else self.rsu_range
-
+    # ------------------------------------------------------------------ views (and pc_range)
     def pillar_size(self, branch: str) -> tuple[int, int]:
         """``(nx, ny)`` pillars of the agent's grid."""
         return self.ego_pillars if check_branch(branch) == "ego" else self.rsu_pillars
@@ -167,35 +139,6 @@ class V2XViTConfig:
         nx, ny = self.feature_size("rsu")
         return MESSAGE_HEADER_FLOATS + self.sent_channels() * nx * ny
 
-    # ------------------------------------------------------------------ construction
-    @classmethod
-    def for_scale(cls, name: str, **overrides: Any) -> V2XViTConfig:
-        """The named scale with field ``overrides`` (unknown scale or field: ``ValueError``)."""
-        if name not in _SCALE_FIELDS:
-            raise ValueError(f"unknown V2X-ViT scale {name!r}; known scales: {', '.join(SCALES)}")
-        unknown = set(overrides) - {f.name for f in dataclasses.fields(cls)}
-        if unknown:
-            raise ValueError(f"V2XViTConfig: unknown fields {sorted(unknown)}")
-        return cls(**{**_SCALE_FIELDS[name], "scale": name, **overrides})
-
-    def to_dict(self) -> dict[str, Any]:
-        """Plain-JSON form; :meth:`from_dict` reads it back."""
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> V2XViTConfig:
-        """Inverse of :meth:`to_dict`; unknown keys raise ``ValueError`` naming them."""
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(d) - names
-        if unknown:
-            raise ValueError(f"V2XViTConfig: unknown keys {sorted(unknown)}")
-        kw = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
-        if isinstance(kw.get("train"), dict):
-            kw["train"] = StageHParams.from_dict(kw["train"])
-        return cls(**kw)
-
-
-_TINY_TRAIN = StageHParams(batch_size=2, epochs=1, lr=1e-3, warmup_iters=0, num_workers=0)
 
 _SCALE_FIELDS: dict[str, dict[str, Any]] = {
     "tiny": {},
@@ -212,5 +155,7 @@ _SCALE_FIELDS: dict[str, dict[str, Any]] = {
         dropout=0.1, plan_hidden=256,
         train=StageHParams(batch_size=2, epochs=20, lr=2e-4, warmup_iters=500)),
 }
+
+V2XViTConfig.SCALE_FIELDS = _SCALE_FIELDS
 
 __all__ = ["MESSAGE_HEADER_FLOATS", "POINT_FEATURES", "SCALES", "TICK_S", "V2XViTConfig"]

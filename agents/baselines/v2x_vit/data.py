@@ -43,11 +43,11 @@ from torch.utils.data import Dataset
 from v2xbench.agents.aurora.calib import ego_frame_pose
 from v2xbench.agents.aurora.cqaf import rsu_to_ego
 from v2xbench.agents.aurora.data import fused_targets
-from v2xbench.agents.aurora.route_input import route_points_ahead
 from v2xbench.collectors.dataset.loader import V2XDataset
 from v2xbench.collectors.dataset.shards import load_manifest
 from v2xbench.envs.v2x_intersection.core.geometry import invert_transform
 
+from ..common.data import planning_sample
 from .config import POINT_FEATURES, V2XViTConfig
 
 CALIB = ("T_world_ego", "T_world_rsu", "T_ego_rsu", "rsu_unit", "T_ego_lidar")
@@ -160,12 +160,7 @@ class V2XViTFrames(Dataset):
                "rsu/point_mask": rsu_mask, "has_rsu": torch.tensor(has),
                "age": torch.tensor(age, dtype=torch.long), "rsu_to_ego": e_re.float()}
         out.update(fused_targets(x, self.range))
-        out.update(
-            command=torch.tensor(int(x["command"]), dtype=torch.long),
-            ego_speed=torch.tensor(float(x["ego_speed"]), dtype=torch.float32),
-            route_points=route_points_ahead(x["route"], self.cfg.plan_route_points,
-                                            self.cfg.plan_route_spacing),
-            expert_waypoints=x["expert_waypoints"].float(), frame_id=torch.tensor(fid))
+        out.update(planning_sample(x, self.cfg, fid))
         return out
 
 

@@ -18,12 +18,8 @@ from __future__ import annotations
 
 import torch
 from torch import nn
-from v2xbench.agents.aurora.planner_losses import (
-    collision_loss,
-    constant_velocity_futures,
-    start_weights,
-)
 
+from ..common.losses import planning_terms
 from .config import V2XViTConfig
 from .head import box_cells, encode_boxes, heatmap_targets
 
@@ -60,13 +56,7 @@ class V2XViTCriterion(nn.Module):
         pred = reg.gather(1, index[..., None].expand(-1, -1, 10))
         l1 = ((pred - encode_boxes(boxes, index, cfg)).abs() * self.code).sum(-1)
         terms["box"] = cfg.box_weight * (l1 * inside).sum() / inside.sum().clamp_min(1)
-        wps = out["waypoints"]
-        gt = batch["expert_waypoints"][:, :cfg.plan_waypoints].float()
-        w = start_weights(batch, cfg).to(wps.device)
-        terms["plan_l1"] = cfg.plan_l1_weight * ((wps - gt).abs().mean((1, 2)) * w).sum() / w.sum()
-        fut, fmask = constant_velocity_futures(boxes, mask, cfg.plan_waypoints, cfg.plan_dt)
-        terms["plan_col"] = cfg.plan_col_weight * collision_loss(
-            wps, fut, fmask, cfg.plan_col_radius).mean()
+        terms.update(planning_terms(out["waypoints"], batch, boxes, mask, cfg))
         total = sum(terms.values())
         return total, {k: float(v.detach()) for k, v in terms.items()}
 

@@ -27,8 +27,8 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from v2xbench.envs.v2x_intersection.v2x.wire import PAYLOAD_LIMIT
 
+from ..common.message import read_header, to_payload
 from .config import MESSAGE_HEADER_FLOATS, V2XViTConfig
 
 MAGIC = 2022.0  # an integer float16 holds exactly (UniV2X's messages start with 2025)
@@ -50,7 +50,7 @@ def serialize_message(features: torch.Tensor) -> np.ndarray:
     c, nx, ny = features.shape[1:]
     head = np.array([MAGIC, VERSION, c, nx, ny], np.float32)
     flat = np.concatenate([head, features.detach().float().cpu().reshape(-1).numpy()])
-    return np.clip(flat, -PAYLOAD_LIMIT, PAYLOAD_LIMIT).astype(np.float16).astype(np.float32)
+    return to_payload(flat)
 
 
 def deserialize_message(payload: np.ndarray, cfg: V2XViTConfig) -> torch.Tensor:
@@ -60,11 +60,7 @@ def deserialize_message(payload: np.ndarray, cfg: V2XViTConfig) -> torch.Tensor:
         ValueError: not a V2X-ViT message (magic, version), sizes other than ``cfg``'s, or a
             length that disagrees with them.
     """
-    x = np.asarray(payload, np.float32).reshape(-1)
-    if x.shape[0] < MESSAGE_HEADER_FLOATS or x[0] != MAGIC or x[1] != VERSION:
-        raise ValueError(f"V2X-ViT deserialize_message: not a V2X-ViT roadside message (header "
-                         f"{x[:2].tolist()}, expected [{MAGIC}, {VERSION}])")
-    c, nx, ny = (int(v) for v in x[2:5])
+    x, (c, nx, ny) = read_header(payload, MAGIC, VERSION, MESSAGE_HEADER_FLOATS, "V2X-ViT")
     want = (cfg.sent_channels(), *cfg.feature_size("rsu"))
     if (c, nx, ny) != want:
         raise ValueError(f"V2X-ViT deserialize_message: the message has C={c} channels on a "

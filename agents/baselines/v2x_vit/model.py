@@ -20,6 +20,7 @@ import torch
 from torch import nn
 from v2xbench.agents.aurora.rsu_agent import to_wire
 
+from ..common.model import parameter_counts
 from .config import V2XViTConfig
 from .fusion import V2XViTEncoder, warp_to_ego
 from .head import CenterHead, WaypointHead
@@ -99,13 +100,6 @@ class V2XViT(nn.Module):
         """Training / evaluation pass over a batch of :class:`~.data.V2XViTFrames`."""
         return self.ego(batch, self.message(batch), batch["rsu_to_ego"], batch["has_rsu"],
                         batch["age"])
-
-
-def parameter_counts(model: V2XViT) -> dict[str, int]:
-    """Parameters of the roadside half, the ego half and the total."""
-    rsu = sum(p.numel() for p in model.rsu.parameters())
-    ego = sum(p.numel() for p in model.ego.parameters())
-    return {"rsu": rsu, "ego": ego, "total": rsu + ego}
 
 
 __all__ = ["EgoNet", "RoadsideNet", "V2XViT", "parameter_counts"]

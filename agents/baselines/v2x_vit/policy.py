@@ -22,18 +22,16 @@ from collections.abc import Mapping
 
 import numpy as np
 import torch
-from v2xbench.agents.aurora.policy import target_speed
-from v2xbench.agents.aurora.route_input import route_points_ahead
-from v2xbench.agents.aurora.rsu_agent import received_payload, received_pose
+from v2xbench.agents.aurora.rsu_agent import received_pose
 from v2xbench.envs.v2x_intersection.api.observations import V2X_INFO_FEATURES
 from v2xbench.envs.v2x_intersection.core.geometry import pose_matrix
 from v2xbench.envs.v2x_intersection.sensors.lidar import scaled_lidar_specs
 
+from ..common.policy import planning_inputs, received_message, waypoints_and_speed
 from .config import V2XViTConfig
 from .data import lidar_points
 from .message import deserialize_message, empty_features, serialize_message
 
-SPEED, COMMAND = 0, 2  # obs["ego"][SPEED]; obs["route"][:, COMMAND]
 UNIT_Z = 3  # rsu_obs["unit"]: unit_id, x, y, z, yaw, pitch
 AGE = V2X_INFO_FEATURES.index("age_ticks")
 
@@ -107,17 +105,12 @@ class V2XViTDriver:
         self.need_floats = cfg.message_floats()
 
     def _message(self, obs: Mapping) -> tuple[torch.Tensor, torch.Tensor, bool, int]:
-        payload = np.asarray(obs["v2x_payload"])
-        if self.fusion and payload.shape[-1] < self.need_floats:
-            raise ValueError(f"V2X-ViT: v2x_payload holds {payload.shape[-1]} floats; the "
-                             f"roadside message needs {self.need_floats}: evaluate with --set "
-                             f"max_payload_floats={self.need_floats}")
-        raw = received_payload(obs) if self.fusion else None
-        if raw is None:
+        sent = received_message(obs, self.fusion, self.need_floats, "V2X-ViT",
+                                lambda raw: deserialize_message(raw, self.cfg))
+        if sent is None:
             return empty_features(self.cfg, 1), torch.eye(4)[None], False, 0
         info = np.asarray(obs["v2x_info"], np.float64)
-        return (deserialize_message(raw, self.cfg), received_pose(info)[None], True,
-                int(round(info[AGE])))
+        return sent, received_pose(info)[None], True, int(round(info[AGE]))
 
     @torch.no_grad()
     def plan(self, obs: Mapping) -> tuple[np.ndarray, float]:
@@ -125,16 +118,10 @@ class V2XViTDriver:
         pts, n = observed_lidar(obs, "ego")
         points, mask = lidar_points(pts, n, self.t_ego_lidar)
         received, e, has, age = self._message(obs)
-        route = np.asarray(obs["route"], np.float32)
         batch = {"ego/points": points[None], "ego/point_mask": mask[None],
-                 "command": torch.tensor([int(round(float(route[0, COMMAND])))]),
-                 "ego_speed": torch.tensor([float(obs["ego"][SPEED])]),
-                 "route_points": route_points_ahead(route, self.cfg.plan_route_points,
-                                                    self.cfg.plan_route_spacing)[None]}
+                 **planning_inputs(obs, self.cfg)}
         out = self.ego(batch, received, e, torch.tensor([has]), torch.tensor([age]))
-        wps = out["waypoints"]
-        speed = float(target_speed(wps, self.cfg.plan_dt)[0])
-        return wps[0].numpy().astype(np.float64), speed
+        return waypoints_and_speed(out["waypoints"], self.cfg)
 
 
 __all__ = ["V2XViTDriver", "V2XViTRoadside", "observed_lidar", "rsu_lidar_to_ground"]

@@ -1,0 +1,101 @@
+"""Checks the cooperative baselines' tests share (``tests/test_baselines_*.py``): the message's
+bytes through the channel, overfitting two samples with a unit, and the CLI's train -> resume ->
+refuse -> checkpoint round trip -> drive one route."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+from v2xbench.envs.v2x_intersection.v2x.channel import Channel, ChannelConfig
+from v2xbench.envs.v2x_intersection.v2x.wire import FORMAT_RAW, HEADER_SIZE, encode_message
+
+from v2xbench.cli import main
+
+
+def assert_channel_counts(payload: np.ndarray, f: int) -> None:
+    """A payload of ``f`` floats costs the channel ``HEADER_SIZE + 2 f`` bytes, as encoded."""
+    ch = Channel(ChannelConfig(max_payload_floats=f), np.random.default_rng(0))
+    sent = ch.send(0, 0, f, payload, FORMAT_RAW)
+    assert sent == HEADER_SIZE + 2 * f == len(encode_message(0, 0, payload, fmt=FORMAT_RAW))
+    assert ch.stats()["bytes_sent_total"] == sent
+
+
+def unit_batch(ds) -> dict:
+    """A batch of the first and the last sample of ``ds`` with a roadside unit."""
+    from v2xbench.agents.aurora.data import collate
+
+    with_unit = [i for i in range(len(ds)) if bool(ds[i]["has_rsu"])]
+    assert with_unit, "the tiny data set has no frame with a roadside unit"
+    return collate([ds[with_unit[0]], ds[with_unit[-1]]])
+
+
+def overfit(model: torch.nn.Module, crit: torch.nn.Module, batch: dict, steps: int = 60
+            ) -> tuple[list[float], list[dict[str, float]]]:
+    """``(losses, parts)`` of ``steps`` AdamW steps (lr 3e-3) on one batch."""
+    opt = torch.optim.AdamW(model.parameters(), lr=3e-3)
+    losses, parts = [], []
+    for _ in range(steps):
+        loss, p = crit(model(batch), batch)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(float(loss.detach()))
+        parts.append(p)
+    return losses, parts
+
+
+def train_and_resume(method: str, data: Path, run: Path, capsys) -> tuple[list[str], list[dict]]:
+    """``(the train command, log rows)``: 3 steps, then the same command resumes and finishes
+    the epoch (contiguous steps in ``log.jsonl``, ``(done)``)."""
+    base = ["baselines", "train", method, "--data", str(data), "--out", str(run), "--scale",
+            "tiny", "--quiet", "--threads", "1"]
+    assert main([*base, "--max-steps", "3"]) == 0
+    assert "step 3/" in capsys.readouterr().out
+    assert main(base) == 0  # resumes at step 3 and finishes the epoch
+    out = capsys.readouterr().out
+    log = [json.loads(x) for x in (run / "log.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in log] == list(range(1, len(log) + 1)) and "(done)" in out
+    return base, log
+
+
+def refused_error(base: list[str], capsys) -> str:
+    """The error of the train command with another seed on the same run folder (exit 2)."""
+    assert main([*base, "--seed", "1"]) == 2  # another run's settings on the same folder
+    return capsys.readouterr().err
+
+
+def assert_same_weights(model: torch.nn.Module, other: torch.nn.Module, path: Path) -> None:
+    """Saving ``model`` to ``path`` and loading it into ``other`` gives the same weights."""
+    from v2xbench.agents.aurora.trainer import load_weights, save_checkpoint
+
+    save_checkpoint(model, path)
+    load_weights(other, path)
+    for (name, a), b in zip(model.state_dict().items(), other.state_dict().values()):
+        assert torch.equal(a, b), name
+
+
+def drive_one_route(method: str, run: Path, tmp_path: Path, f: int, roadside: str) -> dict:
+    """``v2xbench eval --agent METHOD`` with ``{"run": RUN}`` on one 15-tick route: no error,
+    the channel limit set to the message's ``f`` floats, the method's roadside policy, whole
+    messages of ``16 + 2 f`` bytes sent. Returns the summary."""
+    conf = tmp_path / f"{method}.json"
+    conf.write_text(json.dumps({"run": str(run)}))
+    res_dir = tmp_path / "eval"
+    assert main(["eval", "--agent", method, "--agent-config", str(conf), "--suite", "test50",
+                 "--max-routes", "1", "--set", "max_steps=15", "--out", str(res_dir),
+                 "--quiet"]) == 0
+    route = json.loads(next((res_dir / "routes").glob("*.json")).read_text())
+    assert route["error"] is None and route["ticks"] == 15
+    summ = json.loads((res_dir / "summary.json").read_text())
+    assert summ["config_overrides"]["max_payload_floats"] == f
+    assert summ["rsu_policy"] == f"custom:{roadside}"
+    sent = route["record"]["bytes_sent"]  # the channel's count: whole messages of 16 + 2F bytes
+    assert sent > 0 and sent % (HEADER_SIZE + 2 * f) == 0 and summ["metrics"]["bps"] > 0
+    return summ
+
+
+__all__ = ["assert_channel_counts", "assert_same_weights", "drive_one_route", "overfit",
+           "refused_error", "train_and_resume", "unit_batch"]

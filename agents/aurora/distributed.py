@@ -19,6 +19,7 @@ single-process ones.
 
 from __future__ import annotations
 
+import atexit
 import os
 from collections.abc import Callable
 from typing import TypeVar
@@ -64,8 +65,18 @@ def setup(device: str | torch.device) -> torch.device:
         torch.accelerator.set_device_index(device.index)
     if not dist.is_initialized():
         dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
+        # leave the group before the interpreter exits: a process whose gloo threads are still
+        # running at exit aborts ("terminate called without an active exception", seen under
+        # load in CI)
+        atexit.register(teardown)
     _device = device
     return device
+
+
+def teardown() -> None:
+    """Leave the process group (idempotent; registered by :func:`setup` to run at exit)."""
+    if dist.is_available() and dist.is_initialized():
+        dist.destroy_process_group()
 
 
 def wrap(model: nn.Module, device: torch.device) -> nn.Module:

@@ -7,13 +7,20 @@ from __future__ import annotations
 import argparse
 
 
+def _shipped() -> list[str]:
+    """The shipped configs' names (``collectors/experiments/configs/*.json``)."""
+    from v2xbench.collectors.experiments import CONFIG_DIR
+
+    return sorted(q.stem for q in CONFIG_DIR.glob("*.json"))
+
+
 def _run(args: argparse.Namespace) -> int:
     from v2xbench.collectors.experiments import shipped_config
     from v2xbench.collectors.experiments.runner import run_experiments
 
     if (args.config is None) == (not args.quick):
-        raise ValueError("experiments run: give --config FILE (or a shipped name: paper, "
-                         "quick) or --quick")
+        raise ValueError("experiments run: give --config FILE (or a shipped name: "
+                         f"{', '.join(_shipped())}) or --quick")
     config = args.config or "quick"
     if "/" not in config and not config.endswith((".json", ".toml")):
         config = str(shipped_config(config))
@@ -47,7 +54,7 @@ def register(sub) -> None:
                         "a method whose baseline is not registered is skipped as not "
                         "available. One line per job with its time. Exit 1 when a job failed.")
     r.add_argument("--config", default=None, help="config file (JSON or TOML), or a shipped "
-                   "config's name: paper, quick")
+                   "config's name: " + ", ".join(_shipped()))
     r.add_argument("--quick", action="store_true", help="the shipped quick config (tiny "
                    "models, a few minutes; for CI)")
     r.add_argument("--out", required=True, help="experiment folder DIR")

@@ -18,21 +18,14 @@ from v2xbench.agents.aurora.planner_losses import (
 )
 from v2xbench.agents.aurora.planners import build_planner, fit_anchors
 
-torch.set_num_threads(1)
+from tests.planner_fit import TIMES, T, overfit, turn
 
-T = 6
-TIMES = torch.arange(1, T + 1) * 0.5
+torch.set_num_threads(1)
 
 
 def straight(speed: float, y: float = 0.0) -> torch.Tensor:
     """``(T, 2)`` waypoints at constant speed along x."""
     return torch.stack([speed * TIMES, torch.full((T,), y)], -1)
-
-
-def turn(speed: float, radius: float, side: float = 1.0) -> torch.Tensor:
-    """``(T, 2)`` waypoints on a circle to the left (``side=1``) or right."""
-    a = speed * TIMES / radius
-    return torch.stack([radius * torch.sin(a), side * radius * (1 - torch.cos(a))], -1)
 
 
 def road(b: int, p: int = 6, half: float = 5.0) -> dict[str, torch.Tensor]:
@@ -147,23 +140,12 @@ def test_each_planner_overfits_two_samples(name):
         anchors = fit_anchors(torch.stack(fam), cfg.plan_anchors, seed=0)
         assert tuple(anchors.shape) == (cfg.plan_anchors, T, 2)
         planner.set_anchors(anchors)
-    crit = PlanningCriterion(cfg)
-    steps = 300
-    opt = torch.optim.Adam(planner.parameters(), lr=5e-3)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
-    planner.train()
-    for _ in range(steps):
-        out = planner(h, command, gt if name == "vae" else None, route=batch["route_points"])
-        loss, parts = crit(out, batch)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        sched.step()
+    parts = overfit(planner, PlanningCriterion(cfg), batch, h, command, 300,
+                    gt if name == "vae" else None, route=batch["route_points"])
     expect = {"vae": {"plan_l1", "plan_col", "plan_bound", "plan_kl"},
               "mlp": {"plan_l1", "plan_col", "plan_bound"},
               "diffusion": {"plan_cls", "plan_reg", "plan_bound"}}[name]
     assert set(parts) == expect
-    planner.eval()
     with torch.no_grad():
         pred = planner(h, command, route=batch["route_points"])["waypoints"]
     assert tuple(pred.shape) == (2, T, 2)
@@ -227,18 +209,8 @@ def test_planner_overfits_two_samples_that_differ_only_in_their_route(name):
         planner.set_anchors(fit_anchors(torch.stack(
             [straight(v) for v in (3.0, 6.0, 9.0)] + [turn(5.0, r) for r in (8.0, 12.0, 16.0)]
             + [turn(5.0, 12.0, -1.0)]), cfg.plan_anchors, seed=0))
-    crit = PlanningCriterion(cfg)
-    steps = 500
-    opt = torch.optim.Adam(planner.parameters(), lr=5e-3)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
-    planner.train()
-    for _ in range(steps):
-        loss, _ = crit(planner(h, command, gt if name == "vae" else None, route=route), batch)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        sched.step()
-    planner.eval()
+    overfit(planner, PlanningCriterion(cfg), batch, h, command, 500,
+            gt if name == "vae" else None, route=route)
     with torch.no_grad():
         pred = planner(h, command, route=route)["waypoints"]
         swapped = planner(h, command, route=route.flip(0))["waypoints"]

@@ -22,10 +22,10 @@ from v2xbench.agents.aurora.route_input import (
     route_to_ego,
 )
 
+from tests.planner_fit import TIMES, T, overfit, turn
+
 torch.set_num_threads(1)
 
-T = 6
-TIMES = torch.arange(1, T + 1) * 0.5
 RADIUS = 20.0
 
 
@@ -130,11 +130,6 @@ def test_gradient_flows_to_s_and_d():
 
 
 # ---------------------------------------------------------------------- planners
-def turn(speed: float, radius: float, side: float = 1.0) -> torch.Tensor:
-    a = speed * TIMES / radius
-    return torch.stack([radius * torch.sin(a), side * radius * (1 - torch.cos(a))], -1)
-
-
 def two_samples(cfg: AuroraConfig) -> tuple[torch.Tensor, torch.Tensor, dict]:
     """A straight sample 0.5 m left of a straight route and a left turn on a 12 m curve."""
     g = torch.Generator().manual_seed(0)
@@ -169,19 +164,8 @@ def test_each_planner_overfits_two_samples_in_the_route_frame(name):
         fam = [torch.stack([v * TIMES, torch.full((T,), y)], -1)
                for v in (2.0, 4.0, 6.0, 8.0) for y in (-0.5, 0.5)]
         planner.set_anchors(fit_anchors(torch.stack(fam), cfg.plan_anchors, seed=0))
-    crit = PlanningCriterion(cfg)
-    steps = 300
-    opt = torch.optim.Adam(planner.parameters(), lr=5e-3)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
-    planner.train()
-    for _ in range(steps):
-        out = planner(h, command, gt if name == "vae" else None, route=route, path=path)
-        loss, _ = crit(out, batch)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        sched.step()
-    planner.eval()
+    overfit(planner, PlanningCriterion(cfg), batch, h, command, 300,
+            gt if name == "vae" else None, route=route, path=path)
     with torch.no_grad():
         out = planner(h, command, route=route, path=path)
     pred = out["waypoints"]

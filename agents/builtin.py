@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .aurora.agent import AuroraAgent, NoFusionAgent
+from .baselines.codriving.agent import CoDrivingAgent
 from .baselines.unimm_v2x.agent import UniMMV2XAgent
 from .baselines.univ2x.agent import UniV2XAgent
 from .baselines.v2x_vit.agent import V2XViTAgent
@@ -17,6 +18,7 @@ register_agent("no_fusion")(NoFusionAgent)  # the same without the roadside inpu
 register_agent("univ2x")(UniV2XAgent)  # UniV2X baseline (agents/baselines/univ2x/agent.py)
 register_agent("unimm_v2x")(UniMMV2XAgent)  # UniMM-V2X (agents/baselines/unimm_v2x/agent.py)
 register_agent("v2x_vit")(V2XViTAgent)  # V2X-ViT (agents/baselines/v2x_vit/agent.py)
+register_agent("codriving")(CoDrivingAgent)  # CoDriving (agents/baselines/codriving/agent.py)
 
 
 @register_agent("random")

@@ -11,7 +11,9 @@ from v2xbench.cli.data import _int_in
 #: Methods with a command here (name -> what it is). Each one's module (``BASELINES[name]`` in
 #: :mod:`v2xbench.agents.baselines`) has a ``train`` submodule with ``train(data, out, **kw)``,
 #: ``format_summary(summary)`` and ``evaluate_perception(run, data, split, **kw)``.
-METHODS = {"univ2x": "UniV2X (Yu et al., AAAI 2025): camera, sparse agent queries + dense "
+METHODS = {"codriving": "CoDriving (Liu et al., IEEE TPAMI 2025): LiDAR pillars, driving-oriented "
+           "sparse BEV cells (route request x roadside confidence), max fusion, native PID",
+           "univ2x": "UniV2X (Yu et al., AAAI 2025): camera, sparse agent queries + dense "
            "occupancy, query planner",
            "unimm_v2x": "UniMM-V2X (Song et al., AAAI 2026): camera, MoE BEV and motion decoder, "
            "perception + prediction queries shared, query planner",

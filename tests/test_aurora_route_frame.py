@@ -186,7 +186,7 @@ def test_each_planner_overfits_two_samples_in_the_route_frame(name):
 def test_untrained_mlp_follows_a_curved_route():
     """At initialization d ~ 0 and s > 0: a route-frame planner starts out on the route (an
     ego-frame one starts out straight ahead)."""
-    cfg = AuroraConfig.for_scale("tiny", planner="mlp")
+    cfg = AuroraConfig.for_scale("tiny", planner="mlp", plan_route_step="softplus")
     torch.manual_seed(0)
     planner = build_planner(cfg, cfg.lm_width)
     for p in planner.head[-1].parameters():
@@ -195,6 +195,96 @@ def test_untrained_mlp_follows_a_curved_route():
     wps = planner(h, command, route=batch["route_points"], path=batch["route_path"])["waypoints"]
     s = (torch.arange(1, T + 1) * math.log(2) / 10.0 * cfg.plan_traj_scale[0]).float()
     assert torch.allclose(wps[1].detach(), on_circle(s, torch.zeros(T), 12.0), atol=0.05)
+
+
+def test_relu_ste_step_stands_exactly_yet_passes_the_gradient():
+    """``plan_route_step = "relu_ste"`` (the default for new runs): a negative pre-activation is
+    a step of exactly 0 m, a positive one its size; the gradient is 1 on both sides (a
+    softplus's would be ~0 far below 0), so a sample can leave the standing region."""
+    cfg = AuroraConfig.for_scale("tiny", planner="mlp")
+    assert cfg.plan_route_step == "relu_ste"
+    planner = build_planner(cfg, cfg.lm_width)
+    u = torch.tensor([-2.0, -0.1, 0.05, 0.2]).view(1, 1, 4, 1).repeat(1, 1, 1, 2)
+    u.requires_grad_(True)
+    s = planner.steps_to_traj(u)[..., 0]
+    scale = cfg.plan_traj_scale[0]
+    assert torch.allclose(s, torch.tensor([0.0, 0.0, 0.05, 0.25]) * scale)
+    s.sum().backward()
+    assert torch.allclose(u.grad[..., 0], torch.tensor([4.0, 3.0, 2.0, 1.0]) * scale)
+    soft = build_planner(AuroraConfig.for_scale("tiny", planner="mlp",
+                                                plan_route_step="softplus"), cfg.lm_width)
+    u.grad = None
+    soft.steps_to_traj(u)[..., 0].sum().backward()
+    assert float(u.grad[0, 0, 0, 0]) < 0.01 * 4 * scale  # the softplus: no gradient at -2
+
+
+def test_abs_step_moves_forward_for_either_sign():
+    """``plan_route_step = "abs"``: a step's pre-activation of either sign moves ``s`` forward
+    by its size (a softplus would give ~0 for -0.1)."""
+    cfg = AuroraConfig.for_scale("tiny", planner="mlp", plan_route_step="abs")
+    torch.manual_seed(0)
+    planner = build_planner(cfg, cfg.lm_width)
+    last = planner.head[-1]
+    torch.nn.init.zeros_(last.weight)
+    bias = torch.zeros(cfg.num_commands, T, 2)
+    bias[..., 0] = torch.tensor([-0.1, 0.1]).repeat(T // 2)  # alternating signs along the route
+    last.bias.data = bias.flatten()
+    h, command, batch = two_samples(cfg)
+    wps = planner(h, command, route=batch["route_points"], path=batch["route_path"])["waypoints"]
+    s = torch.arange(1, T + 1) * 0.1 * cfg.plan_traj_scale[0]
+    assert torch.allclose(wps[1].detach(), on_circle(s, torch.zeros(T), 12.0), atol=0.05)
+
+
+def rest_batch(cfg: AuroraConfig, spread: float) -> tuple[torch.Tensor, torch.Tensor, dict]:
+    """Six standing samples (the expert stays) and two starting from rest (1.5 m/s^2, 0.75 m
+    at 1 s), all with ego speed 0 on a straight route; their ``h_wp`` differ by ``spread``
+    times a unit normal around one common state (the real data's standing and starting frames
+    look alike to the planner)."""
+    g = torch.Generator().manual_seed(0)
+    n = 8
+    h = torch.randn(1, cfg.lm_width, generator=g) + spread * torch.randn(n, cfg.lm_width,
+                                                                          generator=g)
+    gt = torch.zeros(n, T, 2)
+    gt[6:, :, 0] = 0.75 * TIMES ** 2
+    rows = arc_rows(None).expand(n, -1, -1)
+    k = torch.arange(1, cfg.plan_route_points + 1) * cfg.plan_route_spacing
+    batch = {"expert_waypoints": torch.cat([gt, gt[:, -2:]], 1), "ego_speed": torch.zeros(n),
+             "agent_future": torch.zeros(n, 0, T, 2),
+             "agent_future_mask": torch.zeros(n, 0, T, dtype=torch.bool),
+             "route_points": polyline_at(rows[0, :, :2], k).expand(n, -1, -1),
+             "route_path": planner_route_path(rows, cfg),
+             "map_points": torch.zeros(n, 1, 4, 2), "map_labels": torch.zeros(n, 1).long(),
+             "map_mask": torch.zeros(n, 1, dtype=torch.bool),
+             "map_closed": torch.zeros(n, 1, dtype=torch.bool)}
+    return h, torch.full((n,), 3), batch
+
+
+@pytest.mark.parametrize("name, spread", [("mlp", 0.1), ("vae", 1.0)])
+def test_planner_starts_from_rest_among_standing_samples(name, spread):
+    """The fourth run's failure (docs/aurora.md, "A fifth run"): standing samples push the
+    softplus step's pre-activation far below 0, where its gradient vanishes, and the samples
+    that start from rest stay at ~0 m; the ``relu_ste`` and ``abs`` steps (gradient 1) fit
+    them and keep the standing ones standing."""
+    dist = {}
+    for step in ("relu_ste", "abs", "softplus"):
+        cfg = AuroraConfig.for_scale("tiny", planner=name, plan_route_step=step)
+        torch.manual_seed(0)
+        planner = build_planner(cfg, cfg.lm_width)
+        h, command, batch = rest_batch(cfg, spread)
+        gt = batch["expert_waypoints"][:, :T]
+        overfit(planner, PlanningCriterion(cfg), batch, h, command, 300,
+                gt if name == "vae" else None, route=batch["route_points"],
+                path=batch["route_path"])
+        with torch.no_grad():
+            wps = planner(h, command, route=batch["route_points"],
+                          path=batch["route_path"])["waypoints"]
+        dist[step] = wps.norm(dim=-1)  # (8, T) m from the ego
+    for step in ("relu_ste", "abs"):
+        assert float(dist[step][:6].max()) < 0.3, step  # the standing samples stay
+        one_s = dist[step][6:, 1]  # expert: 0.75 m at 1 s, 6.75 m at 3 s
+        assert bool(((one_s > 0.5) & (one_s < 1.0)).all()), (step, one_s.tolist())
+        assert float(dist[step][6:, -1].min()) > 4.5, (step, dist[step][6:, -1].tolist())
+    assert float(dist["softplus"][6:, -1].max()) < 0.2  # the old step: stuck at rest
 
 
 # ---------------------------------------------------------------------- config
@@ -207,6 +297,13 @@ def test_old_run_file_loads_as_an_ego_frame_planner(tmp_path):
     path.write_text(json.dumps({"config": old}))
     loaded = AuroraConfig.from_dict(json.loads(path.read_text())["config"])
     assert loaded.plan_frame == "ego"
+    # a fourth-run file (route frame, no plan_route_step) reads as the softplus step
+    fourth = {k: v for k, v in new.to_dict().items() if k != "plan_route_step"}
+    assert AuroraConfig.from_dict(fourth).plan_route_step == "softplus"
+    assert new.plan_route_step == "relu_ste"
+    assert AuroraConfig.from_dict(new.to_dict()).plan_route_step == "relu_ste"
+    with pytest.raises(ValueError, match="plan_route_step='relu'"):
+        AuroraConfig.for_scale("tiny", plan_route_step="relu")
     assert AuroraConfig.from_dict(new.to_dict()).plan_frame == "route"
     assert not same_config(AuroraConfig.for_scale("default", plan_frame="ego").to_dict(),
                            new.to_dict())
@@ -226,10 +323,43 @@ def test_stage_5_keeps_the_frame_of_stage_4(tmp_path):
     (tmp_path / "stage4" / "aurora.json").write_text(json.dumps({"config": old}))
     assert _route_config(tmp_path, 5, new, None).plan_frame == "ego"
     assert _route_config(tmp_path, 4, new, None).plan_frame == "route"
-    info = {"config": new.to_dict(), **{k: None for k in (
+    info = {"config": new.to_dict(), "qa": True, **{k: None for k in (
         "stage", "scale", "data", "frame_stride", "seed", "fusion", "lm", "cache")}}
     (tmp_path / "stage4" / "aurora.json").write_text(json.dumps({**info, "config": old}))
     with pytest.raises(ValueError, match="config"):
         _check_same_run(tmp_path / "stage4" / "aurora.json", info)
     _check_same_run(tmp_path / "stage4" / "aurora.json", {**info, "config": {
         **new.to_dict(), "plan_frame": "ego"}})
+
+
+def test_stage_5_keeps_the_route_step_of_stage_4(tmp_path):
+    """A fourth-run stage 4 (route frame, no ``plan_route_step``) is a softplus planner: stage 5
+    continues it as one under the new default ``"relu_ste"``; resuming it with the default is
+    refused; a new stage 4 gets the default."""
+    from v2xbench.agents.aurora.stages import _check_same_run, _route_config
+
+    new = AuroraConfig.for_scale("tiny")
+    old = new.to_dict()
+    old.pop("plan_route_step")
+    (tmp_path / "stage4").mkdir()
+    info = {"config": new.to_dict(), "qa": True, **{k: None for k in (
+        "stage", "scale", "data", "frame_stride", "seed", "fusion", "lm", "cache")}}
+    (tmp_path / "stage4" / "aurora.json").write_text(json.dumps({**info, "config": old}))
+    kept = _route_config(tmp_path, 5, new, None)
+    assert (kept.plan_frame, kept.plan_route_step) == ("route", "softplus")
+    assert _route_config(tmp_path, 4, new, None).plan_route_step == "relu_ste"
+    with pytest.raises(ValueError, match="config"):
+        _check_same_run(tmp_path / "stage4" / "aurora.json", info)
+    _check_same_run(tmp_path / "stage4" / "aurora.json", {**info, "config": {
+        **new.to_dict(), "plan_route_step": "softplus"}})
+    # the planner's step does not touch the branches: the feature cache's digest ignores it
+    from types import SimpleNamespace
+
+    from v2xbench.agents.aurora.feature_cache import weights_digest
+
+    branches = {"ego": torch.nn.Linear(2, 2), "rsu": torch.nn.Linear(2, 2)}  # what it reads
+    digest = {step: weights_digest(SimpleNamespace(cfg=AuroraConfig.for_scale(
+        "tiny", plan_route_step=step), **branches)) for step in ("relu_ste", "softplus")}
+    assert digest["relu_ste"] == digest["softplus"]
+    assert digest["relu_ste"] != weights_digest(SimpleNamespace(cfg=AuroraConfig.for_scale(
+        "tiny", vit_depth=2), **branches))

@@ -1,11 +1,13 @@
 """``v2xbench experiments run`` / ``report`` (issue #35, item 1 and the machinery of items 2, 5).
 
 One module-scoped run of the shipped quick config, cut to what CI affords (AURORA, No Fusion,
-UniV2X, an unregistered baseline, the V2X oracle and one 500 ms latency point), trained on the
-session's tiny data set and evaluated on a collected test50 route, feeds the tests: the tables
-are written, a second run skips every job, the report refuses incomplete results naming the job
-and file, the DS confidence interval is the shared bootstrap over routes x seeds, and the
-sweep's latency reaches the channel (message age in the route logs).
+AURORA without the Chat-V2XBench loss, UniV2X, an unregistered baseline, the V2X oracle and one
+500 ms latency point), trained on the session's tiny data set and evaluated on a collected
+test50 route, feeds the tests: the tables are written (the VQA ablation's two rows with numbers,
+AURORA's perception from its fused heads and No Fusion's from its ego branch), a second run
+skips every job, the report refuses incomplete results naming the job and file, the DS
+confidence interval is the shared bootstrap over routes x seeds, and the sweep's latency reaches
+the channel (message age in the route logs).
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ from v2xbench.envs.v2x_intersection.evaluation.metrics import bootstrap_ci
 
 from v2xbench.cli import main
 
-KEEP = {"aurora", "no_fusion", "univ2x", "codriving", "oracle_v2x"}
+KEEP = {"aurora", "no_fusion", "aurora_no_vqa", "univ2x", "codriving", "oracle_v2x"}
 UNREGISTERED = "no_such_baseline"  # codriving's stand-in: never in BASELINES
 
 
@@ -101,6 +103,30 @@ def test_quick_pipeline_runs_end_to_end_and_writes_the_tables(exp, tmp_path):
         assert (out / png).stat().st_size > 1000
     assert (out / "leaderboard" / "leaderboard.md").is_file()
     data = json.loads((out / "report.json").read_text())["tables"]
+    # the VQA ablation: AURORA with and without the QA loss in stages 3-5, every cell a number
+    assert st["train_aurora_no_vqa"]["status"] == "done"
+    vqa = {r["method"]: r for r in data["vqa_ablation"]}
+    assert set(vqa) == {"aurora", "aurora_no_vqa"}
+    for r in vqa.values():
+        for k in ("driving_score", "route_completion", "l2_avg", "collision_avg", "vqa_closed",
+                  "vqa_f1"):
+            assert isinstance(r[k], (int, float)), (r["method"], k, r[k])
+    no_qa = json.loads((Path(json.loads((exp["dir"] / "train_aurora_no_vqa" / "result.json")
+                                        .read_text())["outputs"]["run"]) / "stage5"
+                        / "aurora.json").read_text())
+    assert no_qa["qa"] is False and no_qa["samples"]["qa"] == 0
+    vqa_md = (out / "vqa_ablation.md").read_text()
+    assert "| AURORA without the Chat-V2XBench loss | " in vqa_md and "not available" not in vqa_md
+    # perception: AURORA's fused heads vs gt/fused, No Fusion's ego branch vs gt/ego
+    perc = {r["method"]: r for r in data["perception"]}
+    assert perc["aurora"]["evaluator"].startswith("fused heads (CQAF")
+    assert perc["aurora"]["ground_truth"] == "gt/fused"
+    assert perc["no_fusion"]["evaluator"].startswith("ego branch")
+    assert perc["no_fusion"]["ground_truth"] == "gt/ego"
+    assert "no perception evaluator" not in md and "--fused" in md
+    # the fusion ablation scores both on the ground both have: gt/ego
+    assert {r["method"]: r["ground_truth"] for r in data["fusion_ablation"]} == {
+        "aurora": "gt/ego", "no_fusion": "gt/ego"}
     lat = {p["x"]: p for p in data["robustness"]["latency_ms"]["oracle_v2x"]}
     assert set(lat) == {0.0, 500.0}
     # UniV2X has no sweep: its main run is a flat reference at every point, labelled so

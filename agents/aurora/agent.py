@@ -112,6 +112,8 @@ class AuroraAgent:
             route = (f" route={self.cfg.plan_route_points}x{self.cfg.plan_route_spacing:g}m")
         if self.cfg.plan_frame != "ego":
             route += f" frame={self.cfg.plan_frame}"
+            if self.cfg.plan_route_step != "softplus":  # the fourth run's step keeps its print
+                route += f" step={self.cfg.plan_route_step}"
         lateral = "" if self.lateral == "planner" else f" lateral={self.lateral}"
         return (f"stage={self.info['stage']} fusion={self.fusion} planner={self.cfg.planner} "
                 f"speed={TARGET_SPEED_RULE}{route}{lateral}")

@@ -193,6 +193,12 @@ class AuroraConfig:
     #: it, turned into ego-frame x, y; ``"ego"`` predicts ego-frame x, y (a run file without the
     #: key is such a model: :meth:`from_dict`)
     plan_frame: str = "route"
+    #: route frame, MLP and VAE: how a predicted step ``u`` along the route is made
+    #: non-negative: ``"relu_ste"`` ``relu(u)`` with gradient 1 also below 0 (straight-through);
+    #: ``"abs"`` ``|u|``; ``"softplus"`` (the fourth run; a run file without the key) a softplus
+    #: of sharpness ``planners.SOFT_BETA``, which saturates on the standing frames so that the
+    #: few start-from-rest frames barely move it (docs/aurora.md, "A fifth run")
+    plan_route_step: str = "relu_ste"
     # --- losses and matching costs (PETR / MapTR weights)
     focal_alpha: float = 0.25
     focal_gamma: float = 2.0
@@ -303,6 +309,9 @@ class AuroraConfig:
         if self.plan_frame not in PLAN_FRAMES:
             raise ValueError(f"AuroraConfig: plan_frame={self.plan_frame!r} must be one of "
                              f"{PLAN_FRAMES}")
+        if self.plan_route_step not in ROUTE_STEPS:
+            raise ValueError(f"AuroraConfig: plan_route_step={self.plan_route_step!r} must be "
+                             f"one of {ROUTE_STEPS}")
         if not (isinstance(self.plan_speed_dropout, (int, float))
                 and 0 <= self.plan_speed_dropout <= 1):
             raise ValueError(f"AuroraConfig: plan_speed_dropout={self.plan_speed_dropout!r} must "
@@ -384,8 +393,10 @@ class AuroraConfig:
 
 #: Fields whose absence in a run file means "off" (not the scale's default): a model trained
 #: before the field existed has no weights for it (:meth:`AuroraConfig.from_dict`).
-ABSENT_MEANS_OFF: dict[str, Any] = {"plan_route_points": 0, "plan_frame": "ego"}
+ABSENT_MEANS_OFF: dict[str, Any] = {"plan_route_points": 0, "plan_frame": "ego",
+                                     "plan_route_step": "softplus"}
 PLAN_FRAMES = ("ego", "route")  # the planner's output frames (``plan_frame``)
+ROUTE_STEPS = ("relu_ste", "abs", "softplus")  # non-negative steps (``plan_route_step``)
 MAX_ROUTE_POINTS = 16  # the planner's route input: at most this many points
 
 

@@ -46,7 +46,8 @@ INPUT_KEYS = ("images", "intrinsics", "cam_to_frame")
 def weights_digest(system: AuroraSystem) -> str:
     """SHA-256 (hex, 16 characters) of the branches' weights and buffers and the config."""
     conf = system.cfg.to_dict()
-    conf.pop("plan_frame")  # the planner's output frame does not change the branches' outputs
+    for key in ("plan_frame", "plan_route_step"):  # the planner's output: the branches' outputs
+        conf.pop(key)  # do not change (and older caches keep their digest)
     h = hashlib.sha256(json.dumps(conf, sort_keys=True).encode())
     for name, t in sorted({**system.ego.state_dict(prefix="ego."),
                            **system.rsu.state_dict(prefix="rsu.")}.items()):

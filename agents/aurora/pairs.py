@@ -34,7 +34,8 @@ key                        content
 ``expert_waypoints``       (8, 2) the expert's future positions, ego frame, 0.5 s apart
 ``agent_future``           (M, T_plan, 2) ``gt/fused`` agents at constant velocity;
                            ``agent_future_mask`` (M, T_plan)
-``plan_mask``              () bool: a planning sample (its prompt has ``<wp>``)
+``plan_mask``              () bool: a planning sample (its prompt has ``<wp>``; never
+                           with ``plan=False``: stage 3 without QA, :mod:`.stages`)
 ``feat/*``, ``msg/*``      cached branch outputs (:mod:`.feature_cache`), when given
 ``frame_id``               () int64 global frame index
 =========================  ==========================================================
@@ -136,18 +137,20 @@ class AuroraPairs(Dataset):
         cache: a :class:`~.feature_cache.FeatureCache` holding every item's frame.
         speed_dropout: training only: the share of planning prompts whose speed reads
             "unknown" (module docstring; 0: never). seed: seeds that choice.
+        plan: ``False`` sets no ``plan_mask`` (the planner does not run on the samples).
     """
 
     def __init__(self, root: str | Path, split: str, cfg: AuroraConfig, tokenizer,
                  items: Sequence[Item], *, fusion: bool = True, images: bool = True,
-                 cache=None, speed_dropout: float = 0.0, seed: int = 0) -> None:
+                 cache=None, speed_dropout: float = 0.0, seed: int = 0,
+                 plan: bool = True) -> None:
         if not items:
             raise ValueError(f"AuroraPairs: no samples in split {split!r} of {root}")
         if not 0 <= float(speed_dropout) <= 1:
             raise ValueError(f"AuroraPairs: speed_dropout={speed_dropout!r} must be in [0, 1]")
         self.speed_dropout, self.seed = float(speed_dropout), int(seed)
         self.cfg, self.tok, self.items = cfg, tokenizer, list(items)
-        self.fusion, self.cache = bool(fusion), cache
+        self.fusion, self.cache, self.plan = bool(fusion), cache, bool(plan)
         self.ego = AuroraFrames(root, split, "ego", cfg, images=images)
         try:
             self.rsu: AuroraFrames | None = AuroraFrames(root, split, "rsu", cfg, images=images)
@@ -224,7 +227,7 @@ class AuroraPairs(Dataset):
             ego_speed=torch.tensor(speed, dtype=torch.float32),
             expert_waypoints=x["expert_waypoints"].float(),
             agent_future=fut[0], agent_future_mask=fmask[0],
-            plan_mask=torch.tensor(question is None), frame_id=torch.tensor(fid))
+            plan_mask=torch.tensor(question is None and self.plan), frame_id=torch.tensor(fid))
         if cfg.plan_frame == "route":
             out[PATH_KEY] = planner_route_path(x["route"], cfg)
         if self.cache is not None:

@@ -13,8 +13,8 @@ stage  what                        function (the same as ``v2xbench aurora train
 
 A stage is **complete** when its trainer state says done (``state.json``) and the files later
 stages read are there (stage 0: the ``save_pretrained`` model; 3-5: the peft adapter). A complete
-stage is skipped (its recorded scale, and for 3-5 its fusion, must match the call, else
-``ValueError``); an incomplete one is resumed by its function (which refuses other settings).
+stage is skipped (its recorded scale, and for 3-5 its fusion and qa, must match the call,
+else ``ValueError``); an incomplete one is resumed by its function (which refuses other settings).
 With ``max_steps`` a stage stops early and the pipeline stops after it (later stages need it
 complete); the same command goes on. One progress line per stage, then a summary of each
 stage's final losses (the mean of the last :data:`FINAL_STEPS` logged steps, ``log.jsonl``), steps
@@ -22,7 +22,8 @@ and time, written atomically to ``RUN/pipeline_summary.json`` and ``RUN/pipeline
 
 No Fusion: ``fusion=False`` trains stages 3-5 without the roadside message; stages 0-2 are the
 same as AURORA's, so copying ``RUN/stage0..2`` of an AURORA run into the No Fusion run folder
-first makes the pipeline skip them.
+first makes the pipeline skip them. The VQA ablation: ``qa=False`` (``--no-qa``) trains stages
+3-5 without the Chat-V2XBench loss (:mod:`.stages`); stages 0-2 are again AURORA's.
 """
 
 from __future__ import annotations
@@ -63,7 +64,7 @@ def stage_complete(run: str | Path, stage: int) -> bool:
     return all((d / f).is_file() for f in files) and (d / "aurora.json").is_file()
 
 
-def _check_skipped(run: Path, stage: int, scale: str, fusion: bool) -> None:
+def _check_skipped(run: Path, stage: int, scale: str, fusion: bool, qa: bool = True) -> None:
     info = _read_json(run / f"stage{stage}" / "aurora.json") or {}
     if info.get("scale") != scale:
         raise ValueError(f"aurora pipeline: {run}/stage{stage} was trained at scale "
@@ -73,6 +74,10 @@ def _check_skipped(run: Path, stage: int, scale: str, fusion: bool) -> None:
         raise ValueError(f"aurora pipeline: {run}/stage{stage} was trained with fusion="
                          f"{info.get('fusion')}; this call has fusion={fusion} (--no-fusion): "
                          "use another --out")
+    if stage >= 3 and bool(info.get("qa", True)) != qa:  # a file without the key: QA loss on
+        raise ValueError(f"aurora pipeline: {run}/stage{stage} was trained with qa="
+                         f"{bool(info.get('qa', True))}; this call has qa={qa} (--no-qa): use "
+                         "another --out")
 
 
 def stage_record(run: str | Path, stage: int) -> dict:
@@ -95,8 +100,8 @@ def stage_record(run: str | Path, stage: int) -> dict:
 
 
 def _train(stage: int, data: Path, run: Path, *, scale: str, fusion: bool, lm, device: str,
-           max_steps: int | None, stride: int | None, seed: int, progress: bool
-           ) -> tuple[dict, str]:
+           max_steps: int | None, stride: int | None, seed: int, progress: bool,
+           qa: bool = True) -> tuple[dict, str]:
     """One stage through its own function: ``(summary, its summary line)``."""
     common = dict(device=device, max_steps=max_steps, stride=stride, seed=seed,
                   progress=progress)
@@ -113,21 +118,23 @@ def _train(stage: int, data: Path, run: Path, *, scale: str, fusion: bool, lm, d
     from .stages import format_late_summary, train_late_stage
 
     s = train_late_stage(data, run, stage, scale=scale, lm=lm if stage == 3 else None,
-                         fusion=fusion, **common)
+                         fusion=fusion, qa=qa, **common)
     return s, format_late_summary(s)
 
 
 def run_pipeline(data: str | Path, out: str | Path, *, scale: str = "default",
                  fusion: bool = True, lm: str | Path | None = None, device: str = "cpu",
                  max_steps: int | None = None, stride: int | None = None, seed: int = 0,
-                 progress: bool = True, say: Callable[[str], None] = print) -> dict:
+                 progress: bool = True, say: Callable[[str], None] = print,
+                 qa: bool = True) -> dict:
     """Stages 0-5 into ``out`` (module docstring).
 
     Args:
         data: data set folder with Chat-V2XBench items (``v2xbench qa build``).
         out: the run folder RUN. scale: ``tiny``, ``default`` or ``paper``.
         fusion: ``False``: the No Fusion model (stages 3-5). lm: a local Hugging Face causal LM
-            as the base LM (stage 0 is then not run).
+            as the base LM (stage 0 is then not run). qa: ``False``: stages 3-5 without the
+            Chat-V2XBench loss (the VQA ablation, :mod:`.stages`).
         device, seed, progress: as ``aurora train``. max_steps: per stage (the pipeline stops
             after a stage that it leaves incomplete). stride: every k-th frame / QA item in every
             stage (default: each stage's ``frame_stride``).
@@ -165,7 +172,7 @@ def run_pipeline(data: str | Path, out: str | Path, *, scale: str = "default",
                              "wall_s": 0.0, **stage_record(run, 0)})
                 continue
             if stage_complete(run, stage):
-                _check_skipped(run, stage, scale, fusion)
+                _check_skipped(run, stage, scale, fusion, qa)
                 rec = stage_record(run, stage)
                 say(f"{head}: complete ({rec['steps']}/{rec['total_steps']} steps), skipped")
                 rows.append({"stage": stage, "name": NAMES[stage], "status": "skipped",
@@ -174,7 +181,7 @@ def run_pipeline(data: str | Path, out: str | Path, *, scale: str = "default",
             say(f"{head}: training -> {run / f'stage{stage}'}")
             _, line = _train(stage, data, run, scale=scale, fusion=fusion, lm=lm,
                              device=device, max_steps=max_steps, stride=stride, seed=seed,
-                             progress=progress)
+                             progress=progress, qa=qa)
             say(line)
             rec = stage_record(run, stage)
             rows.append({"stage": stage, "name": NAMES[stage], "status": "trained",
@@ -185,7 +192,8 @@ def run_pipeline(data: str | Path, out: str | Path, *, scale: str = "default",
                 break
         summary = {"format": "v2xbench-aurora-pipeline/1", "run": str(run),
                    "data": str(data.resolve()), "scale": scale, "fusion": bool(fusion),
-                   "lm": None if lm is None else str(lm), "seed": seed, "stride": stride,
+                   "qa": bool(qa), "lm": None if lm is None else str(lm), "seed": seed,
+                   "stride": stride,
                    "max_steps": max_steps, "stages": rows,
                    "complete": all(stage_complete(run, s) for s in STAGES
                                    if not (s == 0 and lm is not None)),
@@ -197,7 +205,8 @@ def run_pipeline(data: str | Path, out: str | Path, *, scale: str = "default",
 
 def format_pipeline_summary(s: dict) -> str:
     """The summary as a Markdown table (one row per stage)."""
-    lines = [f"AURORA pipeline {s['run']} (scale {s['scale']}, fusion {s['fusion']}): "
+    lines = [f"AURORA pipeline {s['run']} (scale {s['scale']}, fusion {s['fusion']}, "
+             f"QA loss {s.get('qa', True)}): "
              f"{'complete' if s['complete'] else 'incomplete'}, {s['wall_s']:.0f} s this call",
              "", "| stage | name | status | steps | final losses (mean of last steps) | "
              "train s (all calls) | wall s (this call) |", "|---|---|---|---|---|---|---|"]

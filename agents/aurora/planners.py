@@ -17,7 +17,11 @@ it, turned into ego-frame x, y by :func:`~.route_input.route_to_ego` (differenti
 outputs (``waypoints``, ``per_command``, ``mode_trajs``) are ego-frame x, y in both frames, so
 the losses (:mod:`.planner_losses`) and open-loop metrics are unchanged, and ``route_sd`` holds
 the chosen trajectory's ``(s, d)``. The MLP and VAE keep ``s`` at or above 0 and non-decreasing
-(each step along the route is a softplus, sharpness :data:`SOFT_BETA`); the diffusion planner's
+(each step along the route is made non-negative, ``cfg.plan_route_step``: the default
+``"relu_ste"`` is ``relu(u)`` whose gradient is 1 also below 0 (a straight-through estimator:
+a standing step is exactly 0, yet a start-from-rest sample still moves it); ``"abs"`` is ``|u|``;
+``"softplus"`` (the fourth run's, sharpness :data:`SOFT_BETA`) saturates where the standing
+frames push it far below 0: docs/aurora.md, "A fifth run"); the diffusion planner's
 anchors are route-frame k-means centres (``s >= 0``) and its inference output's ``s`` is
 clipped at 0. A route-frame planner following the route by default learns only deviations from
 it and the speed along it (docs/aurora.md, "A fourth run").
@@ -73,6 +77,7 @@ class Planner(nn.Module):
         if self.k_route:  # the route points ahead (module docstring)
             self.route = mlp([2 * self.k_route, h, h])
         self.frame = cfg.plan_frame
+        self.route_step = cfg.plan_route_step
 
     def check_path(self, path: torch.Tensor | None, b: int) -> torch.Tensor | None:
         """The route polyline ``(B, N, 2)`` of a route-frame planner (``None`` in the ego
@@ -95,9 +100,16 @@ class Planner(nn.Module):
     def steps_to_traj(self, steps: torch.Tensor) -> torch.Tensor:
         """Normalized per-waypoint steps ``(B, C, T, 2)`` -> trajectories (m) of the planner's
         frame: their cumulative sum; in the route frame the step along the route is first made
-        non-negative (a softplus: ``s`` starts at 0 and never decreases)."""
+        non-negative (``cfg.plan_route_step``: ``relu(u)`` with a straight-through gradient,
+        ``|u|`` or a softplus; ``s`` starts at 0 and never decreases)."""
         if self.frame == "route":
-            along = nn.functional.softplus(steps[..., :1], beta=SOFT_BETA)
+            u = steps[..., :1]
+            if self.route_step == "relu_ste":  # forward relu(u), gradient 1 (straight through)
+                along = u + (u.clamp_min(0.0) - u).detach()
+            elif self.route_step == "abs":
+                along = u.abs()
+            else:
+                along = nn.functional.softplus(u, beta=SOFT_BETA)
             steps = torch.cat([along, steps[..., 1:]], -1)
         return steps.cumsum(-2) * self.scale
 

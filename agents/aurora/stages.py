@@ -26,6 +26,15 @@ Samples (:mod:`.pairs`, train split): stage 3 every ``frame_stride``-th QA item,
 ``frame_stride``-th frame as a planning sample, stage 5 both. ``fusion=False`` trains the No
 Fusion model: every roadside message dropped, the prompt saying none arrived.
 
+``qa=False`` (``aurora train|pipeline --no-qa``, the VQA ablation) drops the Chat-V2XBench
+next-token loss from all three stages: stage 3 trains on every ``frame_stride``-th frame with
+the planning prompt instead of the QA items, its loss only the fused heads' (and, with live
+branches, the ego / roadside set losses), the planner not run (``plan_mask`` off), so LoRA, the
+bridge and semantic fusion get no gradient there; stage 4 is unchanged (its samples carry no
+answer); stage 5 trains on its planning samples only (stage 4's losses, stage 5's schedule).
+The setting is recorded as ``qa`` in each stage's ``aurora.json`` (a file without it: ``True``)
+and must agree along the run.
+
 The planner's route input (``plan_route_points``, :mod:`.route_input`) is chosen per late stage:
 ``route_points`` (``aurora train --plan-route-points K``) if given, else the value of stages
 1-2's run file, else (a run file from before the field) the scale's default. Stage 5 continues
@@ -77,11 +86,13 @@ class StageCriterion(nn.Module):
     """The loss of stage 3, 4 or 5 (module docstring): ``(total, parts)``. Parts: ``fused``
     (stage 3), ``ego`` / ``rsu`` (stage 3 with live branches), ``qa`` and, in stages 4-5, the
     planning terms (:class:`~.planner_losses.PlanningCriterion`); every part of the stage is
-    reported at every step (0 where the batch has none)."""
+    reported at every step (0 where the batch has none). ``qa=False``: no ``qa`` part."""
 
-    def __init__(self, cfg: AuroraConfig, stage: int, live_branches: bool = False) -> None:
+    def __init__(self, cfg: AuroraConfig, stage: int, live_branches: bool = False,
+                 qa: bool = True) -> None:
         super().__init__()
         self.cfg, self.stage, self.live = cfg, int(stage), bool(live_branches)
+        self.qa = bool(qa)
         self.fused = FusedCriterion(cfg)
         self.plan = PlanningCriterion(cfg)
         self.ego = SetCriterion(cfg, "ego")
@@ -104,7 +115,8 @@ class StageCriterion(nn.Module):
                     rows = per["rsu_rows"]
                     sub = {k[4:]: v[rows] for k, v in batch.items() if k.startswith("rsu/")}
                     terms["rsu"] = self.rsu(per["rsu_out"], sub)[0]
-        terms["qa"] = out["lm_loss"] if out["lm_loss"] is not None else zero
+        if self.qa:
+            terms["qa"] = out["lm_loss"] if out["lm_loss"] is not None else zero
         if self.stage >= 4:
             names = PLAN_PARTS[self.cfg.planner]
             if out["plan"] is None:
@@ -173,7 +185,8 @@ def _run_config(run: Path, scale: str | None) -> AuroraConfig:
 def _route_config(run: Path, stage: int, cfg: AuroraConfig, requested: int | None
                   ) -> AuroraConfig:
     """``cfg`` with the stage's route input (module docstring): stage 5 keeps stage 4's
-    ``plan_route_points`` / ``plan_route_spacing``; stages 3-4 take ``requested`` if given."""
+    ``plan_route_points`` / ``plan_route_spacing`` / ``plan_frame`` / ``plan_route_step``;
+    stages 3-4 take ``requested`` if given."""
     if stage == 5:
         prev = AuroraConfig.from_dict(read_stage_info(run, 4)["config"])
         if requested is not None and requested != prev.plan_route_points:
@@ -183,7 +196,8 @@ def _route_config(run: Path, stage: int, cfg: AuroraConfig, requested: int | Non
                              "in another run folder)")
         return dataclasses.replace(cfg, plan_route_points=prev.plan_route_points,
                                    plan_route_spacing=prev.plan_route_spacing,
-                                   plan_frame=prev.plan_frame)
+                                   plan_frame=prev.plan_frame,
+                                   plan_route_step=prev.plan_route_step)
     if requested is None:
         return cfg
     return dataclasses.replace(cfg, plan_route_points=requested)
@@ -209,12 +223,13 @@ def _load_previous(system: AuroraSystem, run: Path, stage: int) -> None:
         raise ValueError(f"load_weights: {ckpt} does not fit the model: {bad[:5]}")
 
 
-def _items(data: Path, stage: int, frames, stride: int) -> list:
+def _items(data: Path, stage: int, frames, stride: int, qa: bool = True) -> list:
+    """The stage's samples (module docstring; ``qa=False``: planning frames only)."""
     from .pairs import planning_items, qa_items
 
-    if stage == 3:
+    if stage == 3 and qa:
         return qa_items(data, frames, stride)
-    if stage == 4:
+    if stage == 4 or not qa:
         return planning_items(frames, stride)
     return planning_items(frames, stride) + qa_items(data, frames, stride)
 
@@ -225,14 +240,16 @@ def _check_same_run(path: Path, info: dict) -> None:
     if not path.is_file():
         return
     old = json.loads(path.read_text())
-    keys = ("stage", "scale", "data", "frame_stride", "seed", "fusion", "lm", "cache")
+    keys = ("stage", "scale", "data", "frame_stride", "seed", "fusion", "qa", "lm", "cache")
+    old = {"qa": True, **old}  # a run file from before the switch trained with the QA loss
     diff = [k for k in keys if old.get(k) != json.loads(json.dumps(info[k]))]
     if not _same_config(old.get("config"), info["config"]):
         diff.append("config")
     else:  # a run file without the key trained a planner without route input
         was = AuroraConfig.from_dict(old["config"])
         if was.plan_route_points != info["config"]["plan_route_points"] \
-                or was.plan_frame != info["config"]["plan_frame"]:  # absent: "ego"
+                or was.plan_frame != info["config"]["plan_frame"] \
+                or was.plan_route_step != info["config"]["plan_route_step"]:  # absent: off
             diff.append("config")
     if diff:
         raise ValueError(f"aurora train: {path.parent} holds a run with other settings "
@@ -255,7 +272,8 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
                      max_steps: int | None = None, stride: int | None = None, seed: int = 0,
                      progress: bool = True, num_workers: int | None = None,
                      lm: str | Path | None = None, fusion: bool = True,
-                     cache: bool = True, route_points: int | None = None) -> dict:
+                     cache: bool = True, route_points: int | None = None,
+                     qa: bool = True) -> dict:
     """Train stage 3, 4 or 5 of ``out`` on the train split of ``data`` (module docstring).
 
     Args:
@@ -269,15 +287,18 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
         cache: use the feature cache while the branches are frozen.
         route_points: the planner's ``plan_route_points`` (stages 3-4; default: the run's,
             module docstring; stage 5 keeps stage 4's).
+        qa: ``False`` drops the Chat-V2XBench loss (module docstring; the VQA ablation); every
+            stage of a run must use the same.
 
     Returns:
         :func:`~.trainer.fit`'s summary plus ``stage``, ``branch`` (the stage's name),
         ``frames``, ``samples`` (QA / planning), ``lm`` (source, path), ``cache`` (statistics or
-        ``None``) and ``fusion``.
+        ``None``), ``fusion`` and ``qa``.
 
     Raises:
         FileNotFoundError: no data, no earlier stage, no QA items. ValueError: a run folder of
-            other settings, ``lm`` for a later stage, a fusion setting other than stage 3's.
+            other settings, ``lm`` for a later stage, a fusion or qa setting other than the
+            previous stage's.
     """
     from . import distributed as ddp
     from .data import AuroraFrames
@@ -315,6 +336,10 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
             raise ValueError(f"aurora train: stage {stage - 1} of {run} was trained with "
                              f"fusion={prev.get('fusion')}; stage {stage} must use the same "
                              "(--no-fusion)")
+        if bool(prev.get("qa", True)) != bool(qa):
+            raise ValueError(f"aurora train: stage {stage - 1} of {run} was trained with "
+                             f"qa={bool(prev.get('qa', True))}; stage {stage} must use the same "
+                             "(--no-qa drops the Chat-V2XBench loss in stages 3-5)")
         lm_info = dict(prev["lm"])
     torch.manual_seed(seed)  # the new weights (LoRA, CQAF, planner) are part of the run
     system, tok = build_system(cfg, resolve_lm_path(run, {"lm": lm_info}), fusion)
@@ -325,7 +350,7 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
         _load_previous(system, run, stage)
     system.set_trainable(branches=not frozen, planner=stage >= 4)
     frames = AuroraFrames(data, "train", "ego", cfg, images=False)
-    items = _items(data, stage, frames, hp.frame_stride)
+    items = _items(data, stage, frames, hp.frame_stride, qa)
     use_cache = frozen and cache
     cstats = None
     feature_cache = None
@@ -335,7 +360,8 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
             system, data, "train", fids, run / "cache", batch_size=hp.batch_size,
             num_workers=hp.num_workers, device=device, progress=progress and ddp.is_main()))
     ds = AuroraPairs(data, "train", cfg, tok, items, fusion=fusion, images=not use_cache,
-                     cache=feature_cache, speed_dropout=cfg.plan_speed_dropout, seed=seed)
+                     cache=feature_cache, speed_dropout=cfg.plan_speed_dropout, seed=seed,
+                     plan=stage >= 4)
     if stage == 4 and cfg.planner == "diffusion" and not bool(system.planner.anchors_set):
         wps = torch.stack([ds.extra[fid]["expert_waypoints"] for fid, _, _ in items])
         wps = wps[:, :cfg.plan_waypoints].float()
@@ -350,7 +376,7 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
     info = {"format": "v2xbench-aurora-run/1", "stage": stage, "branch": STAGE_NAMES[stage],
             "scale": cfg.scale, "config": cfg.to_dict(), "data": str(data.resolve()),
             "split": "train", "frame_stride": hp.frame_stride, "seed": seed,
-            "fusion": bool(fusion), "lm": lm_info, "cache": bool(use_cache),
+            "fusion": bool(fusion), "qa": bool(qa), "lm": lm_info, "cache": bool(use_cache),
             "freeze_backbone": frozen, "samples": {"qa": n_qa, "plan": len(items) - n_qa},
             "from": "stages 1-2" if stage == 3 else f"stage{stage - 1}",
             "trains": STAGE_TABLE[stage], "camera_size": list(frames.recorded_size)}
@@ -359,7 +385,7 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
         atomic_write_json(sdir / RUN_CONFIG, info, indent=1)
     loader = make_pair_loader(ds, hp.batch_size, shuffle=True, seed=seed,
                               num_workers=hp.num_workers)
-    criterion = StageCriterion(cfg, stage, live_branches=not frozen)
+    criterion = StageCriterion(cfg, stage, live_branches=not frozen, qa=qa)
     summary = fit(system, criterion, loader, sdir, hp, device=device, seed=seed,
                   progress=progress, max_steps=max_steps)
     if ddp.is_main():
@@ -368,7 +394,7 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
         cstats["branch_s_per_epoch_without_cache"] = cstats["ms_per_frame"] * len(ds) / 1e3
     summary.update(stage=stage, branch=STAGE_NAMES[stage], frames=len(set(ds.frame_ids())),
                    scale=cfg.scale, samples=info["samples"], lm=lm_info, cache=cstats,
-                   fusion=bool(fusion))
+                   fusion=bool(fusion), qa=bool(qa))
     if ddp.is_main():
         atomic_write_json(sdir / "train_summary.json", summary, indent=1)
     return summary
@@ -392,7 +418,8 @@ def format_late_summary(s: dict) -> str:
                      f"{c['build_s']:.0f} s, {c['ms_per_frame']:.1f} ms/frame); without it the "
                      f"frozen branches would cost {c['branch_s_per_epoch_without_cache']:.0f} s "
                      "per epoch")
-    fusion = "" if s.get("fusion", True) else ", no fusion"
+    fusion = ("" if s.get("fusion", True) else ", no fusion") \
+        + ("" if s.get("qa", True) else ", no QA loss")
     lines.append(f"stage {s['stage']} ({s['branch']}, {s['scale']}{fusion}): {progress_text(s)}, "
                  f"{s['samples']['qa']} QA + {s['samples']['plan']} planning samples on "
                  f"{s['frames']} frames, loss {loss_text(s)}, {speed_text(s)}")

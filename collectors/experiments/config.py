@@ -40,7 +40,7 @@ KINDS: dict[str, tuple[str, ...]] = {
     "aurora_train": ("data", "scale", "fusion", "from", "planner", "qa", "max_steps", "stride",
                      "seed"),
     "baseline_train": ("data", "scale", "max_steps", "stride", "seed"),
-    "perception": ("run", "data", "split", "stride", "top_k", "batch_size"),
+    "perception": ("run", "data", "split", "stride", "top_k", "batch_size", "stage"),
     "open_loop": ("run", "data", "split", "stride", "stage", "batch_size"),
     "closed_loop": ("run", "suite", "seeds", "max_routes", "routes", "scenario", "v2x_only",
                     "workers", "route_timeout", "set", "channel", "agent_config", "stage",

@@ -7,8 +7,10 @@ kind               function (command)                                           
 ``dataset``        an existing data set folder (``qa: true``: builds its QA items there)  -
 ``aurora_train``   ``aurora.pipeline.run_pipeline`` (``v2xbench aurora pipeline``)        run/
 ``baseline_train`` ``BASELINES[m].train.train`` (``v2xbench baselines train M``)          run/
-``perception``     ``aurora.eval_perception.evaluate_run`` / ``evaluate_perception`` of a  eval/
-                   baseline (``aurora`` / ``baselines eval-perception``)
+``perception``     ``aurora.eval_fused.evaluate_fused`` (a fusion run: its fused heads),    eval/
+                   ``aurora.eval_perception.evaluate_run`` (No Fusion: its ego branch) or
+                   ``evaluate_perception`` of a baseline (``aurora eval-perception
+                   [--fused]`` / ``baselines eval-perception``)
 ``open_loop``      ``aurora.eval_planning.evaluate_planning`` (``aurora eval-planning``)   eval/
 ``closed_loop``    ``collectors.evaluate.evaluate`` (``v2xbench eval``)                   eval/
 ``vqa``            ``aurora.answer.answer_split`` + ``chat.scoring.score`` (``qa score``)  answers
@@ -21,11 +23,9 @@ Each runner gets the job, its folder ``DIR/<job id>`` and the results of the job
 
 from __future__ import annotations
 
-import inspect
 import shutil
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 from .config import Config, Job, channel_overrides
 
@@ -136,12 +136,6 @@ def _copy_early_stages(src: Path, run: Path, planner: str | None) -> None:
 def _aurora_train(job: Job, d: Path, deps: dict, cfg: Config, progress: bool) -> dict:
     from v2xbench.agents.aurora.pipeline import run_pipeline
 
-    kw: dict[str, Any] = {}
-    if job.get("qa", True) is False:
-        if "qa" not in inspect.signature(run_pipeline).parameters:
-            raise NotAvailable("AURORA's pipeline has no switch to train stages 3-5 without "
-                               "the Chat-V2XBench loss (run_pipeline has no `qa` parameter)")
-        kw["qa"] = False
     run = d / "run"
     run.mkdir(parents=True, exist_ok=True)
     if job.get("from") is not None:
@@ -157,7 +151,8 @@ def _aurora_train(job: Job, d: Path, deps: dict, cfg: Config, progress: bool) ->
     s = run_pipeline(_data(deps, job), run, scale=job.get("scale", "default"),
                      fusion=job.get("fusion", True), device=cfg.defaults["device"],
                      max_steps=job.get("max_steps"), stride=job.get("stride"),
-                     seed=job.get("seed", 0), progress=progress, say=say, **kw)
+                     seed=job.get("seed", 0), progress=progress, say=say,
+                     qa=job.get("qa", True))
     if not s.get("complete"):
         raise RuntimeError(f"the pipeline stopped before stage 5 (max_steps={job.get('max_steps')}"
                            f"); its summary: {run}/pipeline_summary.md")
@@ -188,24 +183,32 @@ def _perception(job: Job, d: Path, deps: dict, cfg: Config, progress: bool) -> d
           "batch_size": job.get("batch_size", 4), "device": cfg.defaults["device"],
           "progress": progress}
     base = cfg.methods[job.method].get("baseline")
+    split = job.get("split", "test")
     if base is not None:
-        r = baseline_module(base).evaluate_perception(run, data, job.get("split", "test"),
-                                                      out=out, **kw)
+        r = baseline_module(base).evaluate_perception(run, data, split, out=out, **kw)
         row, bps = r["table"], 10.0 * r["message_bytes"]
-    else:
+        how = {"evaluator": "fused detections", "ground_truth": "gt/fused"}
+    elif deps[job.get("run")]["spec"].get("fusion", True):
         from v2xbench.agents.aurora.config import AuroraConfig
-        from v2xbench.agents.aurora.eval_perception import evaluate_run
+        from v2xbench.agents.aurora.eval_fused import evaluate_fused
         from v2xbench.agents.aurora.rsu_agent import message_floats
 
-        r = evaluate_run(run, data, job.get("split", "test"), out, pictures=0, **kw)
-        row = r["branches"]["ego"]["table"]
-        scale = r["branches"]["ego"].get("scale", "default")
-        fusion = deps[job.get("run")]["spec"].get("fusion", True)
-        bps = _message_bps(message_floats(AuroraConfig.for_scale(scale))) if fusion else 0.0
+        r = evaluate_fused(run, data, split, out, stage=job.get("stage"), **kw)
+        row = r["table"]
+        bps = _message_bps(message_floats(AuroraConfig.for_scale(r["scale"])))
+        how = {"evaluator": f"fused heads (CQAF, stage {r['stage']})",
+               "ground_truth": "gt/fused", "ego_gt": r["tables"]["fused@ego"],
+               "ego_branch": r["tables"]["ego_branch@ego"]}
+    else:  # No Fusion: no roadside input, its perception is the ego branch (stage 1)
+        from v2xbench.agents.aurora.eval_perception import evaluate_run
+
+        r = evaluate_run(run, data, split, out, pictures=0, **kw)
+        row, bps = r["branches"]["ego"]["table"], 0.0
+        how = {"evaluator": "ego branch (stage 1)", "ground_truth": "gt/ego"}
     return {"outputs": {"eval": str(out.resolve())},
             "metrics": {**{k: row.get(k) for k in ("avg_mAP", "NDS", "vehicle", "vru",
                                                   "traffic_light", "traffic_sign")},
-                        "message_bps": bps}}
+                        "message_bps": bps, **how}}
 
 
 def _open_loop(job: Job, d: Path, deps: dict, cfg: Config, progress: bool) -> dict:

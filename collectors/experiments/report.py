@@ -4,8 +4,9 @@ experiment folder, as Markdown, JSON and plots.
 Tables (the methods of each are the config's ``report`` lists; a method's jobs are found by
 ``method`` and kind; its *main* closed-loop job is the one without ``channel`` settings):
 
-- ``perception``: avg mAP, NDS, AP per class group (AURORA: its ego branch) and the message's
-  bytes per second at 10 Hz;
+- ``perception``: avg mAP, NDS, AP per class group, the message's bytes per second at 10 Hz and
+  what was scored against which ground truth (a fusion AURORA run: its fused heads against
+  ``gt/fused``, as the baselines' fused detections; No Fusion: its ego branch against ``gt/ego``);
 - ``planning``: DS with its bootstrap 95% CI, RC, Efficiency, Comfortness, BPS (closed loop),
   open-loop L2 (mean of 1/2/3 s; ``n/a`` for a method without an open-loop job);
 - ``fusion_ablation`` (mAP, NDS, DS, RC), ``planner_ablation`` and ``vqa_ablation`` (DS, RC, L2,
@@ -164,7 +165,7 @@ def _row_or_na(res: _Results, method: str, n: int, job: Job | None = None) -> li
 
 def _perception(res: _Results, methods: list[str]) -> tuple[str, list[dict]]:
     head = ["method", "avg mAP", "NDS", "vehicle", "VRU", "traffic light", "traffic sign",
-            "message B/s (10 Hz)"]
+            "message B/s (10 Hz)", "scored (ground truth)"]
     keys = ("avg_mAP", "NDS", "vehicle", "vru", "traffic_light", "traffic_sign")
     rows, data = [], []
     for m in methods:
@@ -174,9 +175,13 @@ def _perception(res: _Results, methods: list[str]) -> tuple[str, list[dict]]:
             rows.append(na)
             continue
         vals = [res.metric(j, k) for k in keys]
+        how = {k: res.metric(j, k) for k in ("evaluator", "ground_truth")}
+        scored = how["evaluator"] if isinstance(how["evaluator"], str) else "-"
+        if isinstance(how["ground_truth"], str) and how["ground_truth"] != how["evaluator"]:
+            scored += f" ({how['ground_truth']})"
         rows.append([res.cfg.label(m)] + [_f(v, 3) for v in vals]
-                    + [_f(res.metric(j, "message_bps"), 0)])
-        data.append({"method": m, **dict(zip(keys, vals))})
+                    + [_f(res.metric(j, "message_bps"), 0), scored])
+        data.append({"method": m, **dict(zip(keys, vals)), **how})
     return _table(head, rows) + _branch_note(res, methods), data
 
 
@@ -184,11 +189,14 @@ def _branch_note(res: _Results, methods: list[str]) -> str:
     """Under a table with AURORA-family rows: what their perception numbers are."""
     if all(res.cfg.methods.get(m, {}).get("baseline") for m in methods):
         return ""
-    return ("\nAURORA rows: its ego branch (stage 1, `v2xbench aurora eval-perception`), "
-            "whose weights No Fusion and the planner / VQA variants share (stages 0-2 are "
-            "copied), so their perception numbers are the same model's; the fused heads of "
-            "stages 3-5 have no perception evaluator yet. Baseline rows: their fused "
-            "detections.\n")
+    return ("\nAURORA rows of a fusion run: its fused heads (`v2xbench aurora eval-perception "
+            "--fused`: the roadside branch on the unit's recorded camera, its message serialized "
+            "to float16 as in closed loop, CQAF, the fused detection head) against `gt/fused` "
+            "(what the ego or the unit sees: the fused heads' training target and the "
+            "baselines' ground), with their numbers against `gt/ego` and the same checkpoint's "
+            "ego branch in the job's `perception.json`. No Fusion has no roadside input: its "
+            "ego branch (stage 1) against `gt/ego` (what the ego's own sensors see). Baseline "
+            "rows: their fused detections against `gt/fused`.\n")
 
 
 def _open_loop(res: _Results, m: str) -> tuple[Any, Any]:
@@ -221,7 +229,7 @@ def _planning(res: _Results, methods: list[str]) -> tuple[str, list[dict]]:
 
 def _ablation(res: _Results, methods: list[str], kind: str) -> tuple[str, list[dict]]:
     if kind == "fusion":
-        head = ["method", "avg mAP", "NDS", "DS [95% CI]", "RC"]
+        head = ["method", "avg mAP", "NDS", "ground truth", "DS [95% CI]", "RC"]
     else:
         head = ["method", "DS [95% CI]", "RC", "open-loop L2 (m)", "collision rate (%)"]
         if kind == "vqa":
@@ -237,10 +245,9 @@ def _ablation(res: _Results, methods: list[str], kind: str) -> tuple[str, list[d
         d = {"method": m, "driving_score": _m(s, "driving_score"),
              "route_completion": _m(s, "route_completion")}
         if kind == "fusion":
-            j = res.job(m, "perception")
-            d.update(avg_mAP=res.metric(j, "avg_mAP"), NDS=res.metric(j, "NDS"))
-            rows.append([res.cfg.label(m), _f(d["avg_mAP"], 3), _f(d["NDS"], 3), _ds(s),
-                         _f(d["route_completion"])])
+            d.update(_common_ground(res, m))
+            rows.append([res.cfg.label(m), _f(d["avg_mAP"], 3), _f(d["NDS"], 3),
+                         d["ground_truth"], _ds(s), _f(d["route_completion"])])
         else:
             l2, col = _open_loop(res, m)
             d.update(l2_avg=l2, collision_avg=col)
@@ -253,7 +260,27 @@ def _ablation(res: _Results, methods: list[str], kind: str) -> tuple[str, list[d
                 row += [_f(d["vqa_closed"], 3), _f(d["vqa_f1"], 3)]
             rows.append(row)
         data.append(d)
-    return _table(head, rows) + (_branch_note(res, methods) if kind == "fusion" else ""), data
+    return _table(head, rows) + (_FUSION_NOTE if kind == "fusion" else ""), data
+
+
+_FUSION_NOTE = ("\nmAP / NDS against `gt/ego` (what the ego's own sensors see), the ground both "
+                "models can be scored on: AURORA's fused heads, No Fusion's ego branch (a row "
+                "whose perception job has no `gt/ego` numbers, e.g. a baseline, shows its own "
+                "ground). AURORA's fused heads against `gt/fused` are in the perception table.\n")
+
+
+def _common_ground(res: _Results, m: str) -> dict:
+    """A method's perception numbers for the fusion ablation: against ``gt/ego`` where its job
+    has them (a fused evaluation's ``ego_gt``), else its own table's (and that ground)."""
+    r = res.result(res.job(m, "perception"))
+    if isinstance(r, str):
+        return {"avg_mAP": r, "NDS": r, "ground_truth": r}
+    met = r["metrics"]
+    if isinstance(met.get("ego_gt"), dict):
+        return {"avg_mAP": met["ego_gt"].get("avg_mAP"), "NDS": met["ego_gt"].get("NDS"),
+                "ground_truth": "gt/ego"}
+    return {"avg_mAP": met.get("avg_mAP"), "NDS": met.get("NDS"),
+            "ground_truth": str(met.get("ground_truth", "-"))}
 
 
 def _per_scenario(res: _Results, methods: list[str]) -> tuple[str, dict]:

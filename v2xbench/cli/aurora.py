@@ -28,13 +28,13 @@ def _train(args: argparse.Namespace) -> int:
                              device=args.device, max_steps=args.max_steps, stride=args.stride,
                              seed=args.seed, progress=not args.quiet, num_workers=args.workers,
                              lm=args.lm, fusion=not args.no_fusion, cache=not args.no_cache,
-                             route_points=args.plan_route_points)
+                             route_points=args.plan_route_points, qa=not args.no_qa)
         print(format_late_summary(s))
         return 0
-    if args.lm is not None or args.no_fusion or args.no_cache \
+    if args.lm is not None or args.no_fusion or args.no_cache or args.no_qa \
             or args.plan_route_points is not None:
-        raise ValueError("--lm, --no-fusion, --no-cache and --plan-route-points apply to "
-                         "stages 3-5")
+        raise ValueError("--lm, --no-fusion, --no-qa, --no-cache and --plan-route-points apply "
+                         "to stages 3-5")
     s = train_stage(args.data, args.out, args.stage, scale=args.scale or "default",
                     device=args.device, max_steps=args.max_steps, stride=args.stride,
                     seed=args.seed, progress=not args.quiet, num_workers=args.workers)
@@ -45,10 +45,10 @@ def _train(args: argparse.Namespace) -> int:
 def _train_stage0(args: argparse.Namespace) -> int:
     from v2xbench.agents.aurora.stage0 import format_stage0_summary, train_stage0
 
-    if args.lm is not None or args.no_fusion or args.no_cache \
+    if args.lm is not None or args.no_fusion or args.no_cache or args.no_qa \
             or args.plan_route_points is not None:
-        raise ValueError("--lm, --no-fusion, --no-cache and --plan-route-points apply to "
-                         "stages 3-5 (--lm replaces stage 0's model)")
+        raise ValueError("--lm, --no-fusion, --no-qa, --no-cache and --plan-route-points apply "
+                         "to stages 3-5 (--lm replaces stage 0's model)")
     s = train_stage0(args.data, args.out, scale=args.scale or "default", chat=args.chat,
                      device=args.device, max_steps=args.max_steps, stride=args.stride,
                      seed=args.seed, progress=not args.quiet)
@@ -62,7 +62,8 @@ def _pipeline(args: argparse.Namespace) -> int:
     _threads(args.threads)
     s = run_pipeline(args.data, args.out, scale=args.scale, fusion=not args.no_fusion,
                      lm=args.lm, device=args.device, max_steps=args.max_steps,
-                     stride=args.stride, seed=args.seed, progress=not args.quiet)
+                     stride=args.stride, seed=args.seed, progress=not args.quiet,
+                     qa=not args.no_qa)
     print(format_pipeline_summary(s), end="")
     print(f"written: {args.out}/{SUMMARY}.json, {SUMMARY}.md")
     return 0
@@ -120,6 +121,18 @@ def _eval(args: argparse.Namespace) -> int:
     from v2xbench.agents.aurora.eval_perception import evaluate_run
 
     _threads(args.threads)
+    if args.fused:
+        from v2xbench.agents.aurora.eval_fused import evaluate_fused
+
+        r = evaluate_fused(args.run, args.data, args.split, args.out, stage=args.stage,
+                           device=args.device, top_k=args.top_k, batch_size=args.batch_size,
+                           stride=args.stride, progress=not args.quiet)
+        print(r["markdown"], end="")
+        print(f"written: {r['out']}/perception.json, perception.md")
+        return 0
+    if args.stage is not None:
+        raise ValueError("--stage chooses the stage of --fused (the fused heads of stages 3-5); "
+                         "without --fused the branches of stages 1-2 are evaluated")
     r = evaluate_run(args.run, args.data, args.split, args.out, device=args.device,
                      top_k=args.top_k, batch_size=args.batch_size, stride=args.stride,
                      pictures=args.pictures, progress=not args.quiet)
@@ -163,6 +176,9 @@ def register(sub) -> None:
                    "as the base LM (default: RUN/stage0, else a freshly built LM)")
     t.add_argument("--no-fusion", action="store_true", help="stages 3-5: train the No Fusion "
                    "model (roadside messages dropped)")
+    t.add_argument("--no-qa", action="store_true", help="stages 3-5: drop the Chat-V2XBench "
+                   "(QA) loss, the VQA ablation (stage 3 trains CQAF's fused heads on planning "
+                   "frames; stage 5 on planning samples only)")
     t.add_argument("--no-cache", action="store_true", help="stages 3-5: run the frozen "
                    "branches every step instead of caching their outputs")
     t.add_argument("--plan-route-points", type=_int_in(0), default=None, metavar="K",
@@ -187,7 +203,10 @@ def register(sub) -> None:
     e = asub.add_parser("eval-perception", help="detection metrics (paper's perception table) "
                         "and pictures of a trained run",
                         description="Evaluate every trained branch of RUN on a split: avg mAP, "
-                        "NDS, mAP per class group; JSON, Markdown and pictures.")
+                        "NDS, mAP per class group; JSON, Markdown and pictures. With --fused: "
+                        "the fused heads of a fusion run's stage 3-5 (CQAF with the roadside "
+                        "unit's float16 message) against gt/fused and gt/ego, beside the same "
+                        "checkpoint's ego branch on the same frames.")
     e.add_argument("--run", required=True, help="run folder (v2xbench aurora train --out)")
     e.add_argument("--data", required=True, help="data set folder (e.g. the test50 collection)")
     e.add_argument("--split", default="test", help="train | val | test | all (default: test)")
@@ -197,6 +216,10 @@ def register(sub) -> None:
     e.add_argument("--batch-size", type=_int_in(1), default=4)
     e.add_argument("--stride", type=_int_in(1), default=1, help="every K-th frame")
     e.add_argument("--pictures", type=_int_in(0), default=4, help="pictures per branch")
+    e.add_argument("--fused", action="store_true", help="evaluate the fused heads of a fusion "
+                   "run (refused for a No Fusion run; default out: RUN/eval_fused_<split>)")
+    e.add_argument("--stage", type=int, choices=(3, 4, 5), default=None,
+                   help="with --fused: the stage (default: the run's latest)")
     e.add_argument("--threads", type=_int_in(1), default=None, help="torch threads")
     e.add_argument("--quiet", action="store_true")
     e.set_defaults(func=_eval)
@@ -271,6 +294,8 @@ def _register_pipeline(asub) -> None:
     p.add_argument("--out", required=True, help="run folder RUN")
     p.add_argument("--scale", default="default", help="tiny | default | paper (default: default)")
     p.add_argument("--no-fusion", action="store_true", help="stages 3-5: the No Fusion model")
+    p.add_argument("--no-qa", action="store_true", help="stages 3-5 without the Chat-V2XBench "
+                   "(QA) loss: the VQA ablation")
     p.add_argument("--lm", default=None, help="a local Hugging Face causal-LM folder as the base "
                    "LM (stage 0 is then not run)")
     p.add_argument("--device", default="cpu", help="torch device (default: cpu)")

@@ -92,3 +92,37 @@ def test_parking_crossing_child_is_hidden_from_the_ego_not_from_the_rsu():
     covered = hidden & (rec.rsu_vis[:, 0] >= 0.1)
     dt = rec.world.config.dt
     assert covered.sum() * dt >= 0.5, (hidden.sum() * dt, covered.sum() * dt)
+
+
+def _speed_near_conflict(agent_name: str) -> float:
+    """Drive ParkingCrossingPedestrian (Town12, seed 2) with a registered agent; the ego's top
+    speed over the 8 m before the conflict point."""
+    from v2xbench.agents.interface import load_agent
+    from v2xbench.envs.v2x_intersection.api.observations import ego_observation
+
+    world = World(make_config(town="Town12", num_vehicles=4, num_parked=2, num_pedestrians=2,
+                              num_bicycles=0))
+    route, scs = build_episode("ParkingCrossingPedestrian", get_town("Town12"),
+                               np.random.default_rng(2))
+    world.reset(seed=2, route=route, scenarios=scs)
+    agent = load_agent(agent_name)
+    agent.reset({})
+    agent.bind(world)
+    sc, top = scs[0], 0.0
+    for _ in range(600):
+        world.step(agent.act(ego_observation(world)), world.default_rsu_message())
+        gap = sc.conflict_s - sc.ego_s(world)
+        if 0.0 < gap < 8.0:
+            top = max(top, float(world.table.speed[0]))
+        if sc.passed or world.ended:
+            break
+    return top
+
+
+def test_wary_ego_slows_past_the_parked_cars_cautious_ego_does_not():
+    """``wary_ego`` keys on every standing vehicle (3 m/s past the row), ``cautious_ego`` only on
+    large ones: it passes the parked cars at speed."""
+    wary = _speed_near_conflict("wary_ego")
+    cautious = _speed_near_conflict("cautious_ego")
+    assert wary <= 3.3, wary
+    assert cautious > 4.5, cautious

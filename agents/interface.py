@@ -136,7 +136,7 @@ def register_agent(name: str) -> Callable:
 
 
 PRIVILEGED_AGENTS: frozenset[str] = frozenset(
-    {"expert", "oracle_ego", "oracle_v2x", "cautious_ego", "stop_and_wait_ego"}
+    {"expert", "oracle_ego", "oracle_v2x", "cautious_ego", "stop_and_wait_ego", "wary_ego"}
 )
 """Registered names of the built-in agents that the harness gives the simulator (``bind``)."""
 

@@ -170,7 +170,8 @@ def test_route_info_has_the_route_and_commands_only(suite, tmp_path):  # noqa: F
 
 
 def test_privilege_is_the_harness_decision(suite, tmp_path, monkeypatch):  # noqa: F811
-    assert {"expert", "oracle_ego", "oracle_v2x", "cautious_ego", "stop_and_wait_ego"} == PRIVILEGED_AGENTS
+    assert {"expert", "oracle_ego", "oracle_v2x", "cautious_ego", "stop_and_wait_ego",
+            "wary_ego"} == PRIVILEGED_AGENTS
     assert all(granted_privilege(n) for n in PRIVILEGED_AGENTS)
     assert granted_privilege(Expert) and granted_privilege(functools.partial(Expert))
     assert not any(granted_privilege(n) for n in ("route_follower", "random", "constant_speed"))

@@ -150,12 +150,15 @@ def _hazard_run(agent_cls, name: str, seed: int, town: str = "Town12") -> dict:
     return {inf.EVENT_NAMES[i]: int(n) for i, n in enumerate(world.monitor.counts) if n}
 
 
-@pytest.mark.parametrize("name", ["DynamicObjectCrossing", "ParkingCrossingPedestrian"])
-def test_v2x_matters_for_a_pedestrian_hidden_by_parked_vehicles(name):
+@pytest.mark.parametrize("name,n_seeds", [("DynamicObjectCrossing", 4),
+                                           ("ParkingCrossingPedestrian", 6)])
+def test_v2x_matters_for_a_pedestrian_hidden_by_parked_vehicles(name, n_seeds):
     """The benchmark's premise: over a few instances, the same planner hits the hidden pedestrian
     more often with the ego's own view than with the RSU's objects (whose route-only units do
-    not cover every instance), and the privileged expert never does."""
-    seeds = (0, 1, 2, 3)  # instances on Town12 (its sites, so some are easy for the ego alone)
+    not cover every instance), and the privileged expert never does. (ParkingCrossingPedestrian's
+    child is sometimes seen in time between the cars: about half of its test50 instances, so six
+    instances.)"""
+    seeds = range(n_seeds)  # instances on Town12 (its sites, so some are easy for the ego alone)
     hits = {cls: sum(_hazard_run(cls, name, seed).get("collision_pedestrian", 0) for seed in seeds)
             for cls in (EgoOnlyOracle, V2XOracle, Expert)}
     assert hits[EgoOnlyOracle] >= 2, hits

@@ -113,10 +113,11 @@ def test_stop_and_wait_ego_stands_and_releases_nothing():
     the hidden pedestrian waits; the pedestrian starts only after the ego drives on."""
     from v2xbench.agents.interface import load_agent
 
-    name, town, seed = CASES[0]
+    name, town, seed = "DynamicObjectCrossing", "Town01", 7  # a truck (seed 5 draws a car)
     world = World(make_config(town=town, **SMALL))
     route, scenarios = build_episode(name, get_town(town), np.random.default_rng(seed))
     world.reset(seed=seed, route=route, scenarios=scenarios)
+    assert not scenarios[0].child
     agent = load_agent("stop_and_wait_ego")
     agent.reset({})
     agent.bind(world)

@@ -27,6 +27,10 @@ SIZES = {
     PEDESTRIAN: ((0.5, 0.6), (0.5, 0.6), (1.6, 1.9)),
     BICYCLE: ((1.7, 1.8), (0.6, 0.7), (1.6, 1.8)),
 }
+#: share of pedestrians who are children (of every walker, background or scenario)
+CHILD_SHARE = 0.15
+CHILD_FOOTPRINT = (0.35, 0.45)  # m, a child's box length and width range
+CHILD_HEIGHT = (1.0, 1.35)  # m, a child's height range (hidden behind a parked car)
 
 
 @dataclass
@@ -109,14 +113,44 @@ class ActorTable:
 
 
 def draw_size(kind: int, rng: np.random.Generator) -> tuple[float, float, float]:
-    """Random ``(length, width, height)`` for a class (m): three ``rng.uniform`` draws in order."""
+    """Random ``(length, width, height)`` for a class (m): three ``rng.uniform`` draws in order
+    (a pedestrian's draw becomes a child's box in :data:`CHILD_SHARE` of the cases, see
+    :func:`pedestrian_size`)."""
     (l0, l1, l2), (h0, h1, h2) = _SIZE_FLOATS[kind]
     if HAVE_JIT and type(rng.bit_generator) is np.random.PCG64:  # the generator's own draws in a kernel
         # (a scalar uniform() call costs ~4 us; jit_rng replicates PCG64, what default_rng makes)
         words, _ = state_views(rng)
-        return uniform3_kernel(words, l0, l1, l2, h0, h1, h2)
-    u = rng.uniform
-    return u(l0, h0), u(l1, h1), u(l2, h2)
+        size = uniform3_kernel(words, l0, l1, l2, h0, h1, h2)
+    else:
+        u = rng.uniform
+        size = u(l0, h0), u(l1, h1), u(l2, h2)
+    if kind == PEDESTRIAN:
+        return tuple(float(v) for v in pedestrian_size(*size))
+    return size
+
+
+def child_size(length, width, height):
+    """A child's box (m) from a pedestrian's size draw (any draw in ``SIZES[PEDESTRIAN]``, scalars
+    or arrays): footprint :data:`CHILD_FOOTPRINT`, height :data:`CHILD_HEIGHT`, each at the same
+    relative place in its range as the draw. No new random draws: the generator's stream stays
+    as it was."""
+    (l0, l1), (w0, w1), (h0, h1) = SIZES[PEDESTRIAN]
+    (c0, c1), (k0, k1) = CHILD_FOOTPRINT, CHILD_HEIGHT
+    fl = np.clip((np.asarray(length, float) - l0) / (l1 - l0), 0.0, 1.0)
+    fw = np.clip((np.asarray(width, float) - w0) / (w1 - w0), 0.0, 1.0)
+    fh = np.clip((np.asarray(height, float) - h0) / (h1 - h0), 0.0, 1.0)
+    return c0 + fl * (c1 - c0), c0 + fw * (c1 - c0), k0 + fh * (k1 - k0)
+
+
+def pedestrian_size(length, width, height):
+    """A pedestrian's box from its size draw: a child's (:func:`child_size`) when the length draw
+    lies in the lowest :data:`CHILD_SHARE` of its range (background walkers and scenario walkers
+    alike, so a small walker says nothing about a scenario), else the draw itself."""
+    (l0, l1), _, _ = SIZES[PEDESTRIAN]
+    length, width, height = (np.asarray(v, float) for v in (length, width, height))
+    child = length < l0 + CHILD_SHARE * (l1 - l0)
+    cl, cw, ch = child_size(length, width, height)
+    return np.where(child, cl, length), np.where(child, cw, width), np.where(child, ch, height)
 
 
 @_njit

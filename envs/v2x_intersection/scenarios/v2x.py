@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.actors import DRIVER
+from ..core.actors import DRIVER, child_size
 from ..core.classes import CAR, LARGE_VEHICLE, PEDESTRIAN
 from ..core.geometry import row_norms, world_to_local_2d
 from ..core.jit import HAVE_JIT
@@ -42,6 +42,8 @@ from .timed import TimedScenario
 CROSSWALK_HALF = 2.0
 PARKING_LANE_WIDTH = 2.5  # m
 EGO_EYE_Z = 1.8  # m, ego sensor height (as ``world.EGO_SENSOR_Z``)
+#: probability that DynamicObjectCrossing's occluder is a car hiding a child (else a truck, an adult)
+CHILD_OCCLUDER_P = 0.5
 
 
 # ---------------------------------------------------------------------------------------------
@@ -158,6 +160,14 @@ def park_vehicle(
     return size
 
 
+def make_child(world, row: int) -> None:
+    """Turn the freshly spawned walker ``row`` into a child (its own size draw mapped onto the
+    child range, :func:`~..core.actors.child_size`: no new random draws)."""
+    t = world.table
+    size = child_size(t.length[row], t.width[row], t.height[row])
+    t.length[row], t.width[row], t.height[row] = (float(v) for v in size)
+
+
 def sight_blocked(world, eyes: np.ndarray, targets: np.ndarray, extra: list[tuple] = ()) -> float:
     """Fraction of the sight lines from ``eyes (E, 3)`` to ``targets (T, 3)`` blocked by the town's
     buildings and the ``extra`` boxes ``(x, y, length, width, yaw, height)`` (e.g. a truck just
@@ -209,13 +219,18 @@ def box_points(center: np.ndarray, yaw: float, length: float, heights=(0.4, 1.0)
 # ---------------------------------------------------------------------------------------------
 @register_scenario
 class DynamicObjectCrossing(TimedScenario):
-    """A pedestrian runs across the ego's lane from behind a parked truck ("ghost probe").
+    """A pedestrian runs across the ego's lane from behind a vehicle parked at the kerb ("ghost
+    probe").
 
-    The pedestrian waits close in front of the truck's front, on its kerb half, hidden from the
-    ego but seen by the roadside unit, and is released so that it steps into the ego's path just
-    after the ego's front gets there: the conflict really happens unless the ego slows down in
-    time, which its own sensors (seeing the pedestrian only as it passes the truck's side) do not
-    allow at urban speed.
+    CARLA LB2.0's DynamicObjectCrossing: a walker crosses from behind a static object. **V2X
+    addition**: the object is a vehicle standing at the kerb, drawn per instance: a truck or van
+    hiding an adult, or (with probability :data:`CHILD_OCCLUDER_P`) a car hiding a child
+    (:func:`~..core.actors.child_size`), lower than its roof. The walker waits close in front of
+    the vehicle's front, on its kerb half, hidden from the ego but seen by the roadside unit's
+    raised camera, and is released so that it steps into the ego's path just after the ego's
+    front gets there: the conflict really happens unless the ego slows down in time, which its
+    own sensors (seeing the walker only as it passes the vehicle's side) do not allow at urban
+    speed.
 
     Parameters: ``speed`` (m/s) of the pedestrian; ``side`` -1 from the right, +1 from the left.
     """
@@ -238,8 +253,10 @@ class DynamicObjectCrossing(TimedScenario):
         w = town.index.width[lane]
         side = float(self.params["side"])
         clear_near(world, self.conflict_point, 25.0)
-        truck = truck_size(rng)
-        # the truck stands at the kerb, its front just before the crossing point
+        self.child = bool(rng.random() < CHILD_OCCLUDER_P)
+        truck = (float(rng.uniform(4.2, 4.8)), 1.9, float(rng.uniform(1.45, 1.6))) if self.child \
+            else truck_size(rng)
+        # the vehicle stands at the kerb, its front just before the crossing point
         park_vehicle(
             world,
             self.rows[0],
@@ -247,6 +264,7 @@ class DynamicObjectCrossing(TimedScenario):
             self.site.s_on_key - 0.3,
             side * (w / 2 + truck[1] / 2 + 0.3),
             truck,
+            CAR if self.child else LARGE_VEHICLE,
         )
         # the pedestrian waits close in front of the truck's front, on its kerb half: the truck
         # hides it from the approaching ego until it steps past the truck's side, while the
@@ -260,6 +278,8 @@ class DynamicObjectCrossing(TimedScenario):
             town, lane, s_walk + 0.3, -side * (kerb_offset(town, lane, -side) + 1.0)
         )
         spawn_walker(world, self.rows[1], start, end, speed=self.hazard_speed(), kind=PEDESTRIAN)
+        if self.child:
+            make_child(world, int(self.rows[1]))
         self.hold_walker(world, self.rows[1])
         self.hazard_rows = [int(self.rows[1])]
 
@@ -269,16 +289,21 @@ class DynamicObjectCrossing(TimedScenario):
 
 @register_scenario
 class ParkingCrossingPedestrian(TimedScenario):
-    """A pedestrian steps out from between parked vehicles and crosses the ego's lane.
+    """A child steps out from between parked cars and crosses the ego's lane.
 
-    On a road with a parking lane beside the ego's lane, a row of parked vehicles stands at the
-    conflict point: a tall van (3.2-3.6 m) whose front ends just before it, one or two cars behind
-    the van and one car after a narrow gap. The pedestrian waits on the sidewalk behind the van's
-    front, hidden from the ego, and walks through the gap and across the ego's lane when the
-    trigger fires (see :class:`TimedScenario`).
+    CARLA LB2.0's ParkingCrossingPedestrian: a pedestrian emerges from behind parked vehicles. On
+    a road with a parking lane beside the ego's lane, a row of parked cars stands at the conflict
+    point: one whose front ends just before it, one or two behind it and one after a narrow gap.
+    **V2X addition**: the walker is a child (:func:`~..core.actors.child_size`, 1.0-1.35 m), who
+    waits on the sidewalk behind the front car, lower than the cars' roofs and so hidden from the
+    ego's camera; the roadside unit's pole-mounted camera looks down over the cars. The child
+    walks through the gap and across the ego's lane when the trigger fires (see
+    :class:`TimedScenario`). Nothing here is large: a driver who slows only past trucks and vans
+    gets no warning (children also walk the sidewalks in background traffic,
+    :data:`~..core.actors.CHILD_SHARE`).
 
-    Parameters: ``speed`` (m/s) of the pedestrian; ``gap`` (m) between the van and the next car;
-    ``cars`` parked cars behind the van.
+    Parameters: ``speed`` (m/s) of the child; ``gap`` (m) between the front car and the next
+    car; ``cars`` parked cars behind the front car.
     """
 
     name = "ParkingCrossingPedestrian"
@@ -307,14 +332,14 @@ class ParkingCrossingPedestrian(TimedScenario):
         clear_near(world, self.conflict_point, 30.0)
         park_lat = -(w / 2 + PARKING_LANE_WIDTH / 2)
         gap = float(self.params["gap"])
-        van = (float(rng.uniform(5.5, 7.0)), 2.3, float(rng.uniform(3.2, 3.6)))
+        front = (float(rng.uniform(4.2, 4.8)), 1.9, float(rng.uniform(1.45, 1.6)))
         s_front = s_c - gap / 2
-        park_vehicle(world, self.rows[0], lane, s_front, park_lat, van)
-        # parked cars: one after the gap, ``cars`` behind the van
+        park_vehicle(world, self.rows[0], lane, s_front, park_lat, front, CAR)
+        # parked cars: one after the gap, ``cars`` behind the front car
         s = s_c + gap / 2
         car = (float(rng.uniform(4.2, 4.8)), 1.9, float(rng.uniform(1.4, 1.6)))
         park_vehicle(world, self.rows[1], lane, s + car[0], park_lat, car, CAR)
-        s = s_front - van[0] - 1.0
+        s = s_front - front[0] - 1.0
         n_cars = int(np.clip(self.params["cars"], 0, 2))
         for k in range(2):
             row = self.rows[2 + k]
@@ -323,12 +348,13 @@ class ParkingCrossingPedestrian(TimedScenario):
             car = (float(rng.uniform(4.2, 4.8)), 1.9, float(rng.uniform(1.4, 1.6)))
             park_vehicle(world, row, lane, s, park_lat, car, CAR)
             s -= car[0] + float(rng.uniform(0.8, 1.5))
-        # the pedestrian waits on the sidewalk beside the van's front, facing the gap
+        # the child waits on the sidewalk beside the front car's front, facing the gap
         self._start_lat = kerb_offset(town, lane, -1.0) + 0.8
         s_walk = s_c - 0.25 + 0.25 * self.position_jitter  # inside the gap
         start, _ = lane_point(town, lane, s_walk, -self._start_lat)
         end, _ = lane_point(town, lane, s_walk + 0.65, kerb_offset(town, lane, 1.0) + 1.0)
         spawn_walker(world, self.rows[4], start, end, speed=self.hazard_speed())
+        make_child(world, int(self.rows[4]))
         self.hold_walker(world, self.rows[4])
         self.hazard_rows = [int(self.rows[4])]
 

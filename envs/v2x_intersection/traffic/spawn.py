@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.actors import DRIVER, RIDER, SIZE_BOUNDS, WALKER, draw_size
+from ..core.actors import DRIVER, RIDER, SIZE_BOUNDS, WALKER, draw_size, pedestrian_size
 from ..core.classes import BICYCLE, CAR, LARGE_VEHICLE, PEDESTRIAN
 from ..core.draws import signs
 from ..core.jit import HAVE_JIT
@@ -76,11 +76,14 @@ def _walkers(world, row: int, count: int) -> int:
     if HAVE_JIT:
         ix = net.index
         words, buf = state_views(rng)
-        return spawn_walkers_kernel(words, buf, row, count, PEDESTRIAN, WALKER, *SIZE_BOUNDS[PEDESTRIAN],
-                                    *WALKER_LAT_RANGE, *WALKER_SPEED_RANGE, t.kind, t.behaviour, t.active,
-                                    t.length, t.width, t.height, t.path, t.path_s, t.path_dir, t.lat, t.speed,
-                                    t.pos, t.yaw, ix.points, ix.heading, ix.offset, ix.n_points, ix.gs, ix.base,
-                                    ix.length)
+        end = spawn_walkers_kernel(words, buf, row, count, PEDESTRIAN, WALKER, *SIZE_BOUNDS[PEDESTRIAN],
+                                   *WALKER_LAT_RANGE, *WALKER_SPEED_RANGE, t.kind, t.behaviour, t.active,
+                                   t.length, t.width, t.height, t.path, t.path_s, t.path_dir, t.lat, t.speed,
+                                   t.pos, t.yaw, ix.points, ix.heading, ix.offset, ix.n_points, ix.gs, ix.base,
+                                   ix.length)
+        k = slice(row, end)  # some of them are children (as draw_size makes them)
+        t.length[k], t.width[k], t.height[k] = pedestrian_size(t.length[k], t.width[k], t.height[k])
+        return end
     for _ in range(count):
         sw = int(rng.integers(len(net.index.length)))
         t.kind[row], t.behaviour[row], t.active[row] = PEDESTRIAN, WALKER, True

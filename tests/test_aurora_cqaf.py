@@ -228,8 +228,8 @@ def test_part2_config_fields_and_part1_run_files(tmp_path):
                if not k.startswith(PART2_PREFIXES)}
         assert "lm_layers" not in old  # ... except the planner's route input: such a file's
         # model has none (plan_route_points absent reads as 0: tests/test_aurora_route_input.py)
-        assert AuroraConfig.from_dict(old) == dataclasses.replace(cfg, plan_route_points=0,
-                                                                  plan_frame="ego")
+        assert AuroraConfig.from_dict(old) == dataclasses.replace(
+            cfg, plan_route_points=0, plan_frame="ego", plan_route_step="softplus")
         info = {"stage": 1, "branch": "ego", "scale": scale, "config": cfg.to_dict(),
                 "data": "/d", "frame_stride": 5, "seed": 0}
         (tmp_path / "aurora.json").write_text(json.dumps({**info, "config": old}))

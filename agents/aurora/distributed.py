@@ -22,6 +22,7 @@ from __future__ import annotations
 import atexit
 import os
 from collections.abc import Callable
+from datetime import timedelta
 from typing import TypeVar
 
 import torch
@@ -29,6 +30,7 @@ import torch.distributed as dist
 from torch import nn
 
 T = TypeVar("T")
+TEARDOWN_WAIT_S = 60.0  # s the ranks wait for each other before leaving the group at exit
 _device = torch.device("cpu")  # this process's device once :func:`setup` ran (collectives use it)
 
 
@@ -74,9 +76,17 @@ def setup(device: str | torch.device) -> torch.device:
 
 
 def teardown() -> None:
-    """Leave the process group (idempotent; registered by :func:`setup` to run at exit)."""
-    if dist.is_available() and dist.is_initialized():
-        dist.destroy_process_group()
+    """Leave the process group (idempotent; registered by :func:`setup` to run at exit). On gloo
+    the ranks first meet at a monitored barrier (at most :data:`TEARDOWN_WAIT_S`): a rank that
+    destroys its group while another still talks to it aborts that one (seen under load)."""
+    if not (dist.is_available() and dist.is_initialized()):
+        return
+    if dist.get_backend() == "gloo":
+        try:
+            dist.monitored_barrier(timeout=timedelta(seconds=TEARDOWN_WAIT_S))
+        except RuntimeError:  # a rank is gone or late: leave anyway
+            pass
+    dist.destroy_process_group()
 
 
 def wrap(model: nn.Module, device: torch.device) -> nn.Module:

@@ -3,8 +3,8 @@
 - :class:`CautiousEgo` (``cautious_ego``): the ego-only oracle that slows to
   :attr:`CautiousEgo.cap` m/s while it passes a standing large vehicle it sees near its path
   (from :attr:`CautiousEgo.before_m` m before the vehicle's rear to its front): a hidden hazard
-  stepping out from behind it meets a car that can stop. It pays in time (Efficiency), not in
-  safety; cooperation has to buy safety *at speed*.
+  stepping out from behind it meets a car that can stop. A child hidden by a parked car gives it
+  no warning (:class:`~.wary.WaryEgo`, ``wary_ego``, slows past every standing vehicle).
 - :class:`StopAndWaitEgo` (``stop_and_wait_ego``): the ego-only oracle that stands
   :attr:`StopAndWaitEgo.wait_s` s before every standing large vehicle it sees ahead, then drives
   on as the plain oracle. Hazards are triggered by the ego's time to arrival at its current

@@ -23,6 +23,19 @@ def assert_channel_counts(payload: np.ndarray, f: int) -> None:
     assert ch.stats()["bytes_sent_total"] == sent
 
 
+def collect_lidar(root: Path) -> Path:
+    """The tiny data set (``tests/dataset_helpers.TINY``) recorded into ``root`` with LiDAR points
+    only (what the LiDAR baselines train on)."""
+    import dataclasses
+
+    from v2xbench.collectors.dataset.collect import collect
+
+    from tests.dataset_helpers import TINY
+
+    collect(dataclasses.replace(TINY, sensors=("lidar",)), root, workers=1, progress=False)
+    return root
+
+
 def unit_batch(ds) -> dict:
     """A batch of the first and the last sample of ``ds`` with a roadside unit."""
     from v2xbench.agents.aurora.data import collate

@@ -40,13 +40,7 @@ E = torch.from_numpy(pose_matrix(-20.0, 10.0, 0.0, math.pi / 2).astype(np.float3
 @pytest.fixture(scope="module")
 def lidar_dataset(tmp_path_factory):
     """The tiny data set (``tests/dataset_helpers.TINY``) recorded with LiDAR points only."""
-    from v2xbench.collectors.dataset.collect import collect
-
-    from tests.dataset_helpers import TINY
-
-    root = tmp_path_factory.mktemp("v2x_lidar_codriving")
-    collect(dataclasses.replace(TINY, sensors=("lidar",)), root, workers=1, progress=False)
-    return root
+    return bc.collect_lidar(tmp_path_factory.mktemp("v2x_lidar_codriving"))
 
 
 def test_the_request_follows_the_route_into_the_units_grid():

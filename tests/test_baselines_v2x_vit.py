@@ -5,7 +5,6 @@ frames of the data set and of closed loop, overfitting, `v2xbench baselines trai
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import shutil
@@ -34,13 +33,7 @@ CFG = V2XViTConfig.for_scale("tiny")
 @pytest.fixture(scope="module")
 def lidar_dataset(tmp_path_factory):
     """The tiny data set (``tests/dataset_helpers.TINY``) recorded with LiDAR points only."""
-    from v2xbench.collectors.dataset.collect import collect
-
-    from tests.dataset_helpers import TINY
-
-    root = tmp_path_factory.mktemp("v2x_lidar")
-    collect(dataclasses.replace(TINY, sensors=("lidar",)), root, workers=1, progress=False)
-    return root
+    return bc.collect_lidar(tmp_path_factory.mktemp("v2x_lidar"))
 
 
 def test_pillarization_puts_a_point_in_its_pillar_and_nothing_elsewhere():

@@ -188,25 +188,18 @@ def evaluate_fused(run: str | Path, data: str | Path, split: str = "test",
 
     from .data import AuroraFrames
     from .pairs import AuroraPairs, planning_items
-    from .system import latest_stage, load_system, read_stage_info
+    from .system import load_system
 
     run, data = Path(run), Path(data)
-    if not run.is_dir():
-        raise FileNotFoundError(f"eval-perception --fused: run folder {run} does not exist")
     if not data.is_dir():
         raise FileNotFoundError(f"eval-perception --fused: data directory {data} does not exist")
-    if stage is None:
-        stage = latest_stage(run)
-        if stage is None:
-            raise FileNotFoundError(f"eval-perception --fused: {run} has no trained stage 3, 4 "
-                                    "or 5 (the fused heads train from stage 3 on)")
-    info = read_stage_info(run, stage)
+    system, tok, info = load_system(run, stage, device)  # the run and its stage (default: latest)
+    stage = int(info["stage"])
     if not bool(info.get("fusion", True)):
         raise ValueError(f"eval-perception --fused: {run}/stage{stage} is a No Fusion model "
                          "(trained with fusion=False, --no-fusion): it never receives the "
                          "roadside queries, so it has no fused perception; evaluate its ego "
                          "branch with `v2xbench aurora eval-perception` without --fused")
-    system, tok, info = load_system(run, stage, device)
     frames = AuroraFrames(data, split, "ego", system.cfg, stride=stride, images=False)
     ds = AuroraPairs(data, split, system.cfg, tok, planning_items(frames, stride),
                      fusion=True, plan=False)

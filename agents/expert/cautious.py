@@ -52,9 +52,13 @@ class CautiousEgo(_ZoneCapEgo):
     cap = 3.0  # m/s while passing
     before_m = 8.0  # m before the vehicle's rear where the cap starts
 
+    def _standing(self, objs, st, lat) -> np.ndarray:
+        """Indices of the standing vehicles it slows past (here: large ones)."""
+        return standing_large(objs, st, lat, self.max_lat)
+
     def _caps(self, stations, objs, st, lat, e_long) -> np.ndarray:
         caps = np.full(len(stations), np.inf)
-        for i in standing_large(objs, st, lat, self.max_lat):
+        for i in self._standing(objs, st, lat):
             zone = (stations > st[i] - e_long[i] - self.before_m) & (stations < st[i] + e_long[i])
             caps[zone] = self.cap
         return caps

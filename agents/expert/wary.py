@@ -25,9 +25,5 @@ def standing_vehicles(objs: Objects, lat: np.ndarray, max_lat: float) -> np.ndar
 class WaryEgo(CautiousEgo):
     """The ego-only oracle, slow past every standing vehicle it sees (module docstring)."""
 
-    def _caps(self, stations, objs, st, lat, e_long) -> np.ndarray:
-        caps = np.full(len(stations), np.inf)
-        for i in standing_vehicles(objs, lat, self.max_lat):
-            zone = (stations > st[i] - e_long[i] - self.before_m) & (stations < st[i] + e_long[i])
-            caps[zone] = self.cap
-        return caps
+    def _standing(self, objs, st, lat) -> np.ndarray:
+        return standing_vehicles(objs, lat, self.max_lat)

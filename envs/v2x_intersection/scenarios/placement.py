@@ -156,6 +156,12 @@ def truck_size(rng: np.random.Generator) -> tuple[float, float, float]:
     return float(rng.uniform(7.0, 9.0)), float(rng.uniform(2.3, 2.6)), float(rng.uniform(3.2, 3.8))
 
 
+def car_size(rng: np.random.Generator, min_height: float = 1.4) -> tuple[float, float, float]:
+    """A parked car's box (m): length U(4.2, 4.8), width 1.9, height U(``min_height``, 1.6) (two
+    draws, in that order)."""
+    return float(rng.uniform(4.2, 4.8)), 1.9, float(rng.uniform(min_height, 1.6))
+
+
 def straight_sites(town: Town, min_length: float = 70.0, parking: bool | None = None,
                    two_way: bool | None = None, multi_lane: bool | None = None,
                    kinds: tuple[int, ...] = (DRIVING,)) -> list[Site]:

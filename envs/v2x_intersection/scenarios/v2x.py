@@ -26,6 +26,7 @@ from ..v2x.rsu import deploy, select_active
 from .base import Site
 from .jit_sight import KEEP_RADIUS_M, sight_fraction_kernel
 from .placement import (
+    car_size,
     clear_lanes,
     clear_near,
     lane_point,
@@ -254,8 +255,7 @@ class DynamicObjectCrossing(TimedScenario):
         side = float(self.params["side"])
         clear_near(world, self.conflict_point, 25.0)
         self.child = bool(rng.random() < CHILD_OCCLUDER_P)
-        truck = (float(rng.uniform(4.2, 4.8)), 1.9, float(rng.uniform(1.45, 1.6))) if self.child \
-            else truck_size(rng)
+        truck = car_size(rng, 1.45) if self.child else truck_size(rng)
         # the vehicle stands at the kerb, its front just before the crossing point
         park_vehicle(
             world,
@@ -332,12 +332,12 @@ class ParkingCrossingPedestrian(TimedScenario):
         clear_near(world, self.conflict_point, 30.0)
         park_lat = -(w / 2 + PARKING_LANE_WIDTH / 2)
         gap = float(self.params["gap"])
-        front = (float(rng.uniform(4.2, 4.8)), 1.9, float(rng.uniform(1.45, 1.6)))
+        front = car_size(rng, 1.45)
         s_front = s_c - gap / 2
         park_vehicle(world, self.rows[0], lane, s_front, park_lat, front, CAR)
         # parked cars: one after the gap, ``cars`` behind the front car
         s = s_c + gap / 2
-        car = (float(rng.uniform(4.2, 4.8)), 1.9, float(rng.uniform(1.4, 1.6)))
+        car = car_size(rng)
         park_vehicle(world, self.rows[1], lane, s + car[0], park_lat, car, CAR)
         s = s_front - front[0] - 1.0
         n_cars = int(np.clip(self.params["cars"], 0, 2))
@@ -345,7 +345,7 @@ class ParkingCrossingPedestrian(TimedScenario):
             row = self.rows[2 + k]
             if k >= n_cars:
                 continue
-            car = (float(rng.uniform(4.2, 4.8)), 1.9, float(rng.uniform(1.4, 1.6)))
+            car = car_size(rng)
             park_vehicle(world, row, lane, s, park_lat, car, CAR)
             s -= car[0] + float(rng.uniform(0.8, 1.5))
         # the child waits on the sidewalk beside the front car's front, facing the gap

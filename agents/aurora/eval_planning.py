@@ -200,8 +200,10 @@ def load_model(run: str | Path | None = None, weights: str | Path | None = None,
 def predict(system, batch: Mapping[str, torch.Tensor]) -> np.ndarray:
     """``(B, T, 2)`` planned waypoints of a :func:`~.pairs.collate_pairs` batch: the policy's
     inference pass (:class:`~.policy.AuroraPolicyNet`: eval mode, no gradients, the VAE's
-    latent mean). The batch's labels (none on planning samples) are dropped."""
-    inputs = {k: v for k, v in batch.items() if k != "labels"}
+    latent mean). The batch's labels (none on planning samples) are dropped; its tensors go to
+    the system's device."""
+    dev = next(system.parameters()).device
+    inputs = {k: v.to(dev) for k, v in batch.items() if k != "labels"}
     out = system(inputs, plan=True)
     return out["plan"]["waypoints"].float().cpu().numpy().astype(np.float64)
 

@@ -72,15 +72,17 @@ def polyline_distances(pred: torch.Tensor, gt: torch.Tensor,
 
 
 def hungarian(cost: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Minimum-cost assignment of a ``(Q, M)`` cost -> (prediction indices, GT indices)."""
+    """Minimum-cost assignment of a ``(Q, M)`` cost -> (prediction indices, GT indices), on
+    the cost's device (so that masks computed from the cost index them on a GPU too)."""
     c = cost.detach().cpu().double().numpy()
     if c.size == 0:
-        empty = torch.zeros(0, dtype=torch.int64)
+        empty = torch.zeros(0, dtype=torch.int64, device=cost.device)
         return empty, empty
     if not np.isfinite(c).all():
         raise ValueError("hungarian: the cost matrix has NaN or inf entries")
     rows, cols = linear_sum_assignment(c)
-    return torch.as_tensor(rows, dtype=torch.int64), torch.as_tensor(cols, dtype=torch.int64)
+    return (torch.as_tensor(rows, dtype=torch.int64, device=cost.device),
+            torch.as_tensor(cols, dtype=torch.int64, device=cost.device))
 
 
 def detection_cost(logits: torch.Tensor, boxes: torch.Tensor, gt_labels: torch.Tensor,

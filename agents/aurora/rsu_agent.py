@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from v2xbench.agents.devices import run_on_module
 from v2xbench.envs.v2x_intersection.api.observations import V2X_INFO_FEATURES
 from v2xbench.envs.v2x_intersection.core.geometry import pose_matrix
 from v2xbench.envs.v2x_intersection.v2x.wire import FORMAT_RAW, PAYLOAD_LIMIT
@@ -206,7 +207,7 @@ class AuroraRoadside:
         import time
 
         t0 = time.perf_counter()
-        out = self.branch(self.inputs(rsu_obs))
+        out = run_on_module(self.branch, self.inputs(rsu_obs))
         msg = rsu_message(out, self.cfg, torch.eye(4)[None])
         self.infer_s += time.perf_counter() - t0
         return msg

@@ -28,6 +28,7 @@ import numpy as np
 import torch
 from v2xbench.agents.aurora.cqaf import rsu_to_ego
 from v2xbench.agents.aurora.rsu_agent import received_pose
+from v2xbench.agents.devices import run_on_module
 from v2xbench.envs.v2x_intersection.core.geometry import invert_transform, world_to_local_2d
 from v2xbench.envs.v2x_intersection.sensors.lidar import scaled_lidar_specs
 
@@ -97,7 +98,8 @@ class CoDrivingRoadside:
         yaw = math.atan2(t_world_ego[1, 0], t_world_ego[0, 0])
         route = torch.from_numpy(world_to_local_2d(rows, ego_xy, yaw).astype(np.float32))
         e = rsu_to_ego(t_world_ego, t_world_rsu)
-        out = self.net(points[None], mask[None], request_map(route[None], e[None], self.cfg))
+        out = run_on_module(self.net, points[None], mask[None],
+                            request_map(route[None], e[None], self.cfg))
         self.infer_s += time.perf_counter() - t0
         return sent_cells(out["features"], out["sent"])
 
@@ -145,7 +147,7 @@ class CoDrivingDriver:
         received, sent, e = self._message(obs)
         batch = {"ego/points": points[None], "ego/point_mask": mask[None],
                  **planning_inputs(obs, self.cfg)}
-        out = self.ego(batch, received, sent, e)
+        out = run_on_module(self.ego, batch, received, sent, e)
         return waypoints_and_speed(out["waypoints"], self.cfg)
 
 

@@ -42,7 +42,7 @@ def motion_loss(traj: torch.Tensor, mode_logits: torch.Tensor, pred_ref: torch.T
         dist = torch.cdist(pred_ref[i, rows].detach().float(), gt_xy[i, cols].float())
         r, c = hungarian(dist)
         ok = dist[r, c] < cfg.motion_match_radius
-        p, g = rows[r[ok].to(rows.device)], cols[c[ok].to(cols.device)]
+        p, g = rows[r[ok]], cols[c[ok]]
         if not len(p):
             continue
         w = known[i, g].float()[:, None, :]  # (n, 1, T)

@@ -66,7 +66,6 @@ class AgentFusion(nn.Module):
                 continue
             sub = dist[i][rows][:, cols]
             r, c = hungarian(sub)
-            r, c = r.to(sub.device), c.to(sub.device)
             ok = sub[r, c] < self.cfg.match_radius
             out[i, rows[r[ok]]] = cols[c[ok]]
         return out

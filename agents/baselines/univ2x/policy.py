@@ -25,6 +25,7 @@ import torch
 from v2xbench.agents.aurora.calib import frame_camera_tensors, spec_calib
 from v2xbench.agents.aurora.data import model_images
 from v2xbench.agents.aurora.rsu_agent import AuroraRoadside, received_pose
+from v2xbench.agents.devices import run_on_module
 from v2xbench.envs.v2x_intersection.sensors import EGO_CAMERA_NAMES
 
 from ..common.policy import planning_inputs, received_message, waypoints_and_speed
@@ -53,7 +54,7 @@ class UniV2XRoadside(AuroraRoadside):
     def message(self, rsu_obs: Mapping) -> dict[str, torch.Tensor]:
         """The message tensors (:func:`~.message.rsu_message`, batch 1) of one observation."""
         t0 = time.perf_counter()
-        msg = self.wire.rsu_message(self.branch(self.inputs(rsu_obs)), self.ucfg)
+        msg = self.wire.rsu_message(run_on_module(self.branch, self.inputs(rsu_obs)), self.ucfg)
         self.infer_s += time.perf_counter() - t0
         return msg
 
@@ -101,7 +102,7 @@ class UniV2XDriver:
         msg, e, has = self._message(obs)
         batch = {"ego/images": images, "ego/intrinsics": self.intrinsics,
                  "ego/cam_to_frame": self.cam_to_frame, **planning_inputs(obs, self.cfg)}
-        out = self.ego(batch, msg, e, torch.tensor([has]))
+        out = run_on_module(self.ego, batch, msg, e, torch.tensor([has]))
         return waypoints_and_speed(out["waypoints"], self.cfg)
 
 

@@ -23,6 +23,7 @@ from collections.abc import Mapping
 import numpy as np
 import torch
 from v2xbench.agents.aurora.rsu_agent import received_pose
+from v2xbench.agents.devices import run_on_module
 from v2xbench.envs.v2x_intersection.api.observations import V2X_INFO_FEATURES
 from v2xbench.envs.v2x_intersection.core.geometry import pose_matrix
 from v2xbench.envs.v2x_intersection.sensors.lidar import scaled_lidar_specs
@@ -79,7 +80,7 @@ class V2XViTRoadside:
         pts, n = observed_lidar(rsu_obs, "roadside")
         t = rsu_lidar_to_ground(float(np.asarray(rsu_obs["unit"])[UNIT_Z]), self.lidar_scale)
         points, mask = lidar_points(pts, n, t)
-        out = self.net(points[None], mask[None])
+        out = run_on_module(self.net, points[None], mask[None])
         self.infer_s += time.perf_counter() - t0
         return out
 
@@ -120,7 +121,8 @@ class V2XViTDriver:
         received, e, has, age = self._message(obs)
         batch = {"ego/points": points[None], "ego/point_mask": mask[None],
                  **planning_inputs(obs, self.cfg)}
-        out = self.ego(batch, received, e, torch.tensor([has]), torch.tensor([age]))
+        out = run_on_module(self.ego, batch, received, e, torch.tensor([has]),
+                            torch.tensor([age]))
         return waypoints_and_speed(out["waypoints"], self.cfg)
 
 

@@ -133,7 +133,7 @@ def test_no_qa_run_is_refused_when_resumed_with_qa(runs, tmp_path):
     with pytest.raises(ValueError, match=r"stage3 was trained with qa=False.*--no-qa"):
         run_pipeline(runs["data"], runs["no_qa"], scale="tiny", progress=False,
                      say=lambda _: None)
-    with pytest.raises(ValueError, match="qa differ"):
+    with pytest.raises(ValueError, match="other settings .qa: False -> True"):
         train_late_stage(runs["data"], runs["no_qa"], 3, progress=False)
     with pytest.raises(ValueError, match=r"stage 3 of .* qa=False; stage 4 must use the same"):
         shutil.copytree(runs["no_qa"], tmp_path / "r", ignore=shutil.ignore_patterns("stage4",

@@ -326,3 +326,31 @@ def test_policy_gives_the_planner_the_route_points_of_its_observation(tok):
     assert seen[0].shape == (1, CFG.plan_route_points, 2)
     assert torch.equal(paths[1], planner_route_path(left, CFG))
     assert torch.equal(a, a2) and float((a - b).abs().max()) > 1e-3
+
+
+def test_policy_prompt_says_the_speed_or_unknown(tok, monkeypatch):
+    """``say_speed``: the planning prompt carries the observed speed, or "unknown" (the form
+    of a planner trained with speed dropout 1, docs/aurora.md "A sixth run")."""
+    from tensordict import TensorDict
+    from v2xbench.agents.aurora import prompt as prompt_mod
+
+    seen = []
+    real = prompt_mod.build_prompt
+
+    def spy(speed, *args, **kw):
+        seen.append(speed)
+        return real(speed, *args, **kw)
+
+    monkeypatch.setattr(prompt_mod, "build_prompt", spy)
+    rng = np.random.default_rng(1)
+    system = _system(tok).eval()
+    ego = torch.zeros(1, 9)
+    ego[0, 0] = 3.25  # SPEED
+    x = TensorDict({"cameras": {k[1]: {"rgb": torch.from_numpy(rng.integers(
+        0, 255, (1, 64, 128, 3), dtype=np.uint8))} for k in IN_KEYS[:6]},
+        "ego": ego, "route": torch.zeros(1, 20, 3), "v2x_info": torch.zeros(1, 8),
+        "v2x_payload": torch.zeros(1, message_floats(CFG))}, batch_size=[1])
+    with torch.no_grad():
+        policy_module(system, tok, (128, 64))(x.clone())
+        policy_module(system, tok, (128, 64), say_speed=False)(x.clone())
+    assert seen == [pytest.approx(3.25), None]

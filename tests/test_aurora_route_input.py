@@ -200,7 +200,8 @@ def test_cli_option_applies_to_late_stages_only(tmp_path, capsys):
     for stage in ("0", "1"):
         assert main(["aurora", "train", "--stage", stage, "--data", str(tmp_path), "--out",
                      str(tmp_path / "run"), "--plan-route-points", "2"]) == 2
-        assert "--plan-route-points apply to stages 3-5" in capsys.readouterr().err
+        assert "--plan-route-points and --speed-dropout apply to stages 3-5" in \
+            capsys.readouterr().err
     with pytest.raises(SystemExit):  # argparse: not a count
         main(["aurora", "train", "--stage", "4", "--data", str(tmp_path), "--out",
               str(tmp_path / "run"), "--plan-route-points", "-1"])

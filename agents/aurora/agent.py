@@ -33,6 +33,10 @@ import numpy as np
 SHIPPED_NAME = {True: "aurora", False: "no_fusion"}
 OBS_KEYS = ("cameras", "ego", "route", "v2x_info", "v2x_payload")
 LATERAL = ("planner", "route")
+#: What the planning prompt says of the ego's speed: ``"auto"`` its speed, unless the run's
+#: planner never read one (``plan_speed_dropout`` 1, docs/aurora.md "A sixth run"); ``"said"``;
+#: ``"unknown"`` (the speed-dropout form of training).
+SPEED_PROMPT = ("auto", "said", "unknown")
 
 
 class AuroraAgent:
@@ -50,6 +54,7 @@ class AuroraAgent:
             lies along the path; the path itself is the observed route, so the controller
             steers along the route. It separates what the planner gets wrong laterally from
             what it gets wrong in speed; results say which was used: the fingerprint).
+        speed: what the planning prompt says of the ego's speed (:data:`SPEED_PROMPT`).
     """
 
     obs_mode = "sensors"
@@ -58,7 +63,7 @@ class AuroraAgent:
 
     def __init__(self, run: str | None = None, stage: int | None = None,
                  device: str = "cpu", weights: str | None = None,
-                 lateral: str = "planner") -> None:
+                 lateral: str = "planner", speed: str = "auto") -> None:
         from .export import SHIPPED, load_export
         from .policy import policy_module
         from .rsu_agent import AuroraRoadside
@@ -68,6 +73,8 @@ class AuroraAgent:
             raise ValueError("AURORA agent: give either run or weights, not both")
         if lateral not in LATERAL:
             raise ValueError(f"AURORA agent: lateral={lateral!r} is not one of {LATERAL}")
+        if speed not in SPEED_PROMPT:
+            raise ValueError(f"AURORA agent: speed={speed!r} is not one of {SPEED_PROMPT}")
         self.lateral = lateral
         if run is not None:
             system, tok, info = load_system(run, stage, device)
@@ -94,7 +101,9 @@ class AuroraAgent:
 
             self.channel = {"max_payload_floats": message_floats(system.cfg)}
         self.checkpoint = [info["checkpoint"], info["lm_dir"]]
-        self.policy = policy_module(system, tok, size)
+        self.say_speed = speed == "said" or (speed == "auto"
+                                             and system.cfg.plan_speed_dropout < 1.0)
+        self.policy = policy_module(system, tok, size, say_speed=self.say_speed)
         self.cfg = system.cfg
         self.rsu_policy = AuroraRoadside(system.rsu, system.cfg, size,
                                          checkpoint=[info["checkpoint"]]) \
@@ -115,6 +124,8 @@ class AuroraAgent:
             if self.cfg.plan_route_step != "softplus":  # the fourth run's step keeps its print
                 route += f" step={self.cfg.plan_route_step}"
         lateral = "" if self.lateral == "planner" else f" lateral={self.lateral}"
+        if not self.say_speed:  # models told their speed keep their print
+            lateral += " prompt_speed=unknown"
         return (f"stage={self.info['stage']} fusion={self.fusion} planner={self.cfg.planner} "
                 f"speed={TARGET_SPEED_RULE}{route}{lateral}")
 
@@ -163,8 +174,8 @@ class NoFusionAgent(AuroraAgent):
 
     def __init__(self, run: str | None = None, stage: int | None = None,
                  device: str = "cpu", weights: str | None = None,
-                 lateral: str = "planner") -> None:
-        super().__init__(run, stage, device, weights, lateral)
+                 lateral: str = "planner", speed: str = "auto") -> None:
+        super().__init__(run, stage, device, weights, lateral, speed)
 
 
-__all__ = ["LATERAL", "SHIPPED_NAME", "AuroraAgent", "NoFusionAgent", "route_guided"]
+__all__ = ["LATERAL", "SHIPPED_NAME", "SPEED_PROMPT", "AuroraAgent", "NoFusionAgent", "route_guided"]

@@ -22,6 +22,7 @@ Frames: ``ego_range`` is in the ego frame, ``rsu_range`` in the roadside unit's 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -411,6 +412,18 @@ def same_config(old: dict[str, Any] | None, new: dict[str, Any]) -> bool:
         return AuroraConfig.from_dict({**new, **old}) == AuroraConfig.from_dict(new)
     except (TypeError, ValueError):
         return False
+
+
+def config_changes(old: dict[str, Any] | None, new: dict[str, Any]) -> str:
+    """``"key: old -> new, ..."`` of the fields where a run file's ``old`` config differs from
+    ``new`` (both :meth:`AuroraConfig.to_dict` forms; a field ``old`` lacks counts as ``new``'s,
+    as :func:`same_config`), for error messages."""
+    if not isinstance(old, dict):
+        return f"no config in the run file ({old!r})"
+    norm = json.loads(json.dumps(new))
+    out = [f"{k}: {old[k]!r} -> {norm[k]!r}" for k in norm if k in old and old[k] != norm[k]]
+    out += [f"{k}: (unknown field) {old[k]!r}" for k in old if k not in norm]
+    return ", ".join(out) or "none"
 
 
 def check_branch(branch: str) -> str:

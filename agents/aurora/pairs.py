@@ -138,17 +138,23 @@ class AuroraPairs(Dataset):
         speed_dropout: training only: the share of planning prompts whose speed reads
             "unknown" (module docstring; 0: never). seed: seeds that choice.
         plan: ``False`` sets no ``plan_mask`` (the planner does not run on the samples).
+        prompt_speed: probes only (:mod:`.speed_probe`): every planning prompt says this
+            speed (m/s) instead of the frame's (``ego_speed`` keeps the frame's); ``None``: the
+            frame's.
     """
 
     def __init__(self, root: str | Path, split: str, cfg: AuroraConfig, tokenizer,
                  items: Sequence[Item], *, fusion: bool = True, images: bool = True,
                  cache=None, speed_dropout: float = 0.0, seed: int = 0,
-                 plan: bool = True) -> None:
+                 plan: bool = True, prompt_speed: float | None = None) -> None:
         if not items:
             raise ValueError(f"AuroraPairs: no samples in split {split!r} of {root}")
         if not 0 <= float(speed_dropout) <= 1:
             raise ValueError(f"AuroraPairs: speed_dropout={speed_dropout!r} must be in [0, 1]")
         self.speed_dropout, self.seed = float(speed_dropout), int(seed)
+        if prompt_speed is not None and not (np.isfinite(prompt_speed) and prompt_speed >= 0):
+            raise ValueError(f"AuroraPairs: prompt_speed={prompt_speed!r} must be a speed >= 0")
+        self.prompt_speed = None if prompt_speed is None else float(prompt_speed)
         self.cfg, self.tok, self.items = cfg, tokenizer, list(items)
         self.fusion, self.cache, self.plan = bool(fusion), cache, bool(plan)
         self.ego = AuroraFrames(root, split, "ego", cfg, images=images)
@@ -208,6 +214,8 @@ class AuroraPairs(Dataset):
         x = self.extra[fid]
         speed, command = float(x["ego_speed"]), int(x["command"])
         said = None if self.drops_speed(index) else speed
+        if said is not None and question is None and self.prompt_speed is not None:
+            said = self.prompt_speed
         prompt = build_prompt(said, command, e if (has and self.fusion) else None,
                               question or PLAN_QUESTION, num_det=cfg.num_det_queries,
                               num_map=cfg.num_map_queries, waypoint=question is None)

@@ -65,8 +65,12 @@ class AuroraPolicyNet(nn.Module):
         tokenizer: its tokenizer. camera_size: the env's ``(width, height)``.
     """
 
-    def __init__(self, system: nn.Module, tokenizer, camera_size: tuple[int, int]) -> None:
+    def __init__(self, system: nn.Module, tokenizer, camera_size: tuple[int, int],
+                 say_speed: bool = True) -> None:
         super().__init__()
+        self.say_speed = bool(say_speed)  # False: the prompt reads "Ego speed: unknown"
+        from v2xbench.agents.devices import module_device
+
         from .calib import frame_camera_tensors, spec_calib
         from .rsu_agent import message_floats
 
@@ -77,6 +81,7 @@ class AuroraPolicyNet(nn.Module):
         self.register_buffer("intrinsics", k, persistent=False)
         self.register_buffer("cam_to_frame", c2f, persistent=False)
         self.need_floats = message_floats(self.cfg)
+        self.to(module_device(system))  # the camera buffers where the model is
 
     def _message(self, info: np.ndarray, payload: np.ndarray):
         """``(message tensors | None, E_{r->e} | None)`` of one row's received payload."""
@@ -112,7 +117,8 @@ class AuroraPolicyNet(nn.Module):
             msg, e = self._message(info_np[i], pay_np[i])
             msgs.append(msg)
             poses.append(e)
-            prompts.append(build_prompt(float(ego[i, SPEED]), int(round(float(route[i, 0,
+            said = float(ego[i, SPEED]) if self.say_speed else None
+            prompts.append(build_prompt(said, int(round(float(route[i, 0,
                                         COMMAND]))), e, PLAN_QUESTION,
                                         num_det=cfg.num_det_queries,
                                         num_map=cfg.num_map_queries, waypoint=True))
@@ -139,11 +145,11 @@ class AuroraPolicyNet(nn.Module):
         return wps, target_speed(wps, cfg.plan_dt)
 
 
-def policy_module(system: nn.Module, tokenizer, camera_size: tuple[int, int]
-                  ) -> TensorDictModule:
+def policy_module(system: nn.Module, tokenizer, camera_size: tuple[int, int],
+                  say_speed: bool = True) -> TensorDictModule:
     """``TensorDictModule(AuroraPolicyNet(...), in_keys=IN_KEYS, out_keys=OUT_KEYS)``."""
-    return TensorDictModule(AuroraPolicyNet(system, tokenizer, camera_size), in_keys=IN_KEYS,
-                            out_keys=OUT_KEYS)
+    return TensorDictModule(AuroraPolicyNet(system, tokenizer, camera_size, say_speed),
+                            in_keys=IN_KEYS, out_keys=OUT_KEYS)
 
 
 __all__ = ["IN_KEYS", "OUT_KEYS", "TARGET_SPEED_RULE", "AuroraPolicyNet", "policy_module",

@@ -182,22 +182,30 @@ def _run_config(run: Path, scale: str | None) -> AuroraConfig:
     return cfgs[0]
 
 
-def _route_config(run: Path, stage: int, cfg: AuroraConfig, requested: int | None
-                  ) -> AuroraConfig:
-    """``cfg`` with the stage's route input (module docstring): stage 5 keeps stage 4's
-    ``plan_route_points`` / ``plan_route_spacing`` / ``plan_frame`` / ``plan_route_step``;
-    stages 3-4 take ``requested`` if given."""
+def _route_config(run: Path, stage: int, cfg: AuroraConfig, requested: int | None,
+                  speed_dropout: float | None = None) -> AuroraConfig:
+    """``cfg`` with the stage's planner inputs (module docstring): stage 5 keeps stage 4's
+    ``plan_route_points`` / ``plan_route_spacing`` / ``plan_frame`` / ``plan_route_step`` /
+    ``plan_speed_dropout``; stages 3-4 take ``requested`` (route points) and stage 4
+    ``speed_dropout`` if given."""
     if stage == 5:
         prev = AuroraConfig.from_dict(read_stage_info(run, 4)["config"])
-        if requested is not None and requested != prev.plan_route_points:
-            raise ValueError(f"aurora train: stage 4 of {run} trained its planner with "
-                             f"plan_route_points={prev.plan_route_points}; stage 5 continues it "
-                             f"(drop --plan-route-points {requested}, or retrain stage 4 with it "
-                             "in another run folder)")
+        for flag, want, had in (("--plan-route-points", requested, prev.plan_route_points),
+                                ("--speed-dropout", speed_dropout, prev.plan_speed_dropout)):
+            if want is not None and want != had:
+                raise ValueError(f"aurora train: stage 4 of {run} trained its planner with "
+                                 f"{flag} {had}; stage 5 continues it (drop {flag} {want}, or "
+                                 "retrain stage 4 with it in another run folder)")
         return dataclasses.replace(cfg, plan_route_points=prev.plan_route_points,
                                    plan_route_spacing=prev.plan_route_spacing,
                                    plan_frame=prev.plan_frame,
-                                   plan_route_step=prev.plan_route_step)
+                                   plan_route_step=prev.plan_route_step,
+                                   plan_speed_dropout=prev.plan_speed_dropout)
+    if speed_dropout is not None:
+        if stage != 4:
+            raise ValueError("aurora train: --speed-dropout applies to stage 4 (stage 5 keeps "
+                             "stage 4's)")
+        cfg = dataclasses.replace(cfg, plan_speed_dropout=float(speed_dropout))
     if requested is None:
         return cfg
     return dataclasses.replace(cfg, plan_route_points=requested)
@@ -236,26 +244,28 @@ def _items(data: Path, stage: int, frames, stride: int, qa: bool = True) -> list
 
 def _check_same_run(path: Path, info: dict) -> None:
     from .cli import _same_config
+    from .config import config_changes
 
     if not path.is_file():
         return
     old = json.loads(path.read_text())
     keys = ("stage", "scale", "data", "frame_stride", "seed", "fusion", "qa", "lm", "cache")
     old = {"qa": True, **old}  # a run file from before the switch trained with the QA loss
-    diff = [k for k in keys if old.get(k) != json.loads(json.dumps(info[k]))]
+    shown = [f"{k}: {old.get(k)!r} -> {info[k]!r}" for k in keys
+             if old.get(k) != json.loads(json.dumps(info[k]))]
     if not _same_config(old.get("config"), info["config"]):
-        diff.append("config")
+        shown.append(f"config ({config_changes(old.get('config'), info['config'])})")
     else:  # a run file without the key trained a planner without route input
         was = AuroraConfig.from_dict(old["config"])
-        if was.plan_route_points != info["config"]["plan_route_points"] \
-                or was.plan_frame != info["config"]["plan_frame"] \
-                or was.plan_route_step != info["config"]["plan_route_step"]:  # absent: off
-            diff.append("config")
-    if diff:
+        route = ("plan_route_points", "plan_frame", "plan_route_step")  # absent: off
+        changed = [f"{k}: {getattr(was, k)!r} -> {info['config'][k]!r}" for k in route
+                   if getattr(was, k) != info["config"][k]]
+        if changed:
+            shown.append(f"config ({', '.join(changed)})")
+    if shown:
         raise ValueError(f"aurora train: {path.parent} holds a run with other settings "
-                         f"({', '.join(diff)} differ: {[old.get(k) for k in diff]} vs "
-                         f"{[info.get(k) for k in diff]}); use the same settings to resume, or "
-                         "another --out")
+                         f"({'; '.join(shown)}); use the same settings to resume, or another "
+                         "--out")
 
 
 def _save_adapter(system: AuroraSystem, out: Path) -> None:
@@ -273,7 +283,7 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
                      progress: bool = True, num_workers: int | None = None,
                      lm: str | Path | None = None, fusion: bool = True,
                      cache: bool = True, route_points: int | None = None,
-                     qa: bool = True) -> dict:
+                     qa: bool = True, speed_dropout: float | None = None) -> dict:
     """Train stage 3, 4 or 5 of ``out`` on the train split of ``data`` (module docstring).
 
     Args:
@@ -289,6 +299,10 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
             module docstring; stage 5 keeps stage 4's).
         qa: ``False`` drops the Chat-V2XBench loss (module docstring; the VQA ablation); every
             stage of a run must use the same.
+        speed_dropout: stage 4 only: the share of planning prompts whose speed reads
+            "unknown" (``plan_speed_dropout``; 1: the planner never reads the ego's speed, and
+            the agent then never says it; docs/aurora.md, "A sixth run"); stage 5 keeps stage
+            4's.
 
     Returns:
         :func:`~.trainer.fit`'s summary plus ``stage``, ``branch`` (the stage's name),
@@ -312,7 +326,7 @@ def train_late_stage(data: str | Path, out: str | Path, stage: int, *,
     data, run = Path(data), Path(out)
     if not data.is_dir():
         raise FileNotFoundError(f"aurora train: data directory {data} does not exist")
-    cfg = _route_config(run, stage, _run_config(run, scale), route_points)
+    cfg = _route_config(run, stage, _run_config(run, scale), route_points, speed_dropout)
     device = ddp.setup(device)  # under torchrun: join the group; rank 0 builds shared files
     hp = cfg.stage_hparams(stage)
     if stride is not None:

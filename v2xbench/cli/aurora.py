@@ -28,13 +28,14 @@ def _train(args: argparse.Namespace) -> int:
                              device=args.device, max_steps=args.max_steps, stride=args.stride,
                              seed=args.seed, progress=not args.quiet, num_workers=args.workers,
                              lm=args.lm, fusion=not args.no_fusion, cache=not args.no_cache,
-                             route_points=args.plan_route_points, qa=not args.no_qa)
+                             route_points=args.plan_route_points, qa=not args.no_qa,
+                             speed_dropout=args.speed_dropout)
         print(format_late_summary(s))
         return 0
     if args.lm is not None or args.no_fusion or args.no_cache or args.no_qa \
-            or args.plan_route_points is not None:
-        raise ValueError("--lm, --no-fusion, --no-qa, --no-cache and --plan-route-points apply "
-                         "to stages 3-5")
+            or args.plan_route_points is not None or args.speed_dropout is not None:
+        raise ValueError("--lm, --no-fusion, --no-qa, --no-cache, --plan-route-points and "
+                         "--speed-dropout apply to stages 3-5")
     s = train_stage(args.data, args.out, args.stage, scale=args.scale or "default",
                     device=args.device, max_steps=args.max_steps, stride=args.stride,
                     seed=args.seed, progress=not args.quiet, num_workers=args.workers)
@@ -46,9 +47,9 @@ def _train_stage0(args: argparse.Namespace) -> int:
     from v2xbench.agents.aurora.stage0 import format_stage0_summary, train_stage0
 
     if args.lm is not None or args.no_fusion or args.no_cache or args.no_qa \
-            or args.plan_route_points is not None:
-        raise ValueError("--lm, --no-fusion, --no-qa, --no-cache and --plan-route-points apply "
-                         "to stages 3-5 (--lm replaces stage 0's model)")
+            or args.plan_route_points is not None or args.speed_dropout is not None:
+        raise ValueError("--lm, --no-fusion, --no-qa, --no-cache, --plan-route-points and "
+                         "--speed-dropout apply to stages 3-5 (--lm replaces stage 0's model)")
     s = train_stage0(args.data, args.out, scale=args.scale or "default", chat=args.chat,
                      device=args.device, max_steps=args.max_steps, stride=args.stride,
                      seed=args.seed, progress=not args.quiet)
@@ -185,6 +186,11 @@ def register(sub) -> None:
                    help="stages 3-4: the planner's route input, K route points ahead (0: none, "
                    "the paper's inputs; default: the run's, else the scale's); stage 5 keeps "
                    "stage 4's")
+    t.add_argument("--speed-dropout", type=float, default=None, metavar="P",
+                   help="stage 4: share of planning prompts whose ego speed reads 'unknown' "
+                   "(default: the scale's, 0.15; 1: the planner never reads the speed and the "
+                   "agent never says it, the cure for the inertia of docs/aurora.md's sixth "
+                   "run); stage 5 keeps stage 4's")
     t.set_defaults(func=_train)
     _register_pipeline(asub)
     x = asub.add_parser("export", help="write what inference needs of a trained stage (weights "
@@ -279,6 +285,44 @@ def _register_planning(asub) -> None:
     g.add_argument("--threads", type=_int_in(1), default=None, help="torch threads")
     g.add_argument("--quiet", action="store_true", help="no progress bar")
     g.set_defaults(func=_eval_planning)
+    _register_speed_probe(asub)
+
+
+def _speed_probe(args: argparse.Namespace) -> int:
+    from v2xbench.agents.aurora.speed_probe import probe_speed
+
+    _threads(args.threads)
+    r = probe_speed(args.data, run=args.run, weights=args.weights, stage=args.stage,
+                    split=args.split, stride=args.stride, out=args.out,
+                    batch_size=args.batch_size, device=args.device, progress=not args.quiet)
+    print(r["table"], end="")
+    print(f"written: {r['out']}/metrics.json, metrics.md")
+    return 0
+
+
+def _register_speed_probe(asub) -> None:
+    """``aurora speed-probe`` (:mod:`v2xbench.agents.aurora.speed_probe`)."""
+    g = asub.add_parser("speed-probe", help="how much the planned speed follows the speed the "
+                        "prompt says (inertia)", description="Run the trained planner over "
+                        "every K-th planning frame of a split five times, the prompt saying the "
+                        "frame's speed, 0, 1 and 3 m/s, and 'unknown', and tabulate the planned "
+                        "speed (waypoints 0-1) by the ego's true speed and what the expert does "
+                        "next (speeds up / slows / steady). Writes metrics.json and metrics.md.")
+    src = g.add_mutually_exclusive_group(required=True)
+    src.add_argument("--run", default=None, help="trained run folder (stages 4-5)")
+    src.add_argument("--weights", default=None, help="exported weights folder")
+    g.add_argument("--stage", type=int, choices=(4, 5), default=None,
+                   help="with --run: the stage (default: the run's latest)")
+    g.add_argument("--data", required=True, help="data set folder (v2xbench collect --out)")
+    g.add_argument("--split", default="val", help="train | val | test | all (default: val)")
+    g.add_argument("--stride", type=_int_in(1), default=3,
+                   help="every K-th frame of each episode (default: 3)")
+    g.add_argument("--out", default=None, help="output folder (default: RUN/speed_probe)")
+    g.add_argument("--batch-size", type=_int_in(1), default=8)
+    g.add_argument("--device", default="cpu")
+    g.add_argument("--threads", type=_int_in(1), default=None, help="torch threads")
+    g.add_argument("--quiet", action="store_true", help="no progress lines")
+    g.set_defaults(func=_speed_probe)
 
 
 def _register_pipeline(asub) -> None:

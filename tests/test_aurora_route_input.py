@@ -6,18 +6,18 @@ from __future__ import annotations
 
 import json
 import math
-import shutil
 
 import numpy as np
 import pytest
 import torch
 from v2xbench.agents.aurora.config import AuroraConfig, same_config
 from v2xbench.agents.aurora.route_input import planner_route_points, route_points_ahead
-from v2xbench.collectors.chat.export import build as build_qa
 from v2xbench.envs.v2x_intersection.api.observations import ego_observation
 from v2xbench.envs.v2x_intersection.core.geometry import world_to_local_2d
 from v2xbench.envs.v2x_intersection.sim.config import make_config
 from v2xbench.envs.v2x_intersection.sim.world import World
+
+from tests.dataset_helpers import ONE_STEP, branches_run
 
 CFG2 = AuroraConfig.for_scale("tiny", plan_route_points=2, plan_route_spacing=10.0)
 
@@ -158,17 +158,11 @@ def _strip_route_keys(path):
 def test_stages_4_5_retrained_with_route_points_on_an_old_run(tiny_dataset, tmp_path):
     """Stages 1-3 made before the field (run files without it): stage 4 adds the route encoder
     on top of stage 3, stage 5 keeps it, a different K for stage 5 or a resume is refused."""
-    from v2xbench.agents.aurora.cli import train_stage
     from v2xbench.agents.aurora.stages import train_late_stage
     from v2xbench.agents.aurora.system import load_system
 
-    torch.set_num_threads(1)
-    data, run = tmp_path / "data", tmp_path / "run"
-    shutil.copytree(tiny_dataset, data)
-    build_qa(data)
-    common = dict(max_steps=1, stride=8, progress=False)
-    for s in (1, 2):
-        train_stage(data, run, s, scale="tiny", **common)
+    data, run = branches_run(tiny_dataset, tmp_path)
+    common = ONE_STEP
     train_late_stage(data, run, 3, route_points=0, **common)
     for s in (1, 2, 3):
         _strip_route_keys(run / f"stage{s}" / "aurora.json")

@@ -4,26 +4,19 @@ stage-4 switch ``--speed-dropout``, kept by stage 5, and the agent's ``speed`` o
 from __future__ import annotations
 
 import json
-import shutil
 
 import pytest
-import torch
 from v2xbench.agents.aurora.agent import AuroraAgent
-from v2xbench.collectors.chat.export import build as build_qa
+
+from tests.dataset_helpers import ONE_STEP, branches_run
 
 
 def test_speed_dropout_set_at_stage_4_kept_by_stage_5_and_read_by_the_agent(
         tiny_dataset, tmp_path, monkeypatch):
-    from v2xbench.agents.aurora.cli import train_stage
     from v2xbench.agents.aurora.stages import train_late_stage
 
-    torch.set_num_threads(1)
-    data, run = tmp_path / "data", tmp_path / "run"
-    shutil.copytree(tiny_dataset, data)
-    build_qa(data)
-    common = dict(max_steps=1, stride=8, progress=False)
-    for s in (1, 2):
-        train_stage(data, run, s, scale="tiny", **common)
+    data, run = branches_run(tiny_dataset, tmp_path)
+    common = ONE_STEP
     with pytest.raises(ValueError, match="applies to stage 4"):
         train_late_stage(data, run, 3, speed_dropout=1.0, **common)
     train_late_stage(data, run, 3, **common)

@@ -266,24 +266,9 @@ def _register_planning(asub) -> None:
                         "collision rate against gt/fused actors moved at constant velocity, and "
                         "the predicted vs expert speed when starting from rest. Writes "
                         "metrics.json and metrics.md.")
-    src = g.add_mutually_exclusive_group(required=True)
-    src.add_argument("--run", default=None, help="trained run folder (stages 3-5)")
-    src.add_argument("--weights", default=None, help="exported weights folder (v2xbench aurora "
-                     "export), e.g. agents/aurora/weights/aurora")
-    g.add_argument("--stage", type=int, choices=(3, 4, 5), default=None,
-                   help="with --run: the stage (default: the run's latest)")
-    g.add_argument("--data", required=True, help="data set folder (v2xbench collect --out)")
-    g.add_argument("--split", default="test", help="train | val | test | all (default: test; a "
-                   "test50 collection made before route_split labels its routes train/val: use "
-                   "all)")
-    g.add_argument("--stride", type=_int_in(1), default=50,
-                   help="every K-th frame of each episode (default: 50)")
-    g.add_argument("--out", default=None,
-                   help="output folder (default: RUN/eval_planning, or ./eval_planning/NAME for --weights DIR)")
-    g.add_argument("--batch-size", type=_int_in(1), default=8)
-    g.add_argument("--device", default="cpu")
-    g.add_argument("--threads", type=_int_in(1), default=None, help="torch threads")
-    g.add_argument("--quiet", action="store_true", help="no progress bar")
+    _planner_eval_args(g, (3, 4, 5), "test", 50, "eval_planning",
+                       split_note="; a test50 collection made before route_split labels its "
+                       "routes train/val: use all")
     g.set_defaults(func=_eval_planning)
     _register_speed_probe(asub)
 
@@ -308,21 +293,32 @@ def _register_speed_probe(asub) -> None:
                         "frame's speed, 0, 1 and 3 m/s, and 'unknown', and tabulate the planned "
                         "speed (waypoints 0-1) by the ego's true speed and what the expert does "
                         "next (speeds up / slows / steady). Writes metrics.json and metrics.md.")
+    _planner_eval_args(g, (4, 5), "val", 3, "speed_probe")
+    g.set_defaults(func=_speed_probe)
+
+
+def _planner_eval_args(g, stages: tuple[int, ...], split: str, stride: int, out: str,
+                       split_note: str = "") -> None:
+    """The options of a command that runs a trained planner over recorded frames: the model
+    (``--run`` [``--stage``] or ``--weights``), the frames, the output folder, inference."""
     src = g.add_mutually_exclusive_group(required=True)
-    src.add_argument("--run", default=None, help="trained run folder (stages 4-5)")
-    src.add_argument("--weights", default=None, help="exported weights folder")
-    g.add_argument("--stage", type=int, choices=(4, 5), default=None,
+    src.add_argument("--run", default=None, help=f"trained run folder (stages "
+                     f"{stages[0]}-{stages[-1]})")
+    src.add_argument("--weights", default=None, help="exported weights folder (v2xbench aurora "
+                     "export), e.g. agents/aurora/weights/aurora")
+    g.add_argument("--stage", type=int, choices=stages, default=None,
                    help="with --run: the stage (default: the run's latest)")
     g.add_argument("--data", required=True, help="data set folder (v2xbench collect --out)")
-    g.add_argument("--split", default="val", help="train | val | test | all (default: val)")
-    g.add_argument("--stride", type=_int_in(1), default=3,
-                   help="every K-th frame of each episode (default: 3)")
-    g.add_argument("--out", default=None, help="output folder (default: RUN/speed_probe)")
+    g.add_argument("--split", default=split,
+                   help=f"train | val | test | all (default: {split}{split_note})")
+    g.add_argument("--stride", type=_int_in(1), default=stride,
+                   help=f"every K-th frame of each episode (default: {stride})")
+    g.add_argument("--out", default=None, help=f"output folder (default: RUN/{out}, or "
+                   f"./{out}/NAME for --weights DIR)")
     g.add_argument("--batch-size", type=_int_in(1), default=8)
     g.add_argument("--device", default="cpu")
     g.add_argument("--threads", type=_int_in(1), default=None, help="torch threads")
-    g.add_argument("--quiet", action="store_true", help="no progress lines")
-    g.set_defaults(func=_speed_probe)
+    g.add_argument("--quiet", action="store_true", help="no progress output")
 
 
 def _register_pipeline(asub) -> None:

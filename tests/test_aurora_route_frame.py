@@ -361,5 +361,7 @@ def test_stage_5_keeps_the_route_step_of_stage_4(tmp_path):
     digest = {step: weights_digest(SimpleNamespace(cfg=AuroraConfig.for_scale(
         "tiny", plan_route_step=step), **branches)) for step in ("relu_ste", "softplus")}
     assert digest["relu_ste"] == digest["softplus"]
+    assert digest["relu_ste"] == weights_digest(SimpleNamespace(cfg=AuroraConfig.for_scale(
+        "tiny", plan_speed_dropout=1.0), **branches))  # nor the speed dropout of stage 4
     assert digest["relu_ste"] != weights_digest(SimpleNamespace(cfg=AuroraConfig.for_scale(
         "tiny", vit_depth=2), **branches))

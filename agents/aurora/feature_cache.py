@@ -46,8 +46,11 @@ INPUT_KEYS = ("images", "intrinsics", "cam_to_frame")
 def weights_digest(system: AuroraSystem) -> str:
     """SHA-256 (hex, 16 characters) of the branches' weights and buffers and the config."""
     conf = system.cfg.to_dict()
-    for key in ("plan_frame", "plan_route_step"):  # the planner's output: the branches' outputs
-        conf.pop(key)  # do not change (and older caches keep their digest)
+    # the planner's output and its prompt do not change the branches' outputs: a run that
+    # differs only in them shares the cache (caches from before plan_speed_dropout was ignored
+    # are rebuilt once)
+    for key in ("plan_frame", "plan_route_step", "plan_speed_dropout"):
+        conf.pop(key)
     h = hashlib.sha256(json.dumps(conf, sort_keys=True).encode())
     for name, t in sorted({**system.ego.state_dict(prefix="ego."),
                            **system.rsu.state_dict(prefix="rsu.")}.items()):

@@ -196,6 +196,16 @@ def load_model(run: str | Path | None = None, weights: str | Path | None = None,
     return load_system(run, stage, device)
 
 
+def output_dir(out: str | Path | None, run: str | Path | None, weights: str | Path | None,
+               name: str) -> Path:
+    """Where an evaluation of :func:`load_model`'s model writes: ``out`` if given, else
+    ``RUN/name`` (a run folder holds its evaluations), else ``./name/<weights folder name>``
+    (an export, maybe the shipped one, is not written into)."""
+    if out is not None:
+        return Path(out)
+    return Path(run) / name if run is not None else Path(name) / Path(weights).name
+
+
 @torch.no_grad()
 def predict(system, batch: Mapping[str, torch.Tensor]) -> np.ndarray:
     """``(B, T, 2)`` planned waypoints of a :func:`~.pairs.collate_pairs` batch: the policy's
@@ -252,9 +262,7 @@ def evaluate_planning(data: str | Path, *, run: str | Path | None = None,
     items = planning_items(frames, stride)
     ds = AuroraPairs(data, split, cfg, tok, items, fusion=system.fusion)
     loader = make_pair_loader(ds, batch_size, shuffle=False)
-    if out is None:  # a run folder holds its evaluations; an export (maybe the shipped one) not
-        out = Path(run) / OUT_DIR if run is not None else Path(OUT_DIR) / Path(weights).name
-    out = Path(out)
+    out = output_dir(out, run, weights, OUT_DIR)
     t_steps, dt = cfg.plan_waypoints, cfg.plan_dt
     parts: dict[str, list] = {k: [] for k in ("frame_id", "command", "speed", "expert", "model",
                                               "has_rsu", "futures")}
@@ -366,6 +374,7 @@ def markdown(result: Mapping) -> str:
 
 
 __all__ = ["ACTOR_CLASSES", "HEADING_MIN_STEP", "HORIZONS", "OUT_DIR", "START_DIST",
+           "output_dir",
            "START_SPEED", "STAY_DIST", "actor_futures", "collisions", "constant_velocity_plan",
            "evaluate_planning", "group_metrics", "load_model", "markdown", "plan_headings",
            "predict", "start_from_rest", "summarize"]

@@ -81,7 +81,7 @@ def probe_speed(data: str | Path, *, run: str | Path | None = None,
         and, per prompt, the model's mean planned speed) plus ``out`` and ``table``.
     """
     from .data import AuroraFrames
-    from .eval_planning import load_model
+    from .eval_planning import load_model, output_dir
     from .pairs import planning_items
 
     for p in prompts:
@@ -91,9 +91,7 @@ def probe_speed(data: str | Path, *, run: str | Path | None = None,
     system, tok, info = load_model(run, weights, stage, device)
     frames = AuroraFrames(data, split, "ego", system.cfg, images=False)
     items = planning_items(frames, stride)
-    if out is None:
-        out = Path(run) / OUT_DIR if run is not None else Path(OUT_DIR) / Path(weights).name
-    out = Path(out)
+    out = output_dir(out, run, weights, OUT_DIR)
     t0 = time.perf_counter()
     passes = []
     with dir_lock(out, "aurora speed-probe"):

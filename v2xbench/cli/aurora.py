@@ -32,10 +32,7 @@ def _train(args: argparse.Namespace) -> int:
                              speed_dropout=args.speed_dropout)
         print(format_late_summary(s))
         return 0
-    if args.lm is not None or args.no_fusion or args.no_cache or args.no_qa \
-            or args.plan_route_points is not None or args.speed_dropout is not None:
-        raise ValueError("--lm, --no-fusion, --no-qa, --no-cache, --plan-route-points and "
-                         "--speed-dropout apply to stages 3-5")
+    _refuse_late_stage_options(args)
     s = train_stage(args.data, args.out, args.stage, scale=args.scale or "default",
                     device=args.device, max_steps=args.max_steps, stride=args.stride,
                     seed=args.seed, progress=not args.quiet, num_workers=args.workers)
@@ -43,13 +40,18 @@ def _train(args: argparse.Namespace) -> int:
     return 0
 
 
-def _train_stage0(args: argparse.Namespace) -> int:
-    from v2xbench.agents.aurora.stage0 import format_stage0_summary, train_stage0
-
+def _refuse_late_stage_options(args: argparse.Namespace, note: str = "") -> None:
+    """``ValueError`` when an option of stages 3-5 is given to stage 0, 1 or 2."""
     if args.lm is not None or args.no_fusion or args.no_cache or args.no_qa \
             or args.plan_route_points is not None or args.speed_dropout is not None:
         raise ValueError("--lm, --no-fusion, --no-qa, --no-cache, --plan-route-points and "
-                         "--speed-dropout apply to stages 3-5 (--lm replaces stage 0's model)")
+                         f"--speed-dropout apply to stages 3-5{note}")
+
+
+def _train_stage0(args: argparse.Namespace) -> int:
+    from v2xbench.agents.aurora.stage0 import format_stage0_summary, train_stage0
+
+    _refuse_late_stage_options(args, " (--lm replaces stage 0's model)")
     s = train_stage0(args.data, args.out, scale=args.scale or "default", chat=args.chat,
                      device=args.device, max_steps=args.max_steps, stride=args.stride,
                      seed=args.seed, progress=not args.quiet)
@@ -189,8 +191,8 @@ def register(sub) -> None:
     t.add_argument("--speed-dropout", type=float, default=None, metavar="P",
                    help="stage 4: share of planning prompts whose ego speed reads 'unknown' "
                    "(default: the scale's, 0.15; 1: the planner never reads the speed and the "
-                   "agent never says it, the cure for the inertia of docs/aurora.md's sixth "
-                   "run); stage 5 keeps stage 4's")
+                   "agent never says it: docs/aurora.md, 'A sixth run', on the planner copying the "
+                   "speed it is told); stage 5 keeps stage 4's")
     t.set_defaults(func=_train)
     _register_pipeline(asub)
     x = asub.add_parser("export", help="write what inference needs of a trained stage (weights "

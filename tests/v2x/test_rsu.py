@@ -55,8 +55,10 @@ def test_unit_at_every_junction_the_route_crosses(deployments, case):
     crossed = np.unique(jl[jl >= 0])
     assert len(crossed) >= 1
     units = np.flatnonzero(rsus.kind == KIND_JUNCTION)
-    # one unit per junction, two where the route turns left there (see test_left_turn_unit...)
-    assert len(crossed) <= len(units) <= 2 * len(crossed)
+    # one unit per pass through a junction, two where the route turns left there (see
+    # test_left_turn_unit...); passes of one junction from one approach share theirs
+    n_pass = len(rsu_module.junction_passes(town, route))
+    assert len(crossed) <= len(units) <= 2 * n_pass
     for jid in crossed:
         j = town.junctions[jid]
         d = np.linalg.norm(rsus.pose[units, :2] - j.center, axis=1)
@@ -136,12 +138,43 @@ def test_min_spacing_height_and_order(deployments, case):
     # street and junction units may stand closer, and so may a junction's two units of a left turn
     # (placed for the same route station, 1 mm apart)
     same_junction = np.abs(rsus.route_s[:, None] - rsus.route_s[None, :]) < 0.01
+    # (the random routes here cross each junction once: see test_every_pass_... for two passes)
     assert d[same_kind & ~same_junction].min() >= MIN_SPACING
     np.testing.assert_array_equal(rsus.pose[:, 2], RSU_HEIGHT)
     assert np.all(np.diff(rsus.route_s) >= 0.0)
     assert rsus.pose.shape == (len(rsus), 4) and rsus.kind.shape == rsus.route_s.shape == (
         len(rsus),
     )
+
+
+def test_every_pass_through_a_junction_gets_its_far_right_unit():
+    """A route that comes back to a junction from another approach gets the far-right unit of
+    that approach too (test50_038 crosses junction 6 twice; placing units per junction id mixed
+    the first pass's entry with the second pass's exit and left the second approach unwatched)."""
+    from v2xbench.envs.v2x_intersection.suites.route_files import _route_of, load_suite_cached
+
+    spec = next(s for s in load_suite_cached("test50") if s.id == "test50_038")
+    town = get_town(spec.town)
+    route = _route_of(spec.town, tuple(spec.lanes))
+    rsus = deploy(town, route)
+    passes = rsu_module.junction_passes(town, route)
+    jids = [int(town.index.junction[route.lane_ids[p[0]]]) for p in passes]
+    twice = [j for j in set(jids) if jids.count(j) > 1]
+    assert twice, "test50_038 should cross a junction twice"
+    units = np.flatnonzero(rsus.kind == KIND_JUNCTION)
+    for p, jid in zip(passes, jids):
+        j = town.junctions[jid]
+        h_in = float(route.headings[max(int(p[0]) - 1, 0)])
+        corners = [world_to_local_2d(rsus.pose[u, :2], j.center, h_in) for u in units
+                   if np.linalg.norm(rsus.pose[u, :2] - j.center) <= j.radius + 3.0 + SNAP + 1e-6]
+        # a unit on the far-right corner of this pass's approach, looking back at it
+        far_right = [(x, y) for x, y in corners if x > 0.0 and y < 0.0]
+        assert far_right, f"junction {jid}, pass at s={route.s[p[0]]:.0f}: units at {corners}"
+    # and the passes are unbroken runs inside one junction, in route order
+    jl = town.index.junction[route.lane_ids]
+    assert sum(len(p) for p in passes) == int(np.sum(jl >= 0))
+    for p in passes:
+        assert np.all(np.diff(p) == 1) and len(set(jl[p])) == 1
 
 
 def test_rsu_matrix_is_pitched_down():

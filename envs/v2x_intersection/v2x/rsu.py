@@ -6,12 +6,14 @@ scenario list, so a unit's pose carries no information about where a hazard will
 
 Candidates are placed (1) every ~``STRAIGHT_SPACING`` m along the route's non-junction parts,
 beside the road and looking back at the approaching ego; (2) at every junction the route crosses,
-on a corner offset from the centre: the far-right corner (as seen when arriving), looking back
+once per pass (a route that comes back to a junction arrives from another approach), on a corner
+offset from the centre: the far-right corner (as seen when arriving), looking back
 over the junction at the approach; where the route turns left there, a second unit on the
 near-right corner, looking across the junction centre at the oncoming approach and the left exit
 (the traffic a left turn crosses, behind the far-right unit). Units closer
 than ``MIN_SPACING`` m to an already kept unit of their kind are pruned (a street unit looks along
-the road, a junction unit over the junction: they do not replace each other). Each tick the
+the road, a junction unit over the junction: they do not replace each other; nor do the units of
+two passes of one junction that arrive from different approaches). Each tick the
 active unit is chosen from the ego's pose only: among the forward-facing units in range, the one
 watching the road ``LOOKAHEAD_M`` m ahead of the ego (the point within its camera's view) most
 directly (smallest angle off its axis plus distance to the point / ``SELECT_M_PER_RAD``: at a
@@ -111,18 +113,30 @@ def deploy(town: Town, route: Route) -> RSUSet:
     return units
 
 
+def junction_passes(town: Town, route: Route) -> list[np.ndarray]:
+    """The route's passes through junctions: each an unbroken run of route-point indices inside one
+    junction, in route order (a route that comes back to a junction crosses it twice: two passes,
+    each arriving from its own approach)."""
+    jl = town.index.junction[route.lane_ids]
+    idx = np.flatnonzero(jl >= 0)
+    if not len(idx):
+        return []
+    breaks = np.flatnonzero((np.diff(idx) > 1) | (np.diff(jl[idx]) != 0)) + 1
+    return np.split(idx, breaks)
+
+
 def _deploy(town: Town, route: Route) -> RSUSet:
     cands: list[tuple[float, float, float, int, float]] = []
     pts, hd, s = route.points, route.headings, route.s
     in_junction = town.index.junction[route.lane_ids] >= 0
     turn_units: set[int] = set()  # the left-turn units (kept apart from the others)
-    # junctions the route crosses
-    for jid in np.unique(town.index.junction[route.lane_ids][in_junction]):
+    approach: dict[int, tuple[int, float]] = {}  # junction unit -> (junction id, arrival heading)
+    # every pass through a junction (not every junction: a second pass arrives from another side)
+    for inside in junction_passes(town, route):
+        jid = int(town.index.junction[route.lane_ids[inside[0]]])
         j = town.junctions[jid]
-        inside = np.flatnonzero(town.index.junction[route.lane_ids] == jid)
         k = int(inside[np.argmin(np.linalg.norm(pts[inside] - j.center, axis=1))])
-        entry = int(inside[0])
-        h_in = hd[max(entry - 1, 0)]
+        h_in = hd[max(int(inside[0]) - 1, 0)]
         h_out = hd[min(int(inside[-1]) + 1, len(hd) - 1)]
         # far-right corner as seen when arriving, looking back over the junction at the approach
         corner = j.center + (j.radius + 3.0) * np.array([np.cos(h_in - np.pi / 4),
@@ -135,7 +149,9 @@ def _deploy(town: Town, route: Route) -> RSUSet:
                                                             np.sin(h_in - 0.75 * np.pi)])
             yaw_n = np.arctan2(*(j.center - near)[::-1])
             turn_units.add(len(cands))
+            approach[len(cands)] = (jid, float(h_in))
             cands.append((near[0], near[1], float(yaw_n), KIND_JUNCTION, float(s[k]) - 1e-3))
+        approach[len(cands)] = (jid, float(h_in))
         cands.append((corner[0], corner[1], float(yaw), KIND_JUNCTION, float(s[k])))
     for sk in np.arange(STRAIGHT_SPACING / 2, route.length, STRAIGHT_SPACING):
         k = int(np.searchsorted(s, sk))
@@ -157,16 +173,26 @@ def _deploy(town: Town, route: Route) -> RSUSet:
     order = sorted(range(len(cands)), key=lambda i: (-cands[i][3], cands[i][4]))
     kept: list[int] = []
     for i in order:  # units of a kind keep their distance (a street unit looks along the road,
-        # a junction unit over the junction: both are kept where they stand close together)
+        # a junction unit over the junction: both are kept where they stand close together), but
+        # two passes of one junction from different approaches keep their own units
         if all(
             np.hypot(cands[i][0] - cands[j][0], cands[i][1] - cands[j][1]) >= MIN_SPACING
             for j in kept if cands[j][3] == cands[i][3] and (j in turn_units) == (i in turn_units)
+            and not _other_approach(approach.get(i), approach.get(j))
         ):
             kept.append(i)
     kept.sort(key=lambda i: cands[i][4])
     c = np.array([cands[i] for i in kept], float).reshape(-1, 5)
     pose = np.stack([c[:, 0], c[:, 1], np.full(len(c), RSU_HEIGHT), c[:, 2]], -1)
     return RSUSet(pose, c[:, 3].astype(np.int64), c[:, 4])
+
+
+def _other_approach(a: tuple[int, float] | None, b: tuple[int, float] | None) -> bool:
+    """Whether two junction units serve the same junction arrived at from different approaches
+    (arrival headings more than 45 deg apart)."""
+    if a is None or b is None or a[0] != b[0]:
+        return False
+    return abs(float(wrap_angle(a[1] - b[1]))) > np.pi / 4
 
 
 def _on_sidewalk(town: Town, cand: tuple) -> tuple:

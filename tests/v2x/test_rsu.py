@@ -177,6 +177,30 @@ def test_every_pass_through_a_junction_gets_its_far_right_unit():
         assert np.all(np.diff(p) == 1) and len(set(jl[p])) == 1
 
 
+@pytest.mark.parametrize("route_id", ["test50_006", "test50_038"])
+def test_a_route_back_along_a_street_keeps_units_looking_both_ways(route_id):
+    """Where a route comes back along a street it drove (test50_006, test50_038), every street
+    spot has a street unit near it looking back at the ego as it drives there, not only the unit
+    of the first pass, which looks the other way."""
+    from v2xbench.envs.v2x_intersection.suites.route_files import _route_of, load_suite_cached
+
+    spec = next(s for s in load_suite_cached("test50") if s.id == route_id)
+    town = get_town(spec.town)
+    route = _route_of(spec.town, tuple(spec.lanes))
+    rsus = deploy(town, route)
+    in_junction = town.index.junction[route.lane_ids] >= 0
+    street = np.flatnonzero(rsus.kind == KIND_STRAIGHT)
+    reach = AHEAD + SIDE_OFFSET + MIN_SPACING
+    for sk in np.arange(STRAIGHT_SPACING / 2, route.length, STRAIGHT_SPACING):
+        k = min(int(np.searchsorted(route.s, sk)), len(route.s) - 1)
+        if in_junction[k]:
+            continue
+        d = np.linalg.norm(rsus.pose[street, :2] - route.points[k], axis=1)
+        back = np.abs(wrap_angle(rsus.pose[street, 3] - (route.headings[k] + np.pi)))
+        assert np.any((d <= reach + 1.0) & (back < np.deg2rad(60.0))), (
+            f"{route_id}: no street unit looking back at s={sk:.0f} m")
+
+
 def test_rsu_matrix_is_pitched_down():
     rsus = RSUSet(
         np.array([[10.0, 20.0, RSU_HEIGHT, 0.5]]), np.array([KIND_STRAIGHT]), np.array([0.0])

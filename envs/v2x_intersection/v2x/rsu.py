@@ -13,7 +13,8 @@ near-right corner, looking across the junction centre at the oncoming approach a
 (the traffic a left turn crosses, behind the far-right unit). Units closer
 than ``MIN_SPACING`` m to an already kept unit of their kind are pruned (a street unit looks along
 the road, a junction unit over the junction: they do not replace each other; nor do the units of
-two passes of one junction that arrive from different approaches). Each tick the
+two passes of one junction that arrive from different approaches, nor street units looking
+opposite ways along the road, where a route comes back along a street). Each tick the
 active unit is chosen from the ego's pose only: among the forward-facing units in range, the one
 watching the road ``LOOKAHEAD_M`` m ahead of the ego (the point within its camera's view) most
 directly (smallest angle off its axis plus distance to the point / ``SELECT_M_PER_RAD``: at a
@@ -174,17 +175,29 @@ def _deploy(town: Town, route: Route) -> RSUSet:
     kept: list[int] = []
     for i in order:  # units of a kind keep their distance (a street unit looks along the road,
         # a junction unit over the junction: both are kept where they stand close together), but
-        # two passes of one junction from different approaches keep their own units
+        # two passes of one junction from different approaches keep their own units, and a
+        # street unit looking back along the road does not replace one looking the other way
+        # (a route that comes back along the street it drove)
         if all(
             np.hypot(cands[i][0] - cands[j][0], cands[i][1] - cands[j][1]) >= MIN_SPACING
             for j in kept if cands[j][3] == cands[i][3] and (j in turn_units) == (i in turn_units)
             and not _other_approach(approach.get(i), approach.get(j))
+            and not (cands[i][3] == KIND_STRAIGHT and _opposite(cands[i][2], cands[j][2]))
         ):
             kept.append(i)
     kept.sort(key=lambda i: cands[i][4])
     c = np.array([cands[i] for i in kept], float).reshape(-1, 5)
     pose = np.stack([c[:, 0], c[:, 1], np.full(len(c), RSU_HEIGHT), c[:, 2]], -1)
     return RSUSet(pose, c[:, 3].astype(np.int64), c[:, 4])
+
+
+#: rad: street units whose yaws differ by more than this look opposite ways along the road
+OPPOSITE_MIN = float(np.deg2rad(135.0))
+
+
+def _opposite(yaw_a: float, yaw_b: float) -> bool:
+    """Whether two units look opposite ways (yaws more than ``OPPOSITE_MIN`` apart)."""
+    return abs(float(wrap_angle(yaw_a - yaw_b))) > OPPOSITE_MIN
 
 
 def _other_approach(a: tuple[int, float] | None, b: tuple[int, float] | None) -> bool:

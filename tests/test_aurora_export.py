@@ -13,6 +13,7 @@ from v2xbench.agents.aurora import export as export_mod
 from v2xbench.agents.aurora.agent import AuroraAgent, NoFusionAgent
 from v2xbench.agents.aurora.config import AuroraConfig
 from v2xbench.agents.aurora.pipeline import run_pipeline
+from v2xbench.agents.aurora.policy import SPEED
 from v2xbench.agents.aurora.rsu_agent import message_floats
 from v2xbench.collectors.chat.export import build as build_qa
 from v2xbench.envs.v2x_intersection.api.observations import ego_observation
@@ -106,27 +107,30 @@ def test_agents_load_shipped_weights_by_default(run, tmp_path, monkeypatch):
     assert agent.channel == {"max_payload_floats": message_floats(CFG)}
 
 
-def test_shipped_weights_without_route_input_load_and_ignore_the_route_points():
-    """Weights exported before the planner's route input (``aurora.json`` without
-    ``plan_route_points``, like the shipped ones of 2026-11-27) load strictly as K = 0, keep
-    their fingerprint and drive as before: the route's points do not change their actions."""
-    src = export_mod.SHIPPED / "aurora"
-    info = json.loads((src / "aurora.json").read_text())
-    if "plan_route_points" in info["config"]:
-        pytest.skip("the shipped weights were exported with the route input")
+def test_shipped_weights_load_never_hear_the_speed_and_follow_the_route():
+    """The shipped weights (the sixth run of docs/aurora.md, stages 4-5 with speed dropout 1)
+    load strictly from the SHA-256-checked folder, are never told the ego speed (``speed=auto``
+    reads the run's dropout) and plan in the route frame: a bent route bends the plan, while
+    the speed written in the prompt changes nothing (it says "unknown")."""
+    info = json.loads((export_mod.SHIPPED / "aurora" / "aurora.json").read_text())
     cfg = AuroraConfig.from_dict(info["config"])
+    assert cfg.plan_speed_dropout == 1.0 and cfg.plan_route_points > 0
     agent = AuroraAgent()  # the shipped folder, SHA-256 checked, strict state-dict load
-    assert agent.cfg.plan_route_points == 0 == cfg.plan_route_points
-    assert not any(".route." in n for n, _ in agent.policy.module.system.named_parameters())
-    assert agent.fingerprint() == "stage=5 fusion=True planner=vae speed=wp0-wp1"
+    assert agent.fingerprint() == ("stage=5 fusion=True planner=vae speed=wp0-wp1 route=4x5m "
+                                   "frame=route step=relu_ste prompt_speed=unknown")
+    assert NoFusionAgent().fingerprint().startswith("stage=5 fusion=False ")
     w = World(make_config(town="Town05", obs_mode="sensors", camera_images=("rgb",),
                           camera_size=agent.sensors["camera_size"], num_vehicles=2,
                           num_pedestrians=0, num_bicycles=0,
                           max_payload_floats=message_floats(cfg)))
     w.reset(seed=3)
-    w.step(np.array([0.5, 0.0, 0.0]))
+    for _ in range(20):
+        w.step(np.array([0.6, 0.0, 0.0]))
     obs = ego_observation(w)
     bent = {**obs, "route": obs["route"].copy()}
     bent["route"][:, 1] += 0.05 * bent["route"][:, 0] ** 2  # the same command, another path
-    a, b = agent.act(obs), agent.act(bent)
-    assert np.array_equal(a["waypoints"], b["waypoints"]) and a["speed"] == b["speed"]
+    faster = {**obs, "ego": obs["ego"].copy()}
+    faster["ego"][SPEED] += 5.0  # what a prompt that said the speed would read
+    a, b, c = agent.act(obs), agent.act(bent), agent.act(faster)
+    assert not np.allclose(a["waypoints"], b["waypoints"], atol=1e-3)
+    np.testing.assert_allclose(a["waypoints"], c["waypoints"], atol=1e-5)

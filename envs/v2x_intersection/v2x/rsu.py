@@ -55,6 +55,8 @@ JUNCTION_SETBACK_M = 10.0
 JUNCTION_TURN = float(np.pi / 8)
 #: rad: a route whose heading turns left by more than this through a junction turns left there
 LEFT_TURN_MIN = float(np.pi / 4)
+#: rad: street units whose yaws differ by more than this look opposite ways along the road
+OPPOSITE_MIN = float(np.deg2rad(135.0))
 SNAP_M = 8.0  # m: poles move to the nearest sidewalk point within this distance
 KIND_STRAIGHT, KIND_JUNCTION = 0, 1
 FACING_MAX_ANGLE = float(np.deg2rad(100.0))  # rad: a unit faces the ego within this angle
@@ -189,10 +191,6 @@ def _deploy(town: Town, route: Route) -> RSUSet:
     c = np.array([cands[i] for i in kept], float).reshape(-1, 5)
     pose = np.stack([c[:, 0], c[:, 1], np.full(len(c), RSU_HEIGHT), c[:, 2]], -1)
     return RSUSet(pose, c[:, 3].astype(np.int64), c[:, 4])
-
-
-#: rad: street units whose yaws differ by more than this look opposite ways along the road
-OPPOSITE_MIN = float(np.deg2rad(135.0))
 
 
 def _opposite(yaw_a: float, yaw_b: float) -> bool:

@@ -41,6 +41,16 @@ def deployments():
     return out
 
 
+def _test50_route(route_id: str):
+    """``(town, route)`` of a test50 route, by id."""
+    from v2xbench.envs.v2x_intersection.suites.route_files import load_suite_cached
+    from v2xbench.envs.v2x_intersection.town.routes import route_from_lanes
+
+    spec = next(s for s in load_suite_cached("test50") if s.id == route_id)
+    town = get_town(spec.town)
+    return town, route_from_lanes(town, list(spec.lanes))
+
+
 def _entry_headings(town, route, jid: int) -> list[float]:
     """Heading of the route just before each of its entries into junction ``jid``."""
     inside = town.index.junction[route.lane_ids] == jid
@@ -151,18 +161,14 @@ def test_every_pass_through_a_junction_gets_its_far_right_unit():
     """A route that comes back to a junction from another approach gets the far-right unit of
     that approach too (test50_038 crosses junction 6 twice; placing units per junction id mixed
     the first pass's entry with the second pass's exit and left the second approach unwatched)."""
-    from v2xbench.envs.v2x_intersection.suites.route_files import _route_of, load_suite_cached
-
-    spec = next(s for s in load_suite_cached("test50") if s.id == "test50_038")
-    town = get_town(spec.town)
-    route = _route_of(spec.town, tuple(spec.lanes))
+    town, route = _test50_route("test50_038")
     rsus = deploy(town, route)
     passes = rsu_module.junction_passes(town, route)
-    jids = [int(town.index.junction[route.lane_ids[p[0]]]) for p in passes]
+    jids = [jid for jid, _ in passes]
     twice = [j for j in set(jids) if jids.count(j) > 1]
     assert twice, "test50_038 should cross a junction twice"
     units = np.flatnonzero(rsus.kind == KIND_JUNCTION)
-    for p, jid in zip(passes, jids):
+    for jid, p in passes:
         j = town.junctions[jid]
         h_in = float(route.headings[max(int(p[0]) - 1, 0)])
         corners = [world_to_local_2d(rsus.pose[u, :2], j.center, h_in) for u in units
@@ -172,9 +178,9 @@ def test_every_pass_through_a_junction_gets_its_far_right_unit():
         assert far_right, f"junction {jid}, pass at s={route.s[p[0]]:.0f}: units at {corners}"
     # and the passes are unbroken runs inside one junction, in route order
     jl = town.index.junction[route.lane_ids]
-    assert sum(len(p) for p in passes) == int(np.sum(jl >= 0))
-    for p in passes:
-        assert np.all(np.diff(p) == 1) and len(set(jl[p])) == 1
+    assert sum(len(p) for _, p in passes) == int(np.sum(jl >= 0))
+    for jid, p in passes:
+        assert np.all(np.diff(p) == 1) and set(jl[p]) == {jid}
 
 
 @pytest.mark.parametrize("route_id", ["test50_006", "test50_038"])
@@ -182,11 +188,7 @@ def test_a_route_back_along_a_street_keeps_units_looking_both_ways(route_id):
     """Where a route comes back along a street it drove (test50_006, test50_038), every street
     spot has a street unit near it looking back at the ego as it drives there, not only the unit
     of the first pass, which looks the other way."""
-    from v2xbench.envs.v2x_intersection.suites.route_files import _route_of, load_suite_cached
-
-    spec = next(s for s in load_suite_cached("test50") if s.id == route_id)
-    town = get_town(spec.town)
-    route = _route_of(spec.town, tuple(spec.lanes))
+    town, route = _test50_route(route_id)
     rsus = deploy(town, route)
     in_junction = town.index.junction[route.lane_ids] >= 0
     street = np.flatnonzero(rsus.kind == KIND_STRAIGHT)

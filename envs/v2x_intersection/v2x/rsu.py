@@ -116,16 +116,16 @@ def deploy(town: Town, route: Route) -> RSUSet:
     return units
 
 
-def junction_passes(town: Town, route: Route) -> list[np.ndarray]:
-    """The route's passes through junctions: each an unbroken run of route-point indices inside one
-    junction, in route order (a route that comes back to a junction crosses it twice: two passes,
-    each arriving from its own approach)."""
+def junction_passes(town: Town, route: Route) -> list[tuple[int, np.ndarray]]:
+    """The route's passes through junctions, in route order: ``(junction id, indices)`` with the
+    indices an unbroken run of route points inside that junction (a route that comes back to a
+    junction crosses it twice: two passes, each arriving from its own approach)."""
     jl = town.index.junction[route.lane_ids]
     idx = np.flatnonzero(jl >= 0)
     if not len(idx):
         return []
     breaks = np.flatnonzero((np.diff(idx) > 1) | (np.diff(jl[idx]) != 0)) + 1
-    return np.split(idx, breaks)
+    return [(int(jl[run[0]]), run) for run in np.split(idx, breaks)]
 
 
 def _deploy(town: Town, route: Route) -> RSUSet:
@@ -135,8 +135,7 @@ def _deploy(town: Town, route: Route) -> RSUSet:
     turn_units: set[int] = set()  # the left-turn units (kept apart from the others)
     approach: dict[int, tuple[int, float]] = {}  # junction unit -> (junction id, arrival heading)
     # every pass through a junction (not every junction: a second pass arrives from another side)
-    for inside in junction_passes(town, route):
-        jid = int(town.index.junction[route.lane_ids[inside[0]]])
+    for jid, inside in junction_passes(town, route):
         j = town.junctions[jid]
         k = int(inside[np.argmin(np.linalg.norm(pts[inside] - j.center, axis=1))])
         h_in = hd[max(int(inside[0]) - 1, 0)]

@@ -110,5 +110,38 @@ def drive_one_route(method: str, run: Path, tmp_path: Path, f: int, roadside: st
     return summ
 
 
-__all__ = ["assert_channel_counts", "assert_same_weights", "drive_one_route", "overfit",
-           "refused_error", "train_and_resume", "unit_batch"]
+def open_loop_matches_the_model(method: str, run: Path, data: Path, tmp_path: Path,
+                                capsys) -> dict:
+    """``v2xbench baselines eval-planning METHOD`` on every 5th frame of ``data``: its L2 at
+    1 / 2 / 3 s is the trained model's own waypoints against the expert's, recomputed here.
+    Returns the metrics."""
+    import importlib
+
+    from v2xbench.agents.aurora.data import collate
+    from v2xbench.agents.aurora.eval_planning import HORIZONS
+    from v2xbench.agents.baselines import BASELINES
+    from v2xbench.envs.v2x_intersection.evaluation.metrics_perception import l2_at
+
+    out = tmp_path / "open_loop"
+    assert main(["baselines", "eval-planning", method, "--run", str(run), "--data", str(data),
+                 "--split", "all", "--stride", "5", "--out", str(out), "--quiet"]) == 0
+    assert "L2 model" in capsys.readouterr().out
+    res = json.loads((out / "metrics.json").read_text())
+    mod = importlib.import_module(BASELINES[method] + ".train")
+    model, cfg, _ = mod.load_run(run)
+    ds = mod.RUN.frames(data, "all", cfg, 5, False)
+    batch = collate([ds[i] for i in range(len(ds))])
+    with torch.no_grad():
+        wps = model(batch)["waypoints"].double().numpy()
+    exp = batch["expert_waypoints"][:, :cfg.plan_waypoints].double().numpy()
+    ok = np.isfinite(exp).all((1, 2))
+    want = l2_at(wps[ok], exp[ok], HORIZONS, cfg.plan_dt)
+    assert res["frames"] == int(ok.sum()) > 0 and res["command"].startswith("v2xbench baselines")
+    for k, v in want.items():
+        assert abs(res["overall"]["model"][k] - v) < 1e-6, (k, res["overall"]["model"][k], v)
+    return res
+
+
+__all__ = ["assert_channel_counts", "assert_same_weights", "drive_one_route",
+           "open_loop_matches_the_model", "overfit", "refused_error", "train_and_resume",
+           "unit_batch"]

@@ -207,7 +207,8 @@ def test_bad_input_raises_clear_errors(tiny_dataset, lidar_dataset):
         CoDrivingAgent()
 
 
-def test_cli_trains_and_the_agent_drives_through_eval(lidar_dataset, tmp_path, capsys):
+def test_cli_trains_plans_open_loop_and_the_agent_drives_through_eval(lidar_dataset, tmp_path,
+                                                                       capsys):
     from v2xbench.agents.aurora.trainer import save_checkpoint
     from v2xbench.agents.baselines.codriving.train import load_run
 
@@ -218,6 +219,7 @@ def test_cli_trains_and_the_agent_drives_through_eval(lidar_dataset, tmp_path, c
     assert "seed differ" in bc.refused_error(base, capsys)
     model, cfg, info = load_run(run)
     bc.assert_same_weights(model, CoDriving(cfg), tmp_path / "again.safetensors")
+    bc.open_loop_matches_the_model("codriving", run, data, tmp_path, capsys)
     assert main(["baselines", "eval-perception", "codriving", "--run", str(run), "--data",
                  str(data), "--split", "val", "--stride", "10", "--quiet"]) == 0
     res = json.loads((run / "eval_val" / "perception.json").read_text())

@@ -155,7 +155,8 @@ def test_tiny_model_overfits_two_samples(tiny_dataset):
     assert losses[-1] < 0.5 * losses[0], losses[::10]
 
 
-def test_cli_trains_resumes_round_trips_and_drives_a_route(tiny_dataset, tmp_path, capsys):
+def test_cli_trains_resumes_round_trips_plans_open_loop_and_drives_a_route(tiny_dataset, tmp_path,
+                                                                            capsys):
     from v2xbench.agents.baselines.univ2x.train import load_run
 
     data, run = tmp_path / "data", tmp_path / "run"
@@ -166,4 +167,5 @@ def test_cli_trains_resumes_round_trips_and_drives_a_route(tiny_dataset, tmp_pat
     model, cfg, info = load_run(run)  # checkpoint round trip: same weights, same outputs
     bc.assert_same_weights(model, UniV2X(cfg), tmp_path / "again.safetensors")
     assert info["camera_size"] == [32, 16]
+    bc.open_loop_matches_the_model("univ2x", run, data, tmp_path, capsys)
     bc.drive_one_route("univ2x", run, tmp_path, cfg.message_floats(), "UniV2XRoadside")

@@ -86,8 +86,9 @@ def test_quick_pipeline_runs_end_to_end_and_writes_the_tables(exp, tmp_path):
     assert not [k for k, r in st.items() if r["status"] in ("failed", "blocked")], st
     done = {k for k, r in st.items() if r["status"] == "done"}
     assert {"data_test", "train_aurora", "train_no_fusion", "train_univ2x", "perc_aurora",
-            "ol_aurora", "vqa_aurora", "cl_aurora", "cl_univ2x", "cl_oracle_v2x_lat500"} <= done
-    for k in ("train_codriving", "perc_codriving", "cl_codriving"):  # unregistered baseline
+            "ol_aurora", "ol_univ2x", "vqa_aurora", "cl_aurora", "cl_univ2x",
+            "cl_oracle_v2x_lat500"} <= done
+    for k in ("train_codriving", "perc_codriving", "ol_codriving", "cl_codriving"):
         assert st[k]["status"] == "not available" and UNREGISTERED in st[k]["reason"]
     assert any(x.startswith("[experiments 1/") and "done in" in x for x in exp["lines"])
     r = build_report(exp["dir"], tmp_path / "report")
@@ -117,6 +118,12 @@ def test_quick_pipeline_runs_end_to_end_and_writes_the_tables(exp, tmp_path):
     assert no_qa["qa"] is False and no_qa["samples"]["qa"] == 0
     vqa_md = (out / "vqa_ablation.md").read_text()
     assert "| AURORA without the Chat-V2XBench loss | " in vqa_md and "not available" not in vqa_md
+    # open-loop L2 in the planning table for AURORA and a baseline (its own evaluator)
+    plan = {r["method"]: r for r in data["planning"]}
+    for m in ("aurora", "univ2x"):
+        assert isinstance(plan[m]["l2_avg"], float) and plan[m]["l2_avg"] > 0, plan[m]
+    ol = json.loads((exp["dir"] / "ol_univ2x" / "eval" / "metrics.json").read_text())
+    assert ol["title"] == "UniV2X" and ol["frames"] > 0
     # perception: AURORA's fused heads vs gt/fused, No Fusion's ego branch vs gt/ego
     perc = {r["method"]: r for r in data["perception"]}
     assert perc["aurora"]["evaluator"].startswith("fused heads (CQAF")

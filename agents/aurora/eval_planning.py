@@ -341,11 +341,14 @@ def _row(name: str, g: dict) -> str:
 
 
 def markdown(result: Mapping) -> str:
-    """The Markdown report of :func:`evaluate_planning`'s metrics."""
+    """The Markdown report of :func:`evaluate_planning`'s metrics (and of a baseline's:
+    ``result["title"]`` names the method, AURORA when absent; no stage when it is ``None``)."""
     src = result["source"]
     what = f"run `{src['run']}`" if src["run"] else f"weights `{src['weights']}`"
-    lines = [f"# AURORA open-loop planning: {result['data']} ({result['split']})", "",
-             f"{what}, stage {src['stage']}, fusion {src['fusion']}, {src['scale']} scale, "
+    stage = "" if src["stage"] is None else f"stage {src['stage']}, "
+    lines = [f"# {result.get('title', 'AURORA')} open-loop planning: {result['data']} "
+             f"({result['split']})", "",
+             f"{what}, {stage}fusion {src['fusion']}, {src['scale']} scale, "
              f"{src['planner']} planner; every {result['stride']}th frame of each episode: "
              f"{result['frames']} frames ({result['frames_with_roadside_unit']} with a roadside "
              f"unit); {result['ms_per_frame']} ms a frame.", ""]

@@ -12,6 +12,7 @@ kind               function (command)                                           
                    ``evaluate_perception`` of a baseline (``aurora eval-perception
                    [--fused]`` / ``baselines eval-perception``)
 ``open_loop``      ``aurora.eval_planning.evaluate_planning`` (``aurora eval-planning``)   eval/
+                   or ``evaluate_planning`` of a baseline (``baselines eval-planning``)
 ``closed_loop``    ``collectors.evaluate.evaluate`` (``v2xbench eval``)                   eval/
 ``vqa``            ``aurora.answer.answer_split`` + ``chat.scoring.score`` (``qa score``)  answers
 =================  ====================================================================  ========
@@ -212,16 +213,18 @@ def _perception(job: Job, d: Path, deps: dict, cfg: Config, progress: bool) -> d
 
 
 def _open_loop(job: Job, d: Path, deps: dict, cfg: Config, progress: bool) -> dict:
-    if cfg.methods[job.method].get("baseline") is not None:
-        raise NotAvailable(f"no open-loop evaluator for baseline method {job.method!r} "
-                           "(v2xbench aurora eval-planning runs AURORA runs only)")
-    from v2xbench.agents.aurora.eval_planning import evaluate_planning
-
     out = d / "eval"
-    r = evaluate_planning(_data(deps, job), run=_run(deps, job), stage=job.get("stage"),
-                          split=job.get("split", "test"), stride=job.get("stride", 50),
-                          out=out, batch_size=job.get("batch_size", 8),
-                          device=cfg.defaults["device"], progress=progress)
+    kw = {"split": job.get("split", "test"), "stride": job.get("stride", 50), "out": out,
+          "device": cfg.defaults["device"], "progress": progress}
+    base = cfg.methods[job.method].get("baseline")
+    if base is not None:
+        r = baseline_module(base).evaluate_planning(_run(deps, job), _data(deps, job),
+                                                    batch_size=job.get("batch_size", 4), **kw)
+    else:
+        from v2xbench.agents.aurora.eval_planning import evaluate_planning
+
+        r = evaluate_planning(_data(deps, job), run=_run(deps, job), stage=job.get("stage"),
+                              batch_size=job.get("batch_size", 8), **kw)
     m = r["overall"]["model"]
     return {"outputs": {"eval": str(out.resolve())},
             "metrics": {**m, "frames": r["overall"]["frames"],

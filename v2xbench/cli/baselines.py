@@ -10,7 +10,8 @@ from v2xbench.cli.data import _int_in
 
 #: Methods with a command here (name -> what it is). Each one's module (``BASELINES[name]`` in
 #: :mod:`v2xbench.agents.baselines`) has a ``train`` submodule with ``train(data, out, **kw)``,
-#: ``format_summary(summary)`` and ``evaluate_perception(run, data, split, **kw)``.
+#: ``format_summary(summary)``, ``evaluate_perception(run, data, split, **kw)`` and
+#: ``evaluate_planning(run, data, split, **kw)``.
 METHODS = {"codriving": "CoDriving (Liu et al., IEEE TPAMI 2025): LiDAR pillars, driving-oriented "
            "sparse BEV cells (route request x roadside confidence), max fusion, native PID",
            "univ2x": "UniV2X (Yu et al., AAAI 2025): camera, sparse agent queries + dense "
@@ -58,8 +59,26 @@ def _eval_perception(args: argparse.Namespace) -> int:
     return 0
 
 
+def _eval_planning(args: argparse.Namespace) -> int:
+    import shlex
+
+    m = _train_module(args.method)
+    _threads(args.threads)
+    opt = [] if args.out is None else ["--out", str(args.out)]
+    cmd = shlex.join(["v2xbench", "baselines", "eval-planning", args.method, "--run",
+                      str(args.run), *opt, "--data", str(args.data), "--split", args.split,
+                      "--stride", str(args.stride)])
+    r = m.evaluate_planning(args.run, args.data, args.split, out=args.out, stride=args.stride,
+                            batch_size=args.batch_size, device=args.device,
+                            progress=not args.quiet, command=cmd)
+    print(r["table"], end="")
+    print(f"written: {r['out']}/metrics.json, metrics.md")
+    return 0
+
+
 def register(sub) -> None:
-    """Add ``baselines train`` and ``baselines eval-perception`` to the ``v2xbench`` parser."""
+    """Add ``baselines train``, ``eval-perception`` and ``eval-planning`` to the ``v2xbench``
+    parser."""
     p = sub.add_parser("baselines", help="the paper's cooperative baselines: train, evaluate "
                        "perception (drive them with `v2xbench eval --agent NAME`)",
                        description=__doc__)
@@ -103,3 +122,22 @@ def register(sub) -> None:
     e.add_argument("--threads", type=_int_in(1), default=None, help="torch threads (default: 1)")
     e.add_argument("--quiet", action="store_true")
     e.set_defaults(func=_eval_perception)
+    e = bsub.add_parser("eval-planning", help="open-loop planning of a trained baseline on a "
+                        "split (AURORA's metrics: L2 at 1/2/3 s, collision rate)",
+                        description="Run the trained model (both halves: the roadside message "
+                        "from the frame's recorded roadside sensors) over every K-th frame of "
+                        "each episode of a split and score its waypoints against the expert's "
+                        "with the metrics of `v2xbench aurora eval-planning` (the same frames for "
+                        "the same --split and --stride); writes metrics.json and metrics.md.")
+    e.add_argument("method", choices=sorted(METHODS), help="the baseline")
+    e.add_argument("--run", required=True, help="trained run folder")
+    e.add_argument("--data", required=True, help="data set folder")
+    e.add_argument("--split", default="test", help="train | val | test | all (default: test)")
+    e.add_argument("--stride", type=_int_in(1), default=50,
+                   help="every K-th frame of each episode (default: 50)")
+    e.add_argument("--batch-size", type=_int_in(1), default=4)
+    e.add_argument("--out", default=None, help="output folder (default: RUN/eval_planning)")
+    e.add_argument("--device", default="cpu")
+    e.add_argument("--threads", type=_int_in(1), default=None, help="torch threads (default: 1)")
+    e.add_argument("--quiet", action="store_true")
+    e.set_defaults(func=_eval_planning)

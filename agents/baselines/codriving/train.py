@@ -70,7 +70,7 @@ class CoDrivingRun(BaselineRun):
 
 
 RUN = CoDrivingRun()
-train, format_summary, load_run, evaluate_perception = RUN.commands()
+train, format_summary, load_run, evaluate_perception, evaluate_planning = RUN.commands()
 
 __all__ = ["CHECKPOINT", "FORMAT", "RUN", "RUN_FILE", "CoDrivingRun", "evaluate_perception",
-           "format_summary", "load_run", "train"]
+           "evaluate_planning", "format_summary", "load_run", "train"]

@@ -6,10 +6,11 @@ Run folder (``--out RUN``)::
     RUN/checkpoint.safetensors, optimizer.pt, state.json, log.jsonl, loss.png  (AURORA's fit)
     RUN/train_summary.json     the last call's summary
     RUN/eval_<split>/perception.json, perception.md   (:meth:`BaselineRun.evaluate_perception`)
+    RUN/eval_planning/metrics.json, metrics.md        (:meth:`BaselineRun.evaluate_planning`)
 
 Each method's ``train`` module subclasses :class:`BaselineRun` (its names, data set, model,
-criterion) and exposes the bound methods as ``train``, ``format_summary``, ``load_run`` and
-``evaluate_perception`` (what :mod:`v2xbench.cli.baselines` calls).
+criterion) and exposes the bound methods as ``train``, ``format_summary``, ``load_run``,
+``evaluate_perception`` and ``evaluate_planning`` (what :mod:`v2xbench.cli.baselines` calls).
 """
 
 from __future__ import annotations
@@ -96,9 +97,11 @@ class BaselineRun:
         return self.part(self.criterion_cls)(cfg)
 
     def commands(self) -> tuple:
-        """``(train, format_summary, load_run, evaluate_perception)``: the names a baseline's
-        ``train`` module exposes (what :mod:`v2xbench.cli.baselines` and the agent call)."""
-        return self.train, self.format_summary, self.load_run, self.evaluate_perception
+        """``(train, format_summary, load_run, evaluate_perception, evaluate_planning)``: the
+        names a baseline's ``train`` module exposes (what :mod:`v2xbench.cli.baselines`, the
+        experiments and the agent call)."""
+        return (self.train, self.format_summary, self.load_run, self.evaluate_perception,
+                self.evaluate_planning)
 
     # ------------------------------------------------------------------ the commands
     def train(self, data: str | Path, out: str | Path, *, scale: str = "default",
@@ -230,6 +233,19 @@ class BaselineRun:
                           "while a unit serves).\n\n" + table)
         res["out"], res["markdown"] = str(out), table
         return res
+
+    def evaluate_planning(self, run: str | Path, data: str | Path, split: str = "test", *,
+                          stride: int = 50, out: str | Path | None = None, batch_size: int = 4,
+                          device: str = "cpu", progress: bool = True,
+                          command: str | None = None) -> dict:
+        """The run's planner open loop on a split, with AURORA's metrics
+        (:func:`~.eval_planning.evaluate_planning`: L2 at 1 / 2 / 3 s, collision rate; writes
+        ``metrics.json`` and ``metrics.md`` in ``out``, default ``RUN/eval_planning``)."""
+        from .eval_planning import evaluate_planning
+
+        return evaluate_planning(self, run, data, split, stride=stride, out=out,
+                                 batch_size=batch_size, device=device, progress=progress,
+                                 command=command)
 
 
 __all__ = ["CHECKPOINT", "SAME_RUN_KEYS", "BaselineRun", "check_same_run"]

@@ -33,8 +33,8 @@ class UniMMV2XRun(UniV2XRun):
 
 
 RUN = UniMMV2XRun()
-train, format_summary, load_run, evaluate_perception = RUN.commands()
+train, format_summary, load_run, evaluate_perception, evaluate_planning = RUN.commands()
 train_unimm_v2x = train
 
 __all__ = ["CHECKPOINT", "METHOD", "RUN", "RUN_FILE", "UniMMV2XRun", "evaluate_perception",
-           "format_summary", "load_run", "train", "train_unimm_v2x"]
+           "evaluate_planning", "format_summary", "load_run", "train", "train_unimm_v2x"]

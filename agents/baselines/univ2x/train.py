@@ -33,8 +33,8 @@ class UniV2XRun(BaselineRun):
 
 
 RUN = UniV2XRun()
-train, format_summary, load_run, evaluate_perception = RUN.commands()
+train, format_summary, load_run, evaluate_perception, evaluate_planning = RUN.commands()
 train_univ2x = train
 
 __all__ = ["CHECKPOINT", "FORMAT", "RUN", "RUN_FILE", "UniV2XRun", "evaluate_perception",
-           "format_summary", "load_run", "train", "train_univ2x"]
+           "evaluate_planning", "format_summary", "load_run", "train", "train_univ2x"]

@@ -43,8 +43,8 @@ class V2XViTRun(BaselineRun):
 
 
 RUN = V2XViTRun()
-train, format_summary, load_run, evaluate_perception = RUN.commands()
+train, format_summary, load_run, evaluate_perception, evaluate_planning = RUN.commands()
 train_v2x_vit = train
 
 __all__ = ["CHECKPOINT", "FORMAT", "RUN", "RUN_FILE", "V2XViTRun", "evaluate_perception",
-           "format_summary", "load_run", "train", "train_v2x_vit"]
+           "evaluate_planning", "format_summary", "load_run", "train", "train_v2x_vit"]

@@ -264,48 +264,68 @@ def evaluate_planning(data: str | Path, *, run: str | Path | None = None,
     loader = make_pair_loader(ds, batch_size, shuffle=False)
     out = output_dir(out, run, weights, OUT_DIR)
     t_steps, dt = cfg.plan_waypoints, cfg.plan_dt
-    parts: dict[str, list] = {k: [] for k in ("frame_id", "command", "speed", "expert", "model",
-                                              "has_rsu", "futures")}
+    parts = new_parts()
     t0 = time.perf_counter()
     with dir_lock(out, "aurora eval-planning"):
         for batch in tqdm(loader, desc="eval-planning", unit="batch", disable=not progress):
-            parts["model"].append(predict(system, batch))
-            parts["expert"].append(batch["expert_waypoints"][:, :t_steps].double().numpy())
-            parts["speed"].append(batch["ego_speed"].double().numpy())
-            parts["command"].append(batch["command"].numpy())
-            parts["frame_id"].append(batch["frame_id"].numpy())
-            parts["has_rsu"].append(batch["has_rsu"].numpy())
-            parts["futures"].append(actor_futures(batch["det_boxes"].numpy(),
-                                                  batch["det_labels"].numpy(),
-                                                  batch["det_mask"].numpy(), t_steps, dt))
-        wall = time.perf_counter() - t0
-        rec = {k: np.concatenate(v) for k, v in parts.items()}
-        bad = ~np.isfinite(rec["expert"]).all((1, 2))
-        if bad.any():  # no expert future recorded: nothing to compare with
-            rec = {k: v[~bad] for k, v in rec.items()}
-        rec["constant_velocity"] = constant_velocity_plan(rec["speed"], t_steps, dt)
-        for plan in PLANS:
-            rec[f"col_{plan}"] = collisions(rec[plan], rec["futures"])
-        result = {
-            "format": "v2xbench-aurora-eval-planning/1",
-            "source": {"run": None if run is None else str(run),
-                       "weights": None if weights is None else str(weights),
-                       "stage": info.get("stage"), "checkpoint": info.get("checkpoint"),
-                       "fusion": bool(system.fusion), "scale": cfg.scale,
-                       "planner": cfg.planner},
-            "data": str(data), "split": split, "stride": stride, "command": command,
-            "frames": int(len(rec["speed"])), "frames_without_expert_future": int(bad.sum()),
-            "frames_with_roadside_unit": int(rec["has_rsu"].sum()),
-            "horizons_s": list(HORIZONS), "dt_s": dt,
-            "collision_actors": [CLASS_NAMES[c] for c in ACTOR_CLASSES],
-            "actor_futures": "constant velocity from each gt/fused box's recorded velocity",
-            "heading_min_step_m": HEADING_MIN_STEP,
-            "wall_s": round(wall, 1), "ms_per_frame": round(1e3 * wall / max(len(ds), 1), 1),
-            **summarize(rec, dt)}
-        result = _finite(result)
-        table = markdown(result)
-        atomic_write_json(out / "metrics.json", result, indent=1)
-        atomic_write_text(out / "metrics.md", table)
+            add_batch(parts, batch, predict(system, batch), t_steps, dt)
+        head = {"format": "v2xbench-aurora-eval-planning/1",
+                "source": {"run": None if run is None else str(run),
+                           "weights": None if weights is None else str(weights),
+                           "stage": info.get("stage"), "checkpoint": info.get("checkpoint"),
+                           "fusion": bool(system.fusion), "scale": cfg.scale,
+                           "planner": cfg.planner},
+                "data": str(data), "split": split, "stride": stride, "command": command}
+        return write_result(out, parts, head, t_steps, dt, time.perf_counter() - t0, len(ds))
+
+
+def new_parts() -> dict[str, list]:
+    """Empty per-batch records for :func:`add_batch`."""
+    return {k: [] for k in ("frame_id", "command", "speed", "expert", "model", "has_rsu",
+                            "futures")}
+
+
+def add_batch(parts: dict[str, list], batch: Mapping[str, torch.Tensor], plans: np.ndarray,
+              t_steps: int, dt: float) -> None:
+    """Append one batch's planned waypoints ``plans`` ``(B, T, 2)`` and what the metrics need
+    of the batch (expert waypoints, speed, command, frame ids, ``has_rsu``, the actors'
+    constant-velocity futures) to ``parts`` (:func:`new_parts`)."""
+    parts["model"].append(np.asarray(plans, np.float64)[:, :t_steps])
+    parts["expert"].append(batch["expert_waypoints"][:, :t_steps].double().numpy())
+    parts["speed"].append(batch["ego_speed"].double().numpy())
+    parts["command"].append(batch["command"].numpy())
+    parts["frame_id"].append(batch["frame_id"].numpy())
+    parts["has_rsu"].append(batch["has_rsu"].numpy())
+    parts["futures"].append(actor_futures(batch["det_boxes"].numpy(), batch["det_labels"].numpy(),
+                                          batch["det_mask"].numpy(), t_steps, dt))
+
+
+def write_result(out: Path, parts: dict[str, list], head: dict, t_steps: int, dt: float,
+                 wall: float, samples: int) -> dict:
+    """Score the records of :func:`add_batch` (frames without an expert future dropped;
+    the constant-velocity line and every plan's collisions added), write ``metrics.json`` and
+    ``metrics.md`` into ``out`` (atomically) and return the metrics with ``out`` and ``table``.
+    ``head``: the evaluator's ``format``, ``source``, ``data``, ``split``, ``stride``,
+    ``command`` (and a baseline's ``title``)."""
+    rec = {k: np.concatenate(v) for k, v in parts.items()}
+    bad = ~np.isfinite(rec["expert"]).all((1, 2))
+    if bad.any():  # no expert future recorded: nothing to compare with
+        rec = {k: v[~bad] for k, v in rec.items()}
+    rec["constant_velocity"] = constant_velocity_plan(rec["speed"], t_steps, dt)
+    for plan in PLANS:
+        rec[f"col_{plan}"] = collisions(rec[plan], rec["futures"])
+    result = _finite({
+        **head, "frames": int(len(rec["speed"])), "frames_without_expert_future": int(bad.sum()),
+        "frames_with_roadside_unit": int(rec["has_rsu"].sum()),
+        "horizons_s": list(HORIZONS), "dt_s": dt,
+        "collision_actors": [CLASS_NAMES[c] for c in ACTOR_CLASSES],
+        "actor_futures": "constant velocity from each gt/fused box's recorded velocity",
+        "heading_min_step_m": HEADING_MIN_STEP,
+        "wall_s": round(wall, 1), "ms_per_frame": round(1e3 * wall / max(samples, 1), 1),
+        **summarize(rec, dt)})
+    table = markdown(result)
+    atomic_write_json(out / "metrics.json", result, indent=1)
+    atomic_write_text(out / "metrics.md", table)
     return dict(result, out=str(out), table=table)
 
 
@@ -378,6 +398,7 @@ def markdown(result: Mapping) -> str:
 
 __all__ = ["ACTOR_CLASSES", "HEADING_MIN_STEP", "HORIZONS", "OUT_DIR", "START_DIST",
            "output_dir",
-           "START_SPEED", "STAY_DIST", "actor_futures", "collisions", "constant_velocity_plan",
-           "evaluate_planning", "group_metrics", "load_model", "markdown", "plan_headings",
-           "predict", "start_from_rest", "summarize"]
+           "START_SPEED", "STAY_DIST", "actor_futures", "add_batch", "collisions",
+           "constant_velocity_plan", "evaluate_planning", "group_metrics", "load_model",
+           "markdown", "new_parts", "plan_headings", "predict", "start_from_rest", "summarize",
+           "write_result"]

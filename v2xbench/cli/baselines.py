@@ -110,17 +110,8 @@ def register(sub) -> None:
                         "every K-th frame of a split and score its fused detections against "
                         "gt/fused (ego range) with the nuScenes-style metrics AURORA uses; writes "
                         "perception.json and perception.md.")
-    e.add_argument("method", choices=sorted(METHODS), help="the baseline")
-    e.add_argument("--run", required=True, help="trained run folder")
-    e.add_argument("--data", required=True, help="data set folder")
-    e.add_argument("--split", default="test", help="train | val | test | all (default: test)")
-    e.add_argument("--stride", type=_int_in(1), default=5, help="every K-th frame (default: 5)")
+    _eval_arguments(e, stride=5, out="RUN/eval_<split>")
     e.add_argument("--top-k", type=_int_in(1), default=50, help="predictions per frame")
-    e.add_argument("--batch-size", type=_int_in(1), default=4)
-    e.add_argument("--out", default=None, help="output folder (default: RUN/eval_<split>)")
-    e.add_argument("--device", default="cpu")
-    e.add_argument("--threads", type=_int_in(1), default=None, help="torch threads (default: 1)")
-    e.add_argument("--quiet", action="store_true")
     e.set_defaults(func=_eval_perception)
     e = bsub.add_parser("eval-planning", help="open-loop planning of a trained baseline on a "
                         "split (AURORA's metrics: L2 at 1/2/3 s, collision rate)",
@@ -129,15 +120,20 @@ def register(sub) -> None:
                         "each episode of a split and score its waypoints against the expert's "
                         "with the metrics of `v2xbench aurora eval-planning` (the same frames for "
                         "the same --split and --stride); writes metrics.json and metrics.md.")
+    _eval_arguments(e, stride=50, out="RUN/eval_planning")
+    e.set_defaults(func=_eval_planning)
+
+
+def _eval_arguments(e: argparse.ArgumentParser, stride: int, out: str) -> None:
+    """The arguments the two evaluation commands share (``stride`` and ``out``: defaults)."""
     e.add_argument("method", choices=sorted(METHODS), help="the baseline")
     e.add_argument("--run", required=True, help="trained run folder")
     e.add_argument("--data", required=True, help="data set folder")
     e.add_argument("--split", default="test", help="train | val | test | all (default: test)")
-    e.add_argument("--stride", type=_int_in(1), default=50,
-                   help="every K-th frame of each episode (default: 50)")
+    e.add_argument("--stride", type=_int_in(1), default=stride,
+                   help=f"every K-th frame of each episode (default: {stride})")
     e.add_argument("--batch-size", type=_int_in(1), default=4)
-    e.add_argument("--out", default=None, help="output folder (default: RUN/eval_planning)")
+    e.add_argument("--out", default=None, help=f"output folder (default: {out})")
     e.add_argument("--device", default="cpu")
     e.add_argument("--threads", type=_int_in(1), default=None, help="torch threads (default: 1)")
     e.add_argument("--quiet", action="store_true")
-    e.set_defaults(func=_eval_planning)

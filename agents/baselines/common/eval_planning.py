@@ -20,24 +20,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
-from v2xbench.agents.aurora.eval_planning import (
-    ACTOR_CLASSES,
-    HEADING_MIN_STEP,
-    HORIZONS,
-    OUT_DIR,
-    PLANS,
-    _finite,
-    actor_futures,
-    collisions,
-    constant_velocity_plan,
-    markdown,
-    summarize,
-)
-from v2xbench.envs.v2x_intersection.core.classes import CLASS_NAMES
+from v2xbench.agents.aurora.eval_planning import OUT_DIR, add_batch, new_parts, write_result
 
-from v2xbench.files import atomic_write_json, atomic_write_text
 from v2xbench.locks import dir_lock
 
 FORMAT = "v2xbench-baseline-eval-planning/1"
@@ -70,49 +55,19 @@ def evaluate_planning(brun: Any, run: str | Path, data: str | Path, split: str =
     ds = brun.frames(data, split, cfg, stride, False)
     t_steps, dt = int(cfg.plan_waypoints), float(cfg.plan_dt)
     out = Path(out) if out is not None else Path(run) / OUT_DIR
-    parts: dict[str, list] = {k: [] for k in ("frame_id", "command", "speed", "expert", "model",
-                                              "has_rsu", "futures")}
+    parts = new_parts()
     t0 = time.perf_counter()
     with dir_lock(out, f"{brun.method} eval-planning"), torch.no_grad():
         for batch in tqdm(make_loader(ds, batch_size, shuffle=False), desc="eval-planning",
                           unit="batch", disable=not progress):
-            res = model({k: v.to(device) for k, v in batch.items()})
-            parts["model"].append(res["waypoints"][:, :t_steps].double().cpu().numpy())
-            parts["expert"].append(batch["expert_waypoints"][:, :t_steps].double().numpy())
-            parts["speed"].append(batch["ego_speed"].double().numpy())
-            parts["command"].append(batch["command"].numpy())
-            parts["frame_id"].append(batch["frame_id"].numpy())
-            parts["has_rsu"].append(batch["has_rsu"].numpy())
-            parts["futures"].append(actor_futures(batch["det_boxes"].numpy(),
-                                                  batch["det_labels"].numpy(),
-                                                  batch["det_mask"].numpy(), t_steps, dt))
-        wall = time.perf_counter() - t0
-        rec = {k: np.concatenate(v) for k, v in parts.items()}
-        bad = ~np.isfinite(rec["expert"]).all((1, 2))
-        if bad.any():  # no expert future recorded: nothing to compare with
-            rec = {k: v[~bad] for k, v in rec.items()}
-        rec["constant_velocity"] = constant_velocity_plan(rec["speed"], t_steps, dt)
-        for plan in PLANS:
-            rec[f"col_{plan}"] = collisions(rec[plan], rec["futures"])
-        result = {
-            "format": FORMAT, "title": brun.title,
-            "source": {"run": str(run), "weights": None, "stage": None,
-                       "checkpoint": info.get("checkpoint"), "fusion": True,
-                       "scale": info.get("scale"), "planner": f"{brun.title}'s"},
-            "data": str(data), "split": split, "stride": stride, "command": command,
-            "frames": int(len(rec["speed"])), "frames_without_expert_future": int(bad.sum()),
-            "frames_with_roadside_unit": int(rec["has_rsu"].sum()),
-            "horizons_s": list(HORIZONS), "dt_s": dt,
-            "collision_actors": [CLASS_NAMES[c] for c in ACTOR_CLASSES],
-            "actor_futures": "constant velocity from each gt/fused box's recorded velocity",
-            "heading_min_step_m": HEADING_MIN_STEP,
-            "wall_s": round(wall, 1), "ms_per_frame": round(1e3 * wall / max(len(ds), 1), 1),
-            **summarize(rec, dt)}
-        result = _finite(result)
-        table = markdown(result)
-        atomic_write_json(out / "metrics.json", result, indent=1)
-        atomic_write_text(out / "metrics.md", table)
-    return dict(result, out=str(out), table=table)
+            wps = model({k: v.to(device) for k, v in batch.items()})["waypoints"]
+            add_batch(parts, batch, wps.double().cpu().numpy(), t_steps, dt)
+        head = {"format": FORMAT, "title": brun.title,
+                "source": {"run": str(run), "weights": None, "stage": None,
+                           "checkpoint": info.get("checkpoint"), "fusion": True,
+                           "scale": info.get("scale"), "planner": f"{brun.title}'s"},
+                "data": str(data), "split": split, "stride": stride, "command": command}
+        return write_result(out, parts, head, t_steps, dt, time.perf_counter() - t0, len(ds))
 
 
 __all__ = ["FORMAT", "evaluate_planning"]

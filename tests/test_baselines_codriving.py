@@ -139,11 +139,18 @@ def test_a_sent_roadside_cell_lands_at_the_ego_cell_of_its_place():
 
 def test_route_ahead_rebuilds_the_observations_route_rows():
     route = np.stack([np.arange(300.0), np.zeros(300)], -1)  # 1 m apart along world x
-    rows, k = route_ahead(route, np.array([40.2, 1.0]), 0, CFG)
-    assert k == 40 and rows.shape == (20, 2)
-    assert np.allclose(rows[:, 0], 40 + 2 * np.arange(20))
+    rows, k = route_ahead(route, np.array([0.3, 1.0]), 0, CFG, advance=False)
+    assert k == 0 and rows.shape == (20, 2)  # the env's first observation: progress 0
+    # the env's rule: the furthest point within 3 m among the 40 from the last progress
+    rows, k = route_ahead(route, np.array([20.2, 1.0]), 0, CFG)
+    assert k == 23 and np.allclose(rows[:, 0], 23 + 2 * np.arange(20))
+    # no unit served the ego for a while: progress catches up where the ego is
+    rows, k = route_ahead(route, np.array([150.0, 0.0]), k, CFG)
+    assert k == 152
+    # off the route (nothing within 3 m): progress stays, as the env's
+    assert route_ahead(route, np.array([160.0, 10.0]), k, CFG)[1] == 152
     rows, k = route_ahead(route, np.array([298.0, 0.0]), k, CFG)
-    assert k == 298 and np.allclose(rows[-1], [299.0, 0.0])  # clipped to the route's end
+    assert k == 299 and np.allclose(rows[-1], [299.0, 0.0])  # clipped to the route's end
     with pytest.raises(ValueError, match="route has shape"):
         route_ahead(np.zeros((0, 2)), np.zeros(2), 0, CFG)
 

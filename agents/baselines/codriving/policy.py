@@ -74,6 +74,7 @@ class CoDrivingRoadside:
             self.checkpoint = checkpoint
         self.route: np.ndarray | None = None
         self.progress, self.messages, self.silent, self.cells, self.infer_s = 0, 0, 0, 0, 0.0
+        self.chosen = 0  # choose() calls since reset: the first sees the env before its step
 
     def reset(self, route_info: dict) -> None:
         """A new route: the ego's route (``route_points``, world frame), the counters."""
@@ -82,6 +83,7 @@ class CoDrivingRoadside:
                              "ego's route the request is built from)")
         self.route = np.asarray(route_info["route_points"], np.float64)
         self.progress, self.messages, self.silent, self.cells, self.infer_s = 0, 0, 0, 0, 0.0
+        self.chosen = 0
 
     @torch.no_grad()
     def choose(self, rsu_obs: Mapping) -> tuple[torch.Tensor, torch.Tensor]:
@@ -94,7 +96,9 @@ class CoDrivingRoadside:
         points, mask = lidar_points(pts, n, t)
         t_world_ego, t_world_rsu = ego_pose_of(rsu_obs)
         ego_xy = t_world_ego[:2, 3]
-        rows, self.progress = route_ahead(self.route, ego_xy, self.progress, self.cfg)
+        rows, self.progress = route_ahead(self.route, ego_xy, self.progress, self.cfg,
+                                          advance=self.chosen > 0)
+        self.chosen += 1
         yaw = math.atan2(t_world_ego[1, 0], t_world_ego[0, 0])
         route = torch.from_numpy(world_to_local_2d(rows, ego_xy, yaw).astype(np.float32))
         e = rsu_to_ego(t_world_ego, t_world_rsu)

@@ -66,14 +66,27 @@ def select_cells(score: torch.Tensor, cfg: CoDrivingConfig) -> torch.Tensor:
     return chosen.view_as(score)
 
 
+#: The env's route-progress rule (``evaluation/infractions.py``, the ``route`` observation's
+#: first row): the furthest route point within :data:`PROGRESS_REACH_M` m of the ego among the
+#: :data:`PROGRESS_WINDOW` points from the last progress; no such point: progress stays.
+PROGRESS_WINDOW = 40
+PROGRESS_REACH_M = 3.0
+
+
 def route_ahead(route_world: np.ndarray, ego_xy: np.ndarray, progress: int,
-                cfg: CoDrivingConfig, window: int = 200) -> tuple[np.ndarray, int]:
+                cfg: CoDrivingConfig, advance: bool = True) -> tuple[np.ndarray, int]:
     """``(rows (R, 2) world frame, progress)``: the route ahead as the ego observes it.
 
-    ``progress`` is the index of the route point nearest the ego, searched in ``window`` points
-    from the last ``progress`` (the whole route when the ego is farther than 10 m from all of
-    them); the rows are the points ``progress + k * request_route_step``, ``k < R``, clipped to
-    the route's end (as the env's ``route`` observation).
+    ``progress`` advances by the env's rule (:data:`PROGRESS_WINDOW`, :data:`PROGRESS_REACH_M`),
+    so the rows are the env's ``route`` observation (the points ``progress + k *
+    request_route_step``, ``k < R``, clipped to the route's end), which is what the request is
+    built from in training (``model.CoDriving``, the recorded ``route`` rows). With
+    ``advance=False`` (the env's first observation of a route, before its first step, has
+    progress 0) it does not move. A roadside unit sees the ego only on the ticks it serves it:
+    when the window holds no point in reach but a later point is (the ego drove on while no
+    unit served it), progress first jumps to the nearest route point, as the env's tick by
+    tick would have; an ego off the route (no point in reach) keeps the last progress, as the
+    env does.
 
     Raises:
         ValueError: an empty route or not ``(P, 2)``.
@@ -82,14 +95,18 @@ def route_ahead(route_world: np.ndarray, ego_xy: np.ndarray, progress: int,
     if r.ndim != 2 or r.shape[0] < 1 or r.shape[1] < 2:
         raise ValueError(f"CoDriving route_ahead: route has shape {r.shape}; expected (P >= 1, "
                          "2) world x, y (route_info['route_points'])")
-    p = min(max(int(progress), 0), len(r) - 1)
-    seg = r[p:p + window, :2]
-    d = np.hypot(*(seg - np.asarray(ego_xy, np.float64)[:2]).T)
-    k = p + int(np.argmin(d))
-    if float(d.min()) > 10.0:
-        k = int(np.argmin(np.hypot(*(r[:, :2] - np.asarray(ego_xy, np.float64)[:2]).T)))
+    k = min(max(int(progress), 0), len(r) - 1)
+    d = np.hypot(*(r[k:, :2] - np.asarray(ego_xy, np.float64)[:2]).T)
+    close = np.flatnonzero(d[:PROGRESS_WINDOW] < PROGRESS_REACH_M)
+    if not len(close):
+        j = int(np.argmin(d))
+        if j >= PROGRESS_WINDOW and d[j] < PROGRESS_REACH_M:  # caught up after a gap
+            k, advance = k + j, True
+            close = np.flatnonzero(d[j:j + PROGRESS_WINDOW] < PROGRESS_REACH_M)
+    if advance and len(close):
+        k += int(close[-1])
     ks = np.minimum(k + np.arange(cfg.request_route_points) * cfg.request_route_step, len(r) - 1)
     return r[ks, :2], k
 
 
-__all__ = ["request_map", "route_ahead", "select_cells"]
+__all__ = ["PROGRESS_REACH_M", "PROGRESS_WINDOW", "request_map", "route_ahead", "select_cells"]

@@ -139,6 +139,20 @@ def open_loop_matches_the_model(method: str, run: Path, data: Path, tmp_path: Pa
     assert res["frames"] == int(ok.sum()) > 0 and res["command"].startswith("v2xbench baselines")
     for k, v in want.items():
         assert abs(res["overall"]["model"][k] - v) < 1e-6, (k, res["overall"]["model"][k], v)
+    # the ego-status probe: the model is told 0 m/s; the constant-velocity line keeps the truth
+    assert main(["baselines", "eval-planning", method, "--run", str(run), "--data", str(data),
+                 "--split", "all", "--stride", "5", "--out", str(out / "speed0"), "--ego-speed",
+                 "0", "--quiet"]) == 0
+    assert "told an ego speed of 0 m/s" in capsys.readouterr().out
+    probe = json.loads((out / "speed0" / "metrics.json").read_text())
+    with torch.no_grad():
+        wps0 = model(dict(batch, ego_speed=torch.zeros_like(batch["ego_speed"])))["waypoints"]
+    want0 = l2_at(wps0.double().numpy()[ok], exp[ok], HORIZONS, cfg.plan_dt)
+    assert probe["ego_speed_input"] == 0.0 and res["ego_speed_input"] == "frame"
+    assert probe["overall"]["constant_velocity"] == res["overall"]["constant_velocity"]
+    assert any(abs(want0[k] - want[k]) > 1e-6 for k in want)  # the speed reaches the planner
+    for k, v in want0.items():
+        assert abs(probe["overall"]["model"][k] - v) < 1e-6, (k, probe["overall"]["model"][k], v)
     return res
 
 

@@ -374,6 +374,9 @@ def markdown(result: Mapping) -> str:
              f"unit); {result['ms_per_frame']} ms a frame.", ""]
     if result.get("command"):
         lines += [f"Command: `{result['command']}`", ""]
+    if result.get("ego_speed_input", "frame") != "frame":
+        lines += [f"**Probe**: the model was told an ego speed of {result['ego_speed_input']:g} "
+                  "m/s on every frame instead of the frame's own.", ""]
     lines += ["L2 (m) at 1 / 2 / 3 s: the error at that horizon's waypoint. Constant velocity: "
               "the ego's current speed, straight ahead. Collision: share of frames where the "
               "ego box at a planned waypoint up to that time overlaps a vehicle / VRU box of "

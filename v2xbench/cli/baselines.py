@@ -65,12 +65,13 @@ def _eval_planning(args: argparse.Namespace) -> int:
     m = _train_module(args.method)
     _threads(args.threads)
     opt = [] if args.out is None else ["--out", str(args.out)]
+    opt += [] if args.ego_speed is None else ["--ego-speed", f"{args.ego_speed:g}"]
     cmd = shlex.join(["v2xbench", "baselines", "eval-planning", args.method, "--run",
                       str(args.run), *opt, "--data", str(args.data), "--split", args.split,
                       "--stride", str(args.stride)])
     r = m.evaluate_planning(args.run, args.data, args.split, out=args.out, stride=args.stride,
                             batch_size=args.batch_size, device=args.device,
-                            progress=not args.quiet, command=cmd)
+                            progress=not args.quiet, command=cmd, ego_speed=args.ego_speed)
     print(r["table"], end="")
     print(f"written: {r['out']}/metrics.json, metrics.md")
     return 0
@@ -121,6 +122,9 @@ def register(sub) -> None:
                         "with the metrics of `v2xbench aurora eval-planning` (the same frames for "
                         "the same --split and --stride); writes metrics.json and metrics.md.")
     _eval_arguments(e, stride=50, out="RUN/eval_planning")
+    e.add_argument("--ego-speed", type=float, default=None, metavar="M",
+                   help="tell the model this speed (m/s) on every frame instead of the frame's "
+                   "own: how much its plans lean on the ego's speed")
     e.set_defaults(func=_eval_planning)
 
 

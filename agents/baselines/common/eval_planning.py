@@ -16,6 +16,7 @@ Files (written atomically): ``metrics.json`` and ``metrics.md`` in ``--out`` (de
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 from typing import Any
@@ -31,9 +32,14 @@ FORMAT = "v2xbench-baseline-eval-planning/1"
 def evaluate_planning(brun: Any, run: str | Path, data: str | Path, split: str = "test", *,
                       stride: int = 50, out: str | Path | None = None, batch_size: int = 4,
                       device: str = "cpu", progress: bool = True,
-                      command: str | None = None) -> dict:
+                      command: str | None = None, ego_speed: float | None = None) -> dict:
     """Run baseline ``brun``'s (:class:`~.train.BaselineRun`) trained model of ``run`` over
     ``split`` of ``data``; write and return its open-loop metrics (module docstring).
+
+    ``ego_speed``: a speed (m/s) the model is told on every frame instead of the frame's own
+    (the ego-status probe: a planner that leans on the ego's speed, the shortcut of behaviour
+    cloning, loses its open-loop L2 with it; the metrics' constant-velocity line and at-rest
+    frames keep the true speed).
 
     Returns:
         the metrics dict (also in ``metrics.json``) plus ``out`` and ``table`` (Markdown).
@@ -48,6 +54,9 @@ def evaluate_planning(brun: Any, run: str | Path, data: str | Path, split: str =
     for name, v in (("stride", stride), ("batch_size", batch_size)):
         if not isinstance(v, int) or isinstance(v, bool) or v < 1:
             raise ValueError(f"{brun.method} eval-planning: {name}={v!r} must be an int >= 1")
+    if ego_speed is not None and not (math.isfinite(ego_speed) and ego_speed >= 0):
+        raise ValueError(f"{brun.method} eval-planning: ego_speed={ego_speed!r} must be a "
+                         "finite speed >= 0 (m/s)")
     if not Path(data).is_dir():
         raise FileNotFoundError(f"{brun.method} eval-planning: data directory {data} does not "
                                 f"exist (collect one with {brun.collect_hint})")
@@ -60,13 +69,17 @@ def evaluate_planning(brun: Any, run: str | Path, data: str | Path, split: str =
     with dir_lock(out, f"{brun.method} eval-planning"), torch.no_grad():
         for batch in tqdm(make_loader(ds, batch_size, shuffle=False), desc="eval-planning",
                           unit="batch", disable=not progress):
-            wps = model({k: v.to(device) for k, v in batch.items()})["waypoints"]
+            inputs = {k: v.to(device) for k, v in batch.items()}
+            if ego_speed is not None:
+                inputs["ego_speed"] = torch.full_like(inputs["ego_speed"], float(ego_speed))
+            wps = model(inputs)["waypoints"]
             add_batch(parts, batch, wps.double().cpu().numpy(), t_steps, dt)
         head = {"format": FORMAT, "title": brun.title,
                 "source": {"run": str(run), "weights": None, "stage": None,
                            "checkpoint": info.get("checkpoint"), "fusion": True,
                            "scale": info.get("scale"), "planner": f"{brun.title}'s"},
-                "data": str(data), "split": split, "stride": stride, "command": command}
+                "data": str(data), "split": split, "stride": stride, "command": command,
+                "ego_speed_input": "frame" if ego_speed is None else float(ego_speed)}
         return write_result(out, parts, head, t_steps, dt, time.perf_counter() - t0, len(ds))
 
 

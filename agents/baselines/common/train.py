@@ -237,15 +237,16 @@ class BaselineRun:
     def evaluate_planning(self, run: str | Path, data: str | Path, split: str = "test", *,
                           stride: int = 50, out: str | Path | None = None, batch_size: int = 4,
                           device: str = "cpu", progress: bool = True,
-                          command: str | None = None) -> dict:
+                          command: str | None = None, ego_speed: float | None = None) -> dict:
         """The run's planner open loop on a split, with AURORA's metrics
         (:func:`~.eval_planning.evaluate_planning`: L2 at 1 / 2 / 3 s, collision rate; writes
-        ``metrics.json`` and ``metrics.md`` in ``out``, default ``RUN/eval_planning``)."""
+        ``metrics.json`` and ``metrics.md`` in ``out``, default ``RUN/eval_planning``;
+        ``ego_speed``: a speed told on every frame instead of the frame's own)."""
         from .eval_planning import evaluate_planning
 
         return evaluate_planning(self, run, data, split, stride=stride, out=out,
                                  batch_size=batch_size, device=device, progress=progress,
-                                 command=command)
+                                 command=command, ego_speed=ego_speed)
 
 
 __all__ = ["CHECKPOINT", "SAME_RUN_KEYS", "BaselineRun", "check_same_run"]

@@ -4,6 +4,7 @@ samples, and `v2xbench baselines train univ2x` -> `v2xbench eval --agent univ2x`
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import shutil
 
@@ -25,6 +26,7 @@ from v2xbench.envs.v2x_intersection.v2x.channel import Channel, ChannelConfig, v
 from v2xbench.envs.v2x_intersection.v2x.wire import FORMAT_RAW
 
 from tests import baselines_common as bc
+from v2xbench.cli import main
 
 torch.set_num_threads(1)
 CFG = UniV2XConfig.for_scale("tiny")
@@ -153,6 +155,31 @@ def test_tiny_model_overfits_two_samples(tiny_dataset):
     parts = parts[-1]
     assert parts["rsu_cls"] > 0 and parts["plan_l1"] >= 0  # the roadside half trained too
     assert losses[-1] < 0.5 * losses[0], losses[::10]
+
+
+def test_no_ego_speed_planner_never_hears_the_speed(tiny_dataset, tmp_path, capsys):
+    from v2xbench.agents.baselines.univ2x.planner import QueryPlanner
+    from v2xbench.agents.baselines.univ2x.train import load_run
+
+    torch.manual_seed(0)
+    args = (torch.randn(2, 5, CFG.width), torch.randn(2, 5, CFG.width),
+            torch.ones(2, 5, dtype=torch.bool), torch.randn(2, 8, CFG.width),
+            torch.randn(2, 8, CFG.width), torch.tensor([0, 1]))
+    route = torch.randn(2, CFG.plan_route_points, 2)
+    slow, fast = torch.zeros(2), torch.full((2,), 8.0)
+    for hears in (True, False):
+        p = QueryPlanner(dataclasses.replace(CFG, plan_ego_speed=hears)).eval()
+        moved = (p(*args, slow, route) - p(*args, fast, route)).abs().max()
+        assert (moved > 1e-4) if hears else (moved == 0), (hears, moved)
+    with pytest.raises(ValueError, match="plan_ego_speed"):
+        dataclasses.replace(CFG, plan_ego_speed=1)
+    # the command line's switch reaches the run's configuration (and so the closed loop)
+    data, run = tmp_path / "data", tmp_path / "run"
+    shutil.copytree(tiny_dataset, data)
+    assert main(["baselines", "train", "univ2x", "--data", str(data), "--out", str(run),
+                 "--scale", "tiny", "--quiet", "--max-steps", "1", "--no-ego-speed"]) == 0
+    capsys.readouterr()
+    assert load_run(run)[1].plan_ego_speed is False
 
 
 def test_cli_trains_resumes_round_trips_plans_open_loop_and_drives_a_route(tiny_dataset, tmp_path,

@@ -42,7 +42,8 @@ def _train(args: argparse.Namespace) -> int:
     _threads(args.threads)
     s = m.train(args.data, args.out, scale=args.scale, device=args.device,
                      max_steps=args.max_steps, stride=args.stride, seed=args.seed,
-                     progress=not args.quiet, num_workers=args.workers)
+                     progress=not args.quiet, num_workers=args.workers,
+                     overrides={"plan_ego_speed": False} if args.no_ego_speed else None)
     print(m.format_summary(s))
     return 0
 
@@ -104,6 +105,9 @@ def register(sub) -> None:
                    help="data-loader worker processes (default: the scale's)")
     t.add_argument("--threads", type=_int_in(1), default=None,
                    help="torch threads (default: 1)")
+    t.add_argument("--no-ego-speed", action="store_true",
+                   help="the planner is never told the ego's speed (UniV2X, UniMM-V2X: "
+                   "config plan_ego_speed=false; in closed loop too)")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=_train)
     e = bsub.add_parser("eval-perception", help="detection metrics of a trained baseline on a "

@@ -106,7 +106,8 @@ class BaselineRun:
     # ------------------------------------------------------------------ the commands
     def train(self, data: str | Path, out: str | Path, *, scale: str = "default",
               device: str = "cpu", max_steps: int | None = None, stride: int | None = None,
-              seed: int = 0, progress: bool = True, num_workers: int | None = None) -> dict:
+              seed: int = 0, progress: bool = True, num_workers: int | None = None,
+              overrides: dict | None = None) -> dict:
         """Train the method on the ``train`` split of ``data`` into the run folder ``out``.
 
         Args:
@@ -115,6 +116,8 @@ class BaselineRun:
             max_steps: stop after this many optimizer steps in total (run again to go on).
             stride: frame stride (default: the scale's). seed: the run's seed.
             num_workers: data-loader workers (default: the scale's).
+            overrides: configuration fields over the scale's (``{"plan_ego_speed": False}``);
+                part of the run's settings (a run resumes only with the same).
 
         Returns:
             :func:`~v2xbench.agents.aurora.trainer.fit`'s summary plus ``scale``, ``frames``,
@@ -130,7 +133,7 @@ class BaselineRun:
 
         from .model import parameter_counts
 
-        cfg = self.config_cls.for_scale(scale)
+        cfg = self.config_cls.for_scale(scale, **(overrides or {}))
         if not Path(data).is_dir():
             raise FileNotFoundError(f"{self.method} train: data directory {data} does not exist "
                                     f"(collect one with {self.collect_hint})")

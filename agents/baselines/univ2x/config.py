@@ -76,6 +76,10 @@ class UniV2XConfig(ScaledConfig):
     plan_layers: int = 1
     plan_route_points: int = 4  # route points ahead (as AURORA's planner input)
     plan_route_spacing: float = 5.0  # m between them
+    #: The planner reads the ego's speed. False: it is told 0 m/s in training and in closed
+    #: loop (UniAD's planner reads no ego status; with it, behaviour cloning plans from the
+    #: speed: ``v2xbench baselines eval-planning --ego-speed 0``, docs/baselines.md).
+    plan_ego_speed: bool = True
     # --- losses (AURORA's detection weights; UniAD-style planning L1 + collision)
     focal_alpha: float = 0.25
     focal_gamma: float = 2.0
@@ -122,6 +126,9 @@ class UniV2XConfig(ScaledConfig):
                              f"{self.num_queries}")
         if not 0 <= self.ego_score <= 1 or not 0 <= self.dropout < 1:
             raise ValueError("UniV2XConfig: ego_score must be in [0, 1], dropout in [0, 1)")
+        if not isinstance(self.plan_ego_speed, bool):
+            raise ValueError(f"UniV2XConfig: plan_ego_speed={self.plan_ego_speed!r} must be a "
+                             "bool")
         checks.check_planning(self, who, ("match_radius", "plan_dt", "plan_route_spacing"),
                               "det_code_weights", "msg_topk, width or msg_occ")
 

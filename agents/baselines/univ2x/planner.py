@@ -1,7 +1,7 @@
 """UniV2X's query-based planner (UniAD's planning head, which UniV2X keeps).
 
 One ego query: a learned embedding plus the navigation command's embedding plus an MLP of the
-ego's speed and the route points ahead (:func:`~v2xbench.agents.aurora.route_input.
+ego's speed (0 with ``plan_ego_speed`` off) and the route points ahead (:func:`~v2xbench.agents.aurora.route_input.
 route_points_ahead`; AURORA's planner input, a deviation from the paper, whose nuScenes-style
 planner reads the command alone). Each of ``cfg.plan_layers`` post-norm layers lets it attend to
 the fused agent queries (position embedding of their ego-frame references, padding masked),
@@ -61,6 +61,8 @@ class QueryPlanner(nn.Module):
         the command ``(B,)``, the speed ``(B,)`` (m/s) and the route points ``(B, R, 2)``."""
         b = agents.shape[0]
         cmd = command.long().clamp(0, self.cfg.num_commands - 1)
+        if not self.cfg.plan_ego_speed:  # told 0 m/s, always (config: plan_ego_speed)
+            speed = torch.zeros_like(speed)
         state = torch.cat([speed.float()[:, None] / 10.0, route.float().flatten(1) / 20.0], -1)
         x = self.query.expand(b, -1, -1) + self.command(cmd)[:, None] + self.state(state)[:, None]
         for layer in self.layers:

@@ -182,6 +182,48 @@ def test_no_ego_speed_planner_never_hears_the_speed(tiny_dataset, tmp_path, caps
     assert load_run(run)[1].plan_ego_speed is False
 
 
+def test_route_frame_planner_plans_along_the_observed_route(tiny_dataset):
+    from v2xbench.agents.aurora.data import collate
+    from v2xbench.agents.aurora.route_input import PATH_KEY, route_path
+    from v2xbench.agents.baselines.univ2x.data import UniV2XFrames
+    from v2xbench.agents.baselines.univ2x.planner import QueryPlanner
+
+    cfg = dataclasses.replace(CFG, plan_frame="route")
+    p = QueryPlanner(cfg).eval()
+    with torch.no_grad():  # constant outputs: 2 m along the route per step, 0 m across
+        last = p.head[-1]
+        last.weight.zero_()
+        last.bias.copy_(torch.tensor([2.0, 0.0] * cfg.plan_waypoints))
+    t = torch.linspace(0, 1, 20)[:, None]  # a route turning left: quarter circle of radius 20 m
+    ang = t * math.pi / 2
+    route = torch.cat([20 * torch.sin(ang), 20 * (1 - torch.cos(ang))], -1)
+    path = route_path(route[None], 40, 2.0)
+    args = (torch.zeros(1, 2, CFG.width), torch.zeros(1, 2, CFG.width),
+            torch.ones(1, 2, dtype=torch.bool), torch.zeros(1, 3, CFG.width),
+            torch.zeros(1, 3, CFG.width), torch.tensor([0]), torch.zeros(1),
+            torch.zeros(1, CFG.plan_route_points, 2))
+    wps = p(*args, path)[0]
+    # on the curve, 2, 4, ... 12 m of arc along it (chords of a 20 m circle), left of straight on
+    arc = 2.0 * torch.arange(1, cfg.plan_waypoints + 1)
+    want = torch.stack([20 * torch.sin(arc / 20), 20 * (1 - torch.cos(arc / 20))], -1)
+    assert torch.allclose(wps, want, atol=0.05), (wps, want)
+    with pytest.raises(ValueError, match="route polyline"):
+        p(*args)
+    with pytest.raises(ValueError, match="plan_frame"):
+        dataclasses.replace(CFG, plan_frame="bev")
+    # the data set and the closed loop give the planner the same polyline of the same route rows
+    from v2xbench.agents.baselines.common.policy import planning_inputs
+
+    frames = UniV2XFrames(tiny_dataset, "all", cfg, stride=5)
+    s = frames[3]
+    assert s[PATH_KEY].shape == (40, 2)
+    assert PATH_KEY not in UniV2XFrames(tiny_dataset, "all", CFG, stride=5)[3]
+    route = np.asarray(frames.extra[int(frames.frame_ids[3])]["route"])  # the recorded rows
+    obs = {"route": route, "ego": np.zeros(4, np.float32)}
+    assert torch.equal(planning_inputs(obs, cfg)[PATH_KEY][0], s[PATH_KEY])
+    assert collate([s, s])[PATH_KEY].shape == (2, 40, 2)
+
+
 def test_cli_trains_resumes_round_trips_plans_open_loop_and_drives_a_route(tiny_dataset, tmp_path,
                                                                             capsys):
     from v2xbench.agents.baselines.univ2x.train import load_run

@@ -43,9 +43,16 @@ def _train(args: argparse.Namespace) -> int:
     s = m.train(args.data, args.out, scale=args.scale, device=args.device,
                      max_steps=args.max_steps, stride=args.stride, seed=args.seed,
                      progress=not args.quiet, num_workers=args.workers,
-                     overrides={"plan_ego_speed": False} if args.no_ego_speed else None)
+                     overrides=_overrides(args))
     print(m.format_summary(s))
     return 0
+
+
+def _overrides(args: argparse.Namespace) -> dict | None:
+    """The configuration fields the train command's switches set (``None``: the scale's)."""
+    out = {**({"plan_ego_speed": False} if args.no_ego_speed else {}),
+           **({"plan_frame": "route"} if args.route_frame else {})}
+    return out or None
 
 
 def _eval_perception(args: argparse.Namespace) -> int:
@@ -108,6 +115,9 @@ def register(sub) -> None:
     t.add_argument("--no-ego-speed", action="store_true",
                    help="the planner is never told the ego's speed (UniV2X, UniMM-V2X: "
                    "config plan_ego_speed=false; in closed loop too)")
+    t.add_argument("--route-frame", action="store_true",
+                   help="the planner plans along the observed route, AURORA's route-relative "
+                   "output (UniV2X, UniMM-V2X: config plan_frame='route')")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=_train)
     e = bsub.add_parser("eval-perception", help="detection metrics of a trained baseline on a "

@@ -10,7 +10,13 @@ from typing import Any
 import numpy as np
 import torch
 from v2xbench.agents.aurora.policy import target_speed
-from v2xbench.agents.aurora.route_input import route_points_ahead
+from v2xbench.agents.aurora.route_input import (
+    PATH_KEY,
+    PATH_POINTS,
+    PATH_SPACING,
+    route_path,
+    route_points_ahead,
+)
 from v2xbench.agents.aurora.rsu_agent import received_payload
 
 SPEED, COMMAND = 0, 2  # obs["ego"][SPEED]; obs["route"][:, COMMAND]
@@ -35,12 +41,16 @@ def received_message(obs: Mapping, fusion: bool, need_floats: int, title: str,
 
 
 def planning_inputs(obs: Mapping, cfg: Any) -> dict[str, torch.Tensor]:
-    """``command``, ``ego_speed`` and ``route_points`` (batch 1) of a sensors-mode observation."""
+    """``command``, ``ego_speed`` and ``route_points`` (batch 1) of a sensors-mode observation;
+    with ``cfg.plan_frame == "route"`` also ``route_path`` (as :func:`..data.planning_sample`)."""
     route = np.asarray(obs["route"], np.float32)
-    return {"command": torch.tensor([int(round(float(route[0, COMMAND])))]),
-            "ego_speed": torch.tensor([float(obs["ego"][SPEED])]),
-            "route_points": route_points_ahead(route, cfg.plan_route_points,
-                                               cfg.plan_route_spacing)[None]}
+    out = {"command": torch.tensor([int(round(float(route[0, COMMAND])))]),
+           "ego_speed": torch.tensor([float(obs["ego"][SPEED])]),
+           "route_points": route_points_ahead(route, cfg.plan_route_points,
+                                              cfg.plan_route_spacing)[None]}
+    if getattr(cfg, "plan_frame", "ego") == "route":
+        out[PATH_KEY] = route_path(route, PATH_POINTS, PATH_SPACING)[None]
+    return out
 
 
 def waypoints_and_speed(wps: torch.Tensor, cfg: Any) -> tuple[np.ndarray, float]:

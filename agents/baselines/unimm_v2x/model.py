@@ -27,6 +27,7 @@ from torch import nn
 from v2xbench.agents.aurora.cqaf import query_scores
 from v2xbench.agents.aurora.det_decoder import DetectionDecoder
 from v2xbench.agents.aurora.fused_heads import FusedDetHead
+from v2xbench.agents.aurora.route_input import PATH_KEY
 
 from ..common.model import parameter_counts
 from ..univ2x.bev import LiftSplatEncoder
@@ -135,7 +136,7 @@ class EgoNet(nn.Module):
         traj, modes = self.motion.heads(mq, agent_ref)
         wps = self.planner(mq, det["det_pos"], fused["mask"], tokens,
                            pos.expand(tokens.shape[0], -1, -1), batch["command"],
-                           batch["ego_speed"], batch["route_points"])
+                           batch["ego_speed"], batch["route_points"], batch.get(PATH_KEY))
         return {"ego_det_logits": p["det_logits"], "ego_det_boxes": p["det_boxes"],
                 "det_logits": det["det_logits"], "det_boxes": det["det_boxes"],
                 "det_mask": fused["mask"], "occ_logits": occ, "waypoints": wps,

@@ -80,6 +80,11 @@ class UniV2XConfig(ScaledConfig):
     #: loop (UniAD's planner reads no ego status; with it, behaviour cloning plans from the
     #: speed: ``v2xbench baselines eval-planning --ego-speed 0``, docs/baselines.md).
     plan_ego_speed: bool = True
+    #: The planner's output frame: ``"ego"`` (x, y steps) or ``"route"`` (AURORA's route-relative
+    #: planner: per waypoint an arc length along the observed route, never decreasing, and a
+    #: lateral offset from it, turned into x, y by ``route_input.route_to_ego``; batch key
+    #: ``route_path``). Following the route is then what the planner does by default.
+    plan_frame: str = "ego"
     # --- losses (AURORA's detection weights; UniAD-style planning L1 + collision)
     focal_alpha: float = 0.25
     focal_gamma: float = 2.0
@@ -126,6 +131,9 @@ class UniV2XConfig(ScaledConfig):
                              f"{self.num_queries}")
         if not 0 <= self.ego_score <= 1 or not 0 <= self.dropout < 1:
             raise ValueError("UniV2XConfig: ego_score must be in [0, 1], dropout in [0, 1)")
+        if self.plan_frame not in ("ego", "route"):
+            raise ValueError(f"UniV2XConfig: plan_frame={self.plan_frame!r} must be 'ego' or "
+                             "'route'")
         if not isinstance(self.plan_ego_speed, bool):
             raise ValueError(f"UniV2XConfig: plan_ego_speed={self.plan_ego_speed!r} must be a "
                              "bool")

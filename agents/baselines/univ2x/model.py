@@ -28,6 +28,7 @@ from torch import nn
 from v2xbench.agents.aurora.cqaf import query_scores
 from v2xbench.agents.aurora.det_decoder import DetectionDecoder, focal_bias, mlp, sine_embed
 from v2xbench.agents.aurora.fused_heads import FusedDetHead
+from v2xbench.agents.aurora.route_input import PATH_KEY
 from v2xbench.agents.aurora.rsu_agent import to_wire
 
 from ..common.model import parameter_counts
@@ -130,7 +131,7 @@ class EgoNet(nn.Module):
         tokens, pos = self.perception.tokens(bev)
         wps = self.planner(det["q_det"], det["det_pos"], fused["mask"], tokens,
                            pos.expand(tokens.shape[0], -1, -1), batch["command"],
-                           batch["ego_speed"], batch["route_points"])
+                           batch["ego_speed"], batch["route_points"], batch.get(PATH_KEY))
         return {"ego_det_logits": p["det_logits"], "ego_det_boxes": p["det_boxes"],
                 "det_logits": det["det_logits"], "det_boxes": det["det_boxes"],
                 "det_mask": fused["mask"], "occ_logits": occ, "waypoints": wps,

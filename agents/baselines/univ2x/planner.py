@@ -6,7 +6,10 @@ route_points_ahead`; AURORA's planner input, a deviation from the paper, whose n
 planner reads the command alone). Each of ``cfg.plan_layers`` post-norm layers lets it attend to
 the fused agent queries (position embedding of their ego-frame references, padding masked),
 then to the fused BEV tokens, then an FFN; an MLP gives ``T`` displacement steps whose cumulative
-sum are the ``T`` waypoints (ego frame, ``cfg.plan_dt`` apart).
+sum are the ``T`` waypoints (ego frame, ``cfg.plan_dt`` apart). With ``cfg.plan_frame = "route"``
+the steps are AURORA's route-relative ones (along the observed route, never backwards, and
+across it; :func:`~v2xbench.agents.aurora.route_input.route_to_ego`), a deviation from the
+paper that gives the baseline the output frame that makes AURORA's planner follow the route.
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 from v2xbench.agents.aurora.det_decoder import mlp
+from v2xbench.agents.aurora.route_input import PATH_KEY, PATH_SPACING, route_to_ego
 
 from .config import UniV2XConfig
 
@@ -56,9 +60,12 @@ class QueryPlanner(nn.Module):
 
     def forward(self, agents: torch.Tensor, agent_pos: torch.Tensor, agent_mask: torch.Tensor,
                 bev: torch.Tensor, bev_pos: torch.Tensor, command: torch.Tensor,
-                speed: torch.Tensor, route: torch.Tensor) -> torch.Tensor:
+                speed: torch.Tensor, route: torch.Tensor, path: torch.Tensor | None = None
+                ) -> torch.Tensor:
         """Waypoints ``(B, T, 2)`` (m, ego frame) from the fused agents, the fused BEV tokens,
-        the command ``(B,)``, the speed ``(B,)`` (m/s) and the route points ``(B, R, 2)``."""
+        the command ``(B,)``, the speed ``(B,)`` (m/s) and the route points ``(B, R, 2)``; in
+        the route frame also the route polyline ``path`` ``(B, N, 2)`` (batch key
+        ``route_path``)."""
         b = agents.shape[0]
         cmd = command.long().clamp(0, self.cfg.num_commands - 1)
         if not self.cfg.plan_ego_speed:  # told 0 m/s, always (config: plan_ego_speed)
@@ -68,7 +75,16 @@ class QueryPlanner(nn.Module):
         for layer in self.layers:
             x = layer(x, agents, agent_pos, agent_mask, bev, bev_pos)
         steps = self.head(x[:, 0]).view(b, self.cfg.plan_waypoints, 2)
-        return steps.cumsum(1)
+        if self.cfg.plan_frame == "ego":
+            return steps.cumsum(1)
+        if path is None or path.dim() != 3 or path.shape[0] != b or path.shape[2] != 2:
+            raise ValueError(f"QueryPlanner: plan_frame='route' needs the route polyline "
+                             f"{PATH_KEY!r} of shape ({b}, N, 2) (route_input.route_path); got "
+                             f"{None if path is None else tuple(path.shape)}")
+        u = steps[..., :1]  # along the route: relu with a straight-through gradient (AURORA's)
+        along = u + (u.clamp_min(0.0) - u).detach()
+        sd = torch.cat([along, steps[..., 1:]], -1).cumsum(1)
+        return route_to_ego(sd, path, PATH_SPACING)
 
 
 __all__ = ["PlanLayer", "QueryPlanner"]

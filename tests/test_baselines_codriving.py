@@ -155,6 +155,36 @@ def test_route_ahead_rebuilds_the_observations_route_rows():
         route_ahead(np.zeros((0, 2)), np.zeros(2), 0, CFG)
 
 
+def test_waypoint_head_switches_route_frame_and_no_speed():
+    import dataclasses
+    import math
+
+    from v2xbench.agents.aurora.route_input import route_path
+    from v2xbench.agents.baselines.v2x_vit.head import WaypointHead
+
+    cfg = dataclasses.replace(CFG, plan_frame="route", plan_ego_speed=False)
+    head = WaypointHead(cfg).eval()
+    with torch.no_grad():  # constant outputs: 2 m along the route per step, 0 m across
+        head.mlp[-1].weight.zero_()
+        head.mlp[-1].bias.copy_(torch.tensor([2.0, 0.0] * cfg.plan_waypoints))
+    ang = torch.linspace(0, 1, 20)[:, None] * math.pi / 2  # a left turn of radius 20 m
+    path = route_path(torch.cat([20 * torch.sin(ang), 20 * (1 - torch.cos(ang))], -1)[None],
+                      40, 2.0)
+    bev, cmd = torch.randn(1, cfg.width, 16, 16), torch.tensor([0])
+    route = torch.zeros(1, cfg.plan_route_points, 2)
+    wps = head(bev, cmd, torch.zeros(1), route, path)[0]
+    arc = 2.0 * torch.arange(1, cfg.plan_waypoints + 1)
+    want = torch.stack([20 * torch.sin(arc / 20), 20 * (1 - torch.cos(arc / 20))], -1)
+    assert torch.allclose(wps, want, atol=0.05), (wps, want)
+    with pytest.raises(ValueError, match="route polyline"):
+        head(bev, cmd, torch.zeros(1), route)
+    speedy = WaypointHead(dataclasses.replace(CFG, plan_ego_speed=False)).eval()
+    assert torch.equal(speedy(bev, cmd, torch.zeros(1), route),
+                       speedy(bev, cmd, torch.full((1,), 9.0), route))
+    with pytest.raises(ValueError, match="plan_frame"):
+        dataclasses.replace(CFG, plan_frame="bev")
+
+
 def test_native_controller_steers_toward_the_waypoints_and_brakes_to_stop():
     ctl = NativeController()
     left = np.stack([np.arange(1.0, 7.0) * 2.0, np.arange(1.0, 7.0) * 0.8], -1)

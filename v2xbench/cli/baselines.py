@@ -113,11 +113,11 @@ def register(sub) -> None:
     t.add_argument("--threads", type=_int_in(1), default=None,
                    help="torch threads (default: 1)")
     t.add_argument("--no-ego-speed", action="store_true",
-                   help="the planner is never told the ego's speed (UniV2X, UniMM-V2X: "
-                   "config plan_ego_speed=false; in closed loop too)")
+                   help="the planner is never told the ego's speed (config "
+                   "plan_ego_speed=false; in closed loop too)")
     t.add_argument("--route-frame", action="store_true",
                    help="the planner plans along the observed route, AURORA's route-relative "
-                   "output (UniV2X, UniMM-V2X: config plan_frame='route')")
+                   "output (config plan_frame='route')")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=_train)
     e = bsub.add_parser("eval-perception", help="detection metrics of a trained baseline on a "

@@ -23,6 +23,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 from v2xbench.agents.aurora.det_decoder import focal_bias
+from v2xbench.agents.aurora.route_input import PATH_KEY
 from v2xbench.agents.aurora.rsu_agent import to_wire
 
 from ..common.model import parameter_counts
@@ -87,7 +88,7 @@ class EgoNet(nn.Module):
         fused = self.fusion(ego, rsu, covered)
         out = self.head(fused)
         out["waypoints"] = self.planner(fused, batch["command"], batch["ego_speed"],
-                                        batch["route_points"])
+                                        batch["route_points"], batch.get(PATH_KEY))
         out["covered"] = covered
         return out
 

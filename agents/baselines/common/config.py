@@ -11,6 +11,8 @@ from typing import Any, ClassVar
 from v2xbench.agents.aurora.config import StageHParams, check_branch
 from v2xbench.envs.v2x_intersection.sim.config import FIELD_RULES
 
+from .plan_frame import check_switches
+
 
 class ScaledConfig:
     """Mixin of a frozen configuration dataclass with named scales.
@@ -94,10 +96,12 @@ def check_ranges(cfg: Any, who: str) -> None:
 def check_planning(cfg: Any, who: str, positive: tuple[str, ...], code_weights: str,
                    lower: str) -> None:
     """The last checks every baseline's config makes: the fields ``positive`` positive numbers,
-    ``plan_route_points`` in ``[0, 16]``, 10 box code weights (field ``code_weights``), and the
+    the planner switches (:func:`~.plan_frame.check_switches`), ``plan_route_points`` in
+    ``[0, 16]``, 10 box code weights (field ``code_weights``), and the
     roadside message within a channel (:func:`check_message_size`; ``lower`` names the fields
     to lower)."""
     check_positive(cfg, who, positive)
+    check_switches(cfg, who)
     if isinstance(cfg.plan_route_points, bool) or not 0 <= cfg.plan_route_points <= 16:
         raise ValueError(f"{who}: plan_route_points={cfg.plan_route_points!r} must "
                          "be an int in [0, 16]")

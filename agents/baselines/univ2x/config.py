@@ -131,12 +131,6 @@ class UniV2XConfig(ScaledConfig):
                              f"{self.num_queries}")
         if not 0 <= self.ego_score <= 1 or not 0 <= self.dropout < 1:
             raise ValueError("UniV2XConfig: ego_score must be in [0, 1], dropout in [0, 1)")
-        if self.plan_frame not in ("ego", "route"):
-            raise ValueError(f"UniV2XConfig: plan_frame={self.plan_frame!r} must be 'ego' or "
-                             "'route'")
-        if not isinstance(self.plan_ego_speed, bool):
-            raise ValueError(f"UniV2XConfig: plan_ego_speed={self.plan_ego_speed!r} must be a "
-                             "bool")
         checks.check_planning(self, who, ("match_radius", "plan_dt", "plan_route_spacing"),
                               "det_code_weights", "msg_topk, width or msg_occ")
 

@@ -17,8 +17,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 from v2xbench.agents.aurora.det_decoder import mlp
-from v2xbench.agents.aurora.route_input import PATH_KEY, PATH_SPACING, route_to_ego
 
+from ..common.plan_frame import planner_speed, steps_to_waypoints
 from .config import UniV2XConfig
 
 
@@ -68,23 +68,12 @@ class QueryPlanner(nn.Module):
         ``route_path``)."""
         b = agents.shape[0]
         cmd = command.long().clamp(0, self.cfg.num_commands - 1)
-        if not self.cfg.plan_ego_speed:  # told 0 m/s, always (config: plan_ego_speed)
-            speed = torch.zeros_like(speed)
+        speed = planner_speed(speed, self.cfg)  # 0 m/s with plan_ego_speed off
         state = torch.cat([speed.float()[:, None] / 10.0, route.float().flatten(1) / 20.0], -1)
         x = self.query.expand(b, -1, -1) + self.command(cmd)[:, None] + self.state(state)[:, None]
         for layer in self.layers:
             x = layer(x, agents, agent_pos, agent_mask, bev, bev_pos)
         steps = self.head(x[:, 0]).view(b, self.cfg.plan_waypoints, 2)
-        if self.cfg.plan_frame == "ego":
-            return steps.cumsum(1)
-        if path is None or path.dim() != 3 or path.shape[0] != b or path.shape[2] != 2:
-            raise ValueError(f"QueryPlanner: plan_frame='route' needs the route polyline "
-                             f"{PATH_KEY!r} of shape ({b}, N, 2) (route_input.route_path); got "
-                             f"{None if path is None else tuple(path.shape)}")
-        u = steps[..., :1]  # along the route: relu with a straight-through gradient (AURORA's)
-        along = u + (u.clamp_min(0.0) - u).detach()
-        sd = torch.cat([along, steps[..., 1:]], -1).cumsum(1)
-        return route_to_ego(sd, path, PATH_SPACING)
-
+        return steps_to_waypoints(steps, self.cfg, path, "QueryPlanner")
 
 __all__ = ["PlanLayer", "QueryPlanner"]

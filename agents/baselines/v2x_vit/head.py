@@ -25,6 +25,7 @@ import torch.nn.functional as F
 from torch import nn
 from v2xbench.agents.aurora.det_decoder import focal_bias
 
+from ..common.plan_frame import planner_speed, steps_to_waypoints
 from ..univ2x.bev import cell_centres
 from .config import V2XViTConfig
 
@@ -128,13 +129,14 @@ class WaypointHead(nn.Module):
                                  nn.ReLU(inplace=True), nn.Linear(hdim, 2 * cfg.plan_waypoints))
 
     def forward(self, bev: torch.Tensor, command: torch.Tensor, speed: torch.Tensor,
-                route: torch.Tensor) -> torch.Tensor:
+                route: torch.Tensor, path: torch.Tensor | None = None) -> torch.Tensor:
         b = bev.shape[0]
+        speed = planner_speed(speed, self.cfg)  # 0 m/s with plan_ego_speed off
         feats = [F.relu(self.bev(self.conv(bev).flatten(1))),
                  self.command(command.long().clamp(0, self.cfg.num_commands - 1)),
                  speed.float().view(b, 1) / 10.0, route.float().reshape(b, -1) / 20.0]
         steps = self.mlp(torch.cat(feats, -1)).view(b, self.cfg.plan_waypoints, 2)
-        return steps.cumsum(1)
+        return steps_to_waypoints(steps, self.cfg, path, "WaypointHead")
 
 
 __all__ = ["CenterHead", "WaypointHead", "box_cells", "decode_boxes", "encode_boxes",

@@ -1,15 +1,16 @@
 """UniV2X's query-based planner (UniAD's planning head, which UniV2X keeps).
 
 One ego query: a learned embedding plus the navigation command's embedding plus an MLP of the
-ego's speed (0 with ``plan_ego_speed`` off) and the route points ahead (:func:`~v2xbench.agents.aurora.route_input.
-route_points_ahead`; AURORA's planner input, a deviation from the paper, whose nuScenes-style
-planner reads the command alone). Each of ``cfg.plan_layers`` post-norm layers lets it attend to
-the fused agent queries (position embedding of their ego-frame references, padding masked),
-then to the fused BEV tokens, then an FFN; an MLP gives ``T`` displacement steps whose cumulative
-sum are the ``T`` waypoints (ego frame, ``cfg.plan_dt`` apart). With ``cfg.plan_frame = "route"``
-the steps are AURORA's route-relative ones (along the observed route, never backwards, and
-across it; :func:`~v2xbench.agents.aurora.route_input.route_to_ego`), a deviation from the
-paper that gives the baseline the output frame that makes AURORA's planner follow the route.
+ego's speed (0 with ``plan_ego_speed`` off) and the route points ahead
+(:func:`~v2xbench.agents.aurora.route_input.route_points_ahead`; AURORA's planner input, a
+deviation from the paper, whose nuScenes-style planner reads the command alone). Each of
+``cfg.plan_layers`` post-norm layers lets it attend to the fused agent queries (position
+embedding of their ego-frame references, padding masked), then to the fused BEV tokens, then an
+FFN; an MLP gives ``T`` displacement steps whose cumulative sum are the ``T`` waypoints (ego
+frame, ``cfg.plan_dt`` apart). With ``cfg.plan_frame = "route"`` the steps are AURORA's
+route-relative ones (along the observed route, never backwards, and across it;
+:func:`~v2xbench.agents.aurora.route_input.route_to_ego`), a deviation from the paper that gives
+the baseline the output frame that makes AURORA's planner follow the route.
 """
 
 from __future__ import annotations
@@ -75,5 +76,6 @@ class QueryPlanner(nn.Module):
             x = layer(x, agents, agent_pos, agent_mask, bev, bev_pos)
         steps = self.head(x[:, 0]).view(b, self.cfg.plan_waypoints, 2)
         return steps_to_waypoints(steps, self.cfg, path, "QueryPlanner")
+
 
 __all__ = ["PlanLayer", "QueryPlanner"]

@@ -246,10 +246,7 @@ def evaluate_planning(data: str | Path, *, run: str | Path | None = None,
     from .data import AuroraFrames
     from .pairs import AuroraPairs, make_pair_loader, planning_items
 
-    if not isinstance(stride, int) or isinstance(stride, bool) or stride < 1:
-        raise ValueError(f"eval-planning: stride={stride!r} must be an int >= 1")
-    if not isinstance(batch_size, int) or batch_size < 1:
-        raise ValueError(f"eval-planning: batch_size={batch_size!r} must be an int >= 1")
+    check_settings("eval-planning", stride, batch_size)
     data = Path(data)
     if not data.is_dir():
         raise FileNotFoundError(f"eval-planning: data directory {data} does not exist (collect "
@@ -277,6 +274,14 @@ def evaluate_planning(data: str | Path, *, run: str | Path | None = None,
                            "planner": cfg.planner},
                 "data": str(data), "split": split, "stride": stride, "command": command}
         return write_result(out, parts, head, t_steps, dt, time.perf_counter() - t0, len(ds))
+
+
+def check_settings(who: str, stride: int, batch_size: int) -> None:
+    """``stride`` and ``batch_size`` each an int (not a bool) >= 1; ``ValueError`` naming
+    ``who`` and the field otherwise."""
+    for name, v in (("stride", stride), ("batch_size", batch_size)):
+        if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+            raise ValueError(f"{who}: {name}={v!r} must be an int >= 1")
 
 
 def new_parts() -> dict[str, list]:
@@ -401,7 +406,7 @@ def markdown(result: Mapping) -> str:
 
 __all__ = ["ACTOR_CLASSES", "HEADING_MIN_STEP", "HORIZONS", "OUT_DIR", "START_DIST",
            "output_dir",
-           "START_SPEED", "STAY_DIST", "actor_futures", "add_batch", "collisions",
+           "START_SPEED", "STAY_DIST", "actor_futures", "add_batch", "check_settings", "collisions",
            "constant_velocity_plan", "evaluate_planning", "group_metrics", "load_model",
            "markdown", "new_parts", "plan_headings", "predict", "start_from_rest", "summarize",
            "write_result"]

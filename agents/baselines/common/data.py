@@ -5,13 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 import torch
-from v2xbench.agents.aurora.route_input import (
-    PATH_KEY,
-    PATH_POINTS,
-    PATH_SPACING,
-    route_path,
-    route_points_ahead,
-)
+from v2xbench.agents.aurora.route_input import PATH_KEY, planner_route_path, route_points_ahead
 
 
 def planning_sample(x: Any, cfg: Any, fid: int) -> dict[str, torch.Tensor]:
@@ -24,8 +18,8 @@ def planning_sample(x: Any, cfg: Any, fid: int) -> dict[str, torch.Tensor]:
         route_points=route_points_ahead(x["route"], cfg.plan_route_points,
                                         cfg.plan_route_spacing),
         expert_waypoints=x["expert_waypoints"].float(), frame_id=torch.tensor(fid))
-    if getattr(cfg, "plan_frame", "ego") == "route":
-        out[PATH_KEY] = route_path(x["route"], PATH_POINTS, PATH_SPACING)
+    if cfg.plan_frame == "route":
+        out[PATH_KEY] = planner_route_path(x["route"], cfg)
     return out
 
 

@@ -22,7 +22,13 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from v2xbench.agents.aurora.eval_planning import OUT_DIR, add_batch, new_parts, write_result
+from v2xbench.agents.aurora.eval_planning import (
+    OUT_DIR,
+    add_batch,
+    check_settings,
+    new_parts,
+    write_result,
+)
 
 from v2xbench.locks import dir_lock
 
@@ -51,9 +57,7 @@ def evaluate_planning(brun: Any, run: str | Path, data: str | Path, split: str =
     from tqdm import tqdm
     from v2xbench.agents.aurora.data import make_loader
 
-    for name, v in (("stride", stride), ("batch_size", batch_size)):
-        if not isinstance(v, int) or isinstance(v, bool) or v < 1:
-            raise ValueError(f"{brun.method} eval-planning: {name}={v!r} must be an int >= 1")
+    check_settings(f"{brun.method} eval-planning", stride, batch_size)
     if ego_speed is not None and not (math.isfinite(ego_speed) and ego_speed >= 0):
         raise ValueError(f"{brun.method} eval-planning: ego_speed={ego_speed!r} must be a "
                          "finite speed >= 0 (m/s)")

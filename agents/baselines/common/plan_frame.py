@@ -22,7 +22,7 @@ PLAN_FRAMES = ("ego", "route")
 
 def planner_speed(speed: torch.Tensor, cfg: Any) -> torch.Tensor:
     """``speed`` ``(B,)``, or zeros where ``cfg.plan_ego_speed`` is off."""
-    return speed if getattr(cfg, "plan_ego_speed", True) else torch.zeros_like(speed)
+    return speed if cfg.plan_ego_speed else torch.zeros_like(speed)
 
 
 def steps_to_waypoints(steps: torch.Tensor, cfg: Any, path: torch.Tensor | None,
@@ -32,7 +32,7 @@ def steps_to_waypoints(steps: torch.Tensor, cfg: Any, path: torch.Tensor | None,
     Raises:
         ValueError: a route-frame planner without a ``(B, N, 2)`` route polyline ``path``.
     """
-    if getattr(cfg, "plan_frame", "ego") == "ego":
+    if cfg.plan_frame == "ego":
         return steps.cumsum(1)
     b = steps.shape[0]
     if path is None or path.dim() != 3 or path.shape[0] != b or path.shape[2] != 2:

@@ -10,13 +10,7 @@ from typing import Any
 import numpy as np
 import torch
 from v2xbench.agents.aurora.policy import target_speed
-from v2xbench.agents.aurora.route_input import (
-    PATH_KEY,
-    PATH_POINTS,
-    PATH_SPACING,
-    route_path,
-    route_points_ahead,
-)
+from v2xbench.agents.aurora.route_input import PATH_KEY, planner_route_path, route_points_ahead
 from v2xbench.agents.aurora.rsu_agent import received_payload
 
 SPEED, COMMAND = 0, 2  # obs["ego"][SPEED]; obs["route"][:, COMMAND]
@@ -48,8 +42,8 @@ def planning_inputs(obs: Mapping, cfg: Any) -> dict[str, torch.Tensor]:
            "ego_speed": torch.tensor([float(obs["ego"][SPEED])]),
            "route_points": route_points_ahead(route, cfg.plan_route_points,
                                               cfg.plan_route_spacing)[None]}
-    if getattr(cfg, "plan_frame", "ego") == "route":
-        out[PATH_KEY] = route_path(route, PATH_POINTS, PATH_SPACING)[None]
+    if cfg.plan_frame == "route":
+        out[PATH_KEY] = planner_route_path(route, cfg)[None]
     return out
 
 

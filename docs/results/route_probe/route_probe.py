@@ -16,13 +16,7 @@ from pathlib import Path
 
 import torch
 from v2xbench.agents.aurora.data import make_loader
-from v2xbench.agents.aurora.route_input import (
-    PATH_KEY,
-    PATH_POINTS,
-    PATH_SPACING,
-    route_path,
-    route_points_ahead,
-)
+from v2xbench.agents.aurora.route_input import PATH_KEY, planner_route_path, route_points_ahead
 from v2xbench.agents.baselines import BASELINES
 
 ROWS, ROW_STEP, BEND_AT = 20, 2.0, 5.0  # the observed route: 20 rows 2 m apart; bend after 5 m
@@ -49,7 +43,7 @@ def main() -> None:
     model, cfg, _ = brun.load_run(a.run)
     ds = brun.frames(a.data, "all", cfg, a.stride, False)
     out: dict = {"run": a.run, "data": a.data, "stride": a.stride, "frames": len(ds),
-                 "plan_frame": getattr(cfg, "plan_frame", "ego"), "waypoint_3s_mean": {}}
+                 "plan_frame": cfg.plan_frame, "waypoint_3s_mean": {}}
     ends: dict[str, list] = {k: [] for k in ("straight", "left", "right")}
     with torch.no_grad():
         for b in make_loader(ds, 8, shuffle=False):
@@ -59,7 +53,7 @@ def main() -> None:
                 pts = route_points_ahead(r, cfg.plan_route_points, cfg.plan_route_spacing)
                 batch = dict(b, route_points=pts[None].expand(n, -1, -1).clone())
                 if out["plan_frame"] == "route":
-                    path = route_path(r, PATH_POINTS, PATH_SPACING)
+                    path = planner_route_path(r, cfg)
                     batch[PATH_KEY] = path[None].expand(n, -1, -1).clone()
                 ends[kind].append(model(batch)["waypoints"][:, -1])
     for kind, w in ends.items():

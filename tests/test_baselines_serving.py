@@ -26,7 +26,6 @@ What the replay shows, and what these tests pin:
 from __future__ import annotations
 
 import copy
-import dataclasses
 import json
 import math
 from pathlib import Path
@@ -41,6 +40,8 @@ from v2xbench.agents.baselines.common.policy import planning_inputs
 from v2xbench.collectors import jobs as J
 from v2xbench.collectors.dataset.loader import V2XDataset
 from v2xbench.envs.v2x_intersection.core.geometry import world_to_local_2d
+
+from tests import baselines_common as bc
 
 torch.set_num_threads(1)
 EPISODE = 0  # train_000_s0 of the tiny suite: a unit serves the ego from tick 0 (ControlLoss)
@@ -191,18 +192,14 @@ def codriving(tmp_path_factory):
         ego_pose_of,
     )
     from v2xbench.agents.baselines.codriving.request import route_ahead
-    from v2xbench.collectors.dataset.collect import collect
 
-    from tests.dataset_helpers import TINY
-
-    data = tmp_path_factory.mktemp("codriving_lidar")
-    collect(dataclasses.replace(TINY, sensors=("lidar",)), data, workers=1, progress=False)
+    data = bc.collect_lidar(tmp_path_factory.mktemp("codriving_lidar"))
     torch.manual_seed(0)
     cfg = CoDrivingConfig.for_scale("tiny")
     model = CoDriving(cfg).eval()
     with torch.no_grad():
         model.rsu.confidence[-1].bias.fill_(5.0)  # confident everywhere: the request chooses
-    scale = TINY.lidar_scale
+    scale = json.loads((data / "manifest.json").read_text())["config"]["lidar_scale"]
     roadside = RecordingRoadside(CoDrivingRoadside(model.rsu, cfg, scale))
     agent, _ = replay(data, {"camera_images": (), "lidar_scale": scale}, cfg.message_floats(),
                       roadside, tmp_path_factory.mktemp("codriving_replay"))

@@ -178,7 +178,7 @@ def test_waypoint_head_switches_route_frame_and_no_speed():
     assert torch.allclose(wps, want, atol=0.05), (wps, want)
     with pytest.raises(ValueError, match="route polyline"):
         head(bev, cmd, torch.zeros(1), route)
-    speedy = WaypointHead(dataclasses.replace(CFG, plan_ego_speed=False)).eval()
+    speedy = WaypointHead(dataclasses.replace(CFG, plan_ego_speed=False, plan_frame="ego")).eval()
     assert torch.equal(speedy(bev, cmd, torch.zeros(1), route),
                        speedy(bev, cmd, torch.full((1,), 9.0), route))
     with pytest.raises(ValueError, match="plan_frame"):
@@ -251,10 +251,13 @@ def test_cli_trains_plans_open_loop_and_the_agent_drives_through_eval(lidar_data
 
     data, run = tmp_path / "data", tmp_path / "run"
     shutil.copytree(lidar_dataset, data)
-    base, log = bc.train_and_resume("codriving", data, run, capsys)
+    # the published planner (told the speed, ego-frame steps); the defaults: UniV2X's test
+    base, log = bc.train_and_resume("codriving", data, run, capsys,
+                                    ("--ego-speed", "--ego-frame"))
     assert {"heat", "box", "plan_l1", "plan_col", "conf"} <= set(log[-1])
     assert "seed differ" in bc.refused_error(base, capsys)
     model, cfg, info = load_run(run)
+    assert cfg.plan_ego_speed is True and cfg.plan_frame == "ego"
     bc.assert_same_weights(model, CoDriving(cfg), tmp_path / "again.safetensors")
     bc.open_loop_matches_the_model("codriving", run, data, tmp_path, capsys)
     assert main(["baselines", "eval-perception", "codriving", "--run", str(run), "--data",

@@ -168,18 +168,30 @@ def test_no_ego_speed_planner_never_hears_the_speed(tiny_dataset, tmp_path, caps
     route = torch.randn(2, CFG.plan_route_points, 2)
     slow, fast = torch.zeros(2), torch.full((2,), 8.0)
     for hears in (True, False):
-        p = QueryPlanner(dataclasses.replace(CFG, plan_ego_speed=hears)).eval()
+        p = QueryPlanner(dataclasses.replace(CFG, plan_ego_speed=hears, plan_frame="ego")).eval()
         moved = (p(*args, slow, route) - p(*args, fast, route)).abs().max()
         assert (moved > 1e-4) if hears else (moved == 0), (hears, moved)
     with pytest.raises(ValueError, match="plan_ego_speed"):
         dataclasses.replace(CFG, plan_ego_speed=1)
-    # the command line's switch reaches the run's configuration (and so the closed loop)
-    data, run = tmp_path / "data", tmp_path / "run"
+    # the defaults: never told the speed, the route frame; the command line's switches reach
+    # the run's configuration (and so the closed loop)
+    for scale in UniV2XConfig.SCALES:
+        cfg = UniV2XConfig.for_scale(scale)
+        assert cfg.plan_ego_speed is False and cfg.plan_frame == "route", scale
+    data = tmp_path / "data"
     shutil.copytree(tiny_dataset, data)
-    assert main(["baselines", "train", "univ2x", "--data", str(data), "--out", str(run),
-                 "--scale", "tiny", "--quiet", "--max-steps", "1", "--no-ego-speed"]) == 0
-    capsys.readouterr()
-    assert load_run(run)[1].plan_ego_speed is False
+    for flags, want in ((("--ego-speed", "--ego-frame"), (True, "ego")),
+                        (("--no-ego-speed", "--route-frame"), (False, "route"))):
+        run = tmp_path / flags[0]
+        assert main(["baselines", "train", "univ2x", "--data", str(data), "--out", str(run),
+                     "--scale", "tiny", "--quiet", "--max-steps", "1", *flags]) == 0
+        capsys.readouterr()
+        cfg = load_run(run)[1]
+        assert (cfg.plan_ego_speed, cfg.plan_frame) == want, flags
+    # a run written before the switches existed planned in the ego frame, told the speed
+    old = {k: v for k, v in cfg.to_dict().items() if k not in ("plan_ego_speed", "plan_frame")}
+    legacy = UniV2XConfig.from_dict(old)
+    assert (legacy.plan_ego_speed, legacy.plan_frame) == (True, "ego")
 
 
 def test_route_frame_planner_plans_along_the_observed_route(tiny_dataset):
@@ -217,7 +229,8 @@ def test_route_frame_planner_plans_along_the_observed_route(tiny_dataset):
     frames = UniV2XFrames(tiny_dataset, "all", cfg, stride=5)
     s = frames[3]
     assert s[PATH_KEY].shape == (40, 2)
-    assert PATH_KEY not in UniV2XFrames(tiny_dataset, "all", CFG, stride=5)[3]
+    ego_cfg = dataclasses.replace(CFG, plan_frame="ego")
+    assert PATH_KEY not in UniV2XFrames(tiny_dataset, "all", ego_cfg, stride=5)[3]
     route = np.asarray(frames.extra[int(frames.frame_ids[3])]["route"])  # the recorded rows
     obs = {"route": route, "ego": np.zeros(4, np.float32)}
     assert torch.equal(planning_inputs(obs, cfg)[PATH_KEY][0], s[PATH_KEY])
@@ -237,4 +250,9 @@ def test_cli_trains_resumes_round_trips_plans_open_loop_and_drives_a_route(tiny_
     bc.assert_same_weights(model, UniV2X(cfg), tmp_path / "again.safetensors")
     assert info["camera_size"] == [32, 16]
     bc.open_loop_matches_the_model("univ2x", run, data, tmp_path, capsys)
-    bc.drive_one_route("univ2x", run, tmp_path, cfg.message_floats(), "UniV2XRoadside")
+    # exported weights (what the repository ships) drive through eval as the run would
+    export = tmp_path / "export"
+    assert main(["baselines", "export", "univ2x", "--run", str(run), "--out", str(export)]) == 0
+    assert "plan_frame 'route'" in capsys.readouterr().out
+    bc.assert_export_is_the_run("univ2x", run, export)
+    bc.drive_one_route("univ2x", export, tmp_path, cfg.message_floats(), "UniV2XRoadside")

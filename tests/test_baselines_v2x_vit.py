@@ -5,6 +5,7 @@ frames of the data set and of closed loop, overfitting, `v2xbench baselines trai
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import shutil
@@ -109,7 +110,7 @@ def test_the_delay_encoding_differs_for_different_ages():
     for a, b in ((0, 1), (1, 2), (0, 2)):
         assert (p[a] - p[b]).abs().max() > 1e-2
     assert torch.equal(p[3], p[4])  # older than max_age: encoded as max_age
-    model = V2XViT(CFG).eval()  # the whole ego half sees the age
+    model = V2XViT(dataclasses.replace(CFG, plan_frame="ego")).eval()  # the ego half sees the age
     batch = {"ego/points": torch.rand(1, 50, 4) * 20, "ego/point_mask": torch.ones(1, 50,
                                                                                   dtype=bool),
              "command": torch.tensor([0]), "ego_speed": torch.tensor([3.0]),

@@ -97,14 +97,8 @@ def export_run(run: str | Path, stage: int | None, out: str | Path, *,
             shutil.copyfile(lm_dir / name, tmp / LM_DIR / name)
     run_info = {k: v for k, v in info.items() if k not in ("checkpoint", "lm_dir")}
     atomic_write_json(tmp / RUN_FILE, run_info, indent=1)
-    files = {}
-    for p in sorted(x for x in tmp.rglob("*") if x.is_file()):
-        rel = p.relative_to(tmp).as_posix()
-        files[rel] = {"sha256": sha256_file(p), "bytes": p.stat().st_size}
-    commit = _git("rev-parse", "HEAD")
-    dirty = _git("status", "--porcelain", "--untracked-files=no")
     manifest = {
-        "format": FORMAT, "files": files, "dtype": dtype, "float32_tensors": kept32,
+        "format": FORMAT, "dtype": dtype, "float32_tensors": kept32,
         "scale": info["scale"], "stage": int(info["stage"]), "fusion": bool(info["fusion"]),
         "planner": info["config"]["planner"],
         "parameters": int(sum(t.numel() for t in tensors.values())),
@@ -112,8 +106,24 @@ def export_run(run: str | Path, stage: int | None, out: str | Path, *,
                    "checkpoint": info["checkpoint"],
                    "checkpoint_sha256": sha256_file(info["checkpoint"]),
                    "base_lm": info["lm"]},
+    }
+    return finish_export(tmp, out, manifest, command)
+
+
+def finish_export(tmp: Path, out: Path, manifest: dict, command: str | None) -> dict:
+    """Write ``manifest`` plus every file of ``tmp`` (SHA-256, size), the command, the git commit
+    and the date into ``tmp/manifest.json``, then replace ``out`` by ``tmp``; returns the
+    manifest. (AURORA's and the baselines' exports.)"""
+    files = {}
+    for p in sorted(x for x in tmp.rglob("*") if x.is_file()):
+        rel = p.relative_to(tmp).as_posix()
+        files[rel] = {"sha256": sha256_file(p), "bytes": p.stat().st_size}
+    dirty = _git("status", "--porcelain", "--untracked-files=no")
+    manifest = {
+        **manifest, "files": files,
         "command": command if command is not None else " ".join(sys.argv),
-        "git_commit": commit, "git_dirty": None if dirty is None else bool(dirty),
+        "git_commit": _git("rev-parse", "HEAD"),
+        "git_dirty": None if dirty is None else bool(dirty),
         "created_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
     }
     atomic_write_json(tmp / MANIFEST, manifest, indent=1)
@@ -122,8 +132,10 @@ def export_run(run: str | Path, stage: int | None, out: str | Path, *,
     return manifest
 
 
-def verify_export(path: str | Path) -> dict:
-    """The manifest of an exported folder after checking every file it lists (size and SHA-256).
+def verify_export(path: str | Path, fmt: str = FORMAT, who: str = "AURORA weights",
+                  how: str = "v2xbench aurora export --run RUN --out DIR") -> dict:
+    """The manifest of an exported folder after checking every file it lists (size and SHA-256);
+    ``fmt`` the format it must have, ``who`` and ``how`` (the export command) for messages.
 
     Raises:
         FileNotFoundError: no folder, manifest or listed file (named). ValueError: a file whose
@@ -131,19 +143,19 @@ def verify_export(path: str | Path) -> dict:
     """
     path = Path(path)
     if not (path / MANIFEST).is_file():
-        raise FileNotFoundError(f"AURORA weights: {path / MANIFEST} does not exist (export a "
-                                "run with `v2xbench aurora export --run RUN --out DIR`)")
+        raise FileNotFoundError(f"{who}: {path / MANIFEST} does not exist (export a "
+                                f"run with `{how}`)")
     manifest = json.loads((path / MANIFEST).read_text())
-    if manifest.get("format") != FORMAT:
-        raise ValueError(f"AURORA weights: {path / MANIFEST} has format "
-                         f"{manifest.get('format')!r}, not {FORMAT!r}")
+    if manifest.get("format") != fmt:
+        raise ValueError(f"{who}: {path / MANIFEST} has format "
+                         f"{manifest.get('format')!r}, not {fmt!r}")
     for rel, want in manifest["files"].items():
         f = path / rel
         if not f.is_file():
-            raise FileNotFoundError(f"AURORA weights: {f} is listed in {MANIFEST} but missing")
+            raise FileNotFoundError(f"{who}: {f} is listed in {MANIFEST} but missing")
         got = sha256_file(f)
         if got != want["sha256"] or f.stat().st_size != want["bytes"]:
-            raise ValueError(f"AURORA weights: {f} fails its SHA-256 check (manifest "
+            raise ValueError(f"{who}: {f} fails its SHA-256 check (manifest "
                              f"{want['sha256']}, file {got}): the file changed since the export;"
                              " export again or restore it")
     return manifest
@@ -180,5 +192,5 @@ def load_export(path: str | Path, device: str = "cpu"):
     return system.to(device).eval(), tok, info
 
 
-__all__ = ["FORMAT", "MANIFEST", "SHIPPED", "WEIGHTS", "export_run", "load_export",
+__all__ = ["FORMAT", "MANIFEST", "SHIPPED", "WEIGHTS", "export_run", "finish_export", "load_export",
            "sha256_file", "verify_export"]

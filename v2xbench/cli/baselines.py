@@ -50,8 +50,8 @@ def _train(args: argparse.Namespace) -> int:
 
 def _overrides(args: argparse.Namespace) -> dict | None:
     """The configuration fields the train command's switches set (``None``: the scale's)."""
-    out = {**({"plan_ego_speed": False} if args.no_ego_speed else {}),
-           **({"plan_frame": "route"} if args.route_frame else {})}
+    out = {**({} if args.ego_speed is None else {"plan_ego_speed": args.ego_speed}),
+           **({} if args.plan_frame is None else {"plan_frame": args.plan_frame})}
     return out or None
 
 
@@ -85,9 +85,25 @@ def _eval_planning(args: argparse.Namespace) -> int:
     return 0
 
 
+def _export(args: argparse.Namespace) -> int:
+    import shlex
+
+    from v2xbench.agents.baselines.common.export import SHIPPED, export_run
+
+    out = args.out if args.out is not None else SHIPPED / args.method
+    cmd = shlex.join(["v2xbench", "baselines", "export", args.method, "--run", str(args.run),
+                      *([] if args.out is None else ["--out", str(args.out)])])
+    m = export_run(args.method, args.run, out, command=cmd)
+    size = sum(f["bytes"] for f in m["files"].values())
+    print(f"exported {args.method} ({m['scale']}, {m['parameters']:,d} parameters, plan_frame "
+          f"{m['plan_frame']!r}, told the speed: {m['plan_ego_speed']}) of {args.run} into "
+          f"{out} ({size / 1e6:.1f} MB)")
+    return 0
+
+
 def register(sub) -> None:
-    """Add ``baselines train``, ``eval-perception`` and ``eval-planning`` to the ``v2xbench``
-    parser."""
+    """Add ``baselines train``, ``export``, ``eval-perception`` and ``eval-planning`` to the
+    ``v2xbench`` parser."""
     p = sub.add_parser("baselines", help="the paper's cooperative baselines: train, evaluate "
                        "perception (drive them with `v2xbench eval --agent NAME`)",
                        description=__doc__)
@@ -112,12 +128,16 @@ def register(sub) -> None:
                    help="data-loader worker processes (default: the scale's)")
     t.add_argument("--threads", type=_int_in(1), default=None,
                    help="torch threads (default: 1)")
-    t.add_argument("--no-ego-speed", action="store_true",
-                   help="the planner is never told the ego's speed (config "
-                   "plan_ego_speed=false; in closed loop too)")
-    t.add_argument("--route-frame", action="store_true",
-                   help="the planner plans along the observed route, AURORA's route-relative "
-                   "output (config plan_frame='route')")
+    t.add_argument("--ego-speed", action=argparse.BooleanOptionalAction, default=None,
+                   help="whether the planner is told the ego's speed (config plan_ego_speed; "
+                   "default: no, in training and closed loop alike)")
+    frame = t.add_mutually_exclusive_group()
+    frame.add_argument("--route-frame", dest="plan_frame", action="store_const", const="route",
+                       help="the planner plans along the observed route, AURORA's "
+                       "route-relative output (config plan_frame='route'; the default)")
+    frame.add_argument("--ego-frame", dest="plan_frame", action="store_const", const="ego",
+                       help="the published planners' ego-frame x, y steps (config "
+                       "plan_frame='ego')")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=_train)
     e = bsub.add_parser("eval-perception", help="detection metrics of a trained baseline on a "
@@ -125,6 +145,16 @@ def register(sub) -> None:
                         "every K-th frame of a split and score its fused detections against "
                         "gt/fused (ego range) with the nuScenes-style metrics AURORA uses; writes "
                         "perception.json and perception.md.")
+    x = bsub.add_parser("export", help="write a trained run's weights as shipped weights "
+                        "(SHA-256 manifest)", description="Copy what the registered agent needs "
+                        "of a trained run (weights, run file) into a folder with a SHA-256 "
+                        "manifest; `v2xbench eval --agent NAME` without --agent-config loads "
+                        "agents/baselines/weights/NAME, the default --out.")
+    x.add_argument("method", choices=sorted(METHODS), help="the baseline")
+    x.add_argument("--run", required=True, help="trained run folder")
+    x.add_argument("--out", default=None,
+                   help="output folder (default: agents/baselines/weights/METHOD)")
+    x.set_defaults(func=_export)
     _eval_arguments(e, stride=5, out="RUN/eval_<split>")
     e.add_argument("--top-k", type=_int_in(1), default=50, help="predictions per frame")
     e.set_defaults(func=_eval_perception)

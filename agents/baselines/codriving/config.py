@@ -72,10 +72,11 @@ class CoDrivingConfig(ScaledConfig):
     plan_route_points: int = 4
     plan_route_spacing: float = 5.0
     plan_hidden: int = 64
-    #: Planner switches (agents/baselines/common/plan_frame.py): told the ego's speed; output
-    #: frame ``"ego"`` (x, y steps) or ``"route"`` (AURORA's route-relative output).
-    plan_ego_speed: bool = True
-    plan_frame: str = "ego"
+    #: Planner switches (agents/baselines/common/plan_frame.py): told the ego's speed (default
+    #: no); output frame ``"route"`` (the default: AURORA's route-relative output) or ``"ego"``
+    #: (the published x, y steps).
+    plan_ego_speed: bool = False
+    plan_frame: str = "route"
     # --- losses: fused detection (CenterNet focal + L1), the unit's confidence map (focal),
     # planning L1 + collision
     heat_alpha: float = 2.0

@@ -19,11 +19,14 @@ class BaselineAgent:
     ``load_run``) and implement :meth:`_sensors`.
 
     Args:
-        run: a trained run folder (``v2xbench baselines train METHOD --out RUN``).
+        run: a trained run folder (``v2xbench baselines train METHOD --out RUN``) or exported
+            weights (``v2xbench baselines export``); default: the repository's shipped
+            ``agents/baselines/weights/<method>`` (SHA-256 checked), where the method has them.
         device: torch device.
 
     Raises:
-        FileNotFoundError: no run given, or not a trained run of the method.
+        FileNotFoundError: no run given and no shipped weights, or not a trained run of the
+            method. ValueError: exported or shipped weights that fail their SHA-256 check.
     """
 
     obs_mode = "sensors"
@@ -35,7 +38,13 @@ class BaselineAgent:
     roadside_cls: str = ""
 
     def __init__(self, run: str | None = None, device: str = "cpu") -> None:
+        from .export import MANIFEST, SHIPPED, verify
+
         m = self.method
+        if run is None and (SHIPPED / m).is_dir():
+            run = str(SHIPPED / m)
+        if run is not None and (Path(run) / MANIFEST).is_file():
+            verify(run, m)  # exported weights: every file as exported
         if run is None:
             raise FileNotFoundError(f'{m} agent: no run given; pass a trained run with '
                                     f'--agent-config FILE holding {{"run": "runs/{m}"}} (train '

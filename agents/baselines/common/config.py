@@ -13,6 +13,12 @@ from v2xbench.envs.v2x_intersection.sim.config import FIELD_RULES
 
 from .plan_frame import check_switches
 
+#: Fields a run written before they existed (2026-11-28) had in effect: its planner was told the
+#: ego's speed, in the ego frame (the defaults since: the route frame, never told the speed);
+#: UniV2X / UniMM-V2X trained on the same tick's roadside message (since: one tick older).
+LEGACY_FIELDS: dict[str, Any] = {"plan_ego_speed": True, "plan_frame": "ego",
+                                 "msg_latency_ticks": 0}
+
 
 class ScaledConfig:
     """Mixin of a frozen configuration dataclass with named scales.
@@ -47,12 +53,14 @@ class ScaledConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]):
-        """Inverse of :meth:`to_dict`; unknown keys raise ``ValueError`` naming them."""
+        """Inverse of :meth:`to_dict`; unknown keys raise ``ValueError`` naming them. A dict
+        without the planner switches is an older run's: :data:`LEGACY_FIELDS`."""
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = set(d) - names
         if unknown:
             raise ValueError(f"{cls.__name__}: unknown keys {sorted(unknown)}")
-        kw = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
+        kw = {**{k: v for k, v in LEGACY_FIELDS.items() if k in names},
+              **{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}}
         if isinstance(kw.get("train"), dict):
             kw["train"] = StageHParams.from_dict(kw["train"])
         return cls(**kw)
@@ -120,5 +128,5 @@ def check_message_size(cfg: Any, who: str, lower: str) -> None:
                          f"{limit}); lower {lower}")
 
 
-__all__ = ["TINY_TRAIN", "ScaledConfig", "check_ints", "check_message_size", "check_planning",
+__all__ = ["LEGACY_FIELDS", "TINY_TRAIN", "ScaledConfig", "check_ints", "check_message_size", "check_planning",
            "check_positive", "check_ranges", "grid_ok"]

@@ -8,7 +8,8 @@ same checkpoint; the message a raw payload through the channel) and it declares 
 {"max_payload_floats": <the message's floats>}`` so that ``eval`` sets the env's limit
 (``agents/interface.py``, "Channel"). ``checkpoint`` names the weights, ``fingerprint()`` the
 scale and the target-speed rule. Each step: :meth:`~.policy.UniV2XDriver.plan` -> the shared
-waypoint controller. There are no shipped weights: a run is required.
+waypoint controller. Without a run it loads the
+shipped weights (``agents/baselines/weights/univ2x``) where the repository has them.
 
 This module imports nothing heavy: the model loads in the constructor.
 """

@@ -76,15 +76,22 @@ class UniV2XConfig(ScaledConfig):
     plan_layers: int = 1
     plan_route_points: int = 4  # route points ahead (as AURORA's planner input)
     plan_route_spacing: float = 5.0  # m between them
-    #: The planner reads the ego's speed. False: it is told 0 m/s in training and in closed
-    #: loop (UniAD's planner reads no ego status; with it, behaviour cloning plans from the
-    #: speed: ``v2xbench baselines eval-planning --ego-speed 0``, docs/baselines.md).
-    plan_ego_speed: bool = True
-    #: The planner's output frame: ``"ego"`` (x, y steps) or ``"route"`` (AURORA's route-relative
-    #: planner: per waypoint an arc length along the observed route, never decreasing, and a
-    #: lateral offset from it, turned into x, y by ``route_input.route_to_ego``; batch key
-    #: ``route_path``). Following the route is then what the planner does by default.
-    plan_frame: str = "ego"
+    #: The planner reads the ego's speed. False (the default, as every method of the planning
+    #: table): it is told 0 m/s in training and in closed loop (UniAD's planner reads no ego
+    #: status; with it, behaviour cloning plans from the speed: ``v2xbench baselines
+    #: eval-planning --ego-speed 0``, docs/baselines.md).
+    plan_ego_speed: bool = False
+    #: The planner's output frame: ``"route"`` (the default: AURORA's route-relative planner, per
+    #: waypoint an arc length along the observed route, never decreasing, and a lateral offset
+    #: from it, turned into x, y by ``route_input.route_to_ego``; batch key ``route_path``) or
+    #: ``"ego"`` (the published x, y steps; planners trained so ignore the route here:
+    #: docs/baselines.md, "What makes a planner drive here").
+    plan_frame: str = "route"
+    #: Ticks between the roadside unit's sensing and the ego reading its message in training
+    #: samples (``UniV2XFrames``): the channel's default ``latency_ticks`` = 1, so that a sample
+    #: pairs the ego's tick t with the message closed loop delivers at t (the unit's of t - 1;
+    #: none at an episode's first tick). 0: the same tick (runs before 2026-11-28).
+    msg_latency_ticks: int = 1
     # --- losses (AURORA's detection weights; UniAD-style planning L1 + collision)
     focal_alpha: float = 0.25
     focal_gamma: float = 2.0
@@ -111,6 +118,7 @@ class UniV2XConfig(ScaledConfig):
                                       "depth_bins", "bev_channels", "width", "heads", "ffn",
                                       "det_layers", "num_queries", "num_classes", "msg_topk",
                                       "num_commands", "plan_waypoints", "plan_layers"))
+        checks.check_ints(self, who, ("msg_latency_ticks",), lo=0)
         if self.stride & (self.stride - 1):
             raise ValueError(f"UniV2XConfig: stride={self.stride} must be a power of two")
         w, h = self.image_size

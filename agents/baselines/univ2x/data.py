@@ -22,12 +22,17 @@ key                                    content
 ``frame_id``                           () global frame index
 =====================================  ===================================================
 
-Frames: every ``stride``-th frame of each episode of the split.
+Frames: every ``stride``-th frame of each episode of the split. The roadside half's inputs and
+targets (``rsu/*``, ``has_rsu``, the unit's pose in ``rsu_to_ego``) are those of the frame
+``cfg.msg_latency_ticks`` earlier in the same episode (the channel's latency: closed loop reads
+at tick t the message the unit sent at t - 1, from its pose then, and none at a route's first
+tick); the ego's inputs and every other target are the frame's own.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import torch
 from torch.utils.data import Dataset
@@ -87,18 +92,28 @@ class UniV2XFrames(Dataset):
                            "det_mask": torch.zeros(m, dtype=torch.bool)}
         return {k: v.clone() for k, v in self._blank.items()}
 
+    def _calib(self, fid: int) -> tuple[Any, dict]:
+        """``(the ego's TensorDict, its calibration arrays)`` of global frame ``fid``."""
+        td = self.ego.ds[fid]
+        return td, {k: td["calib", k].numpy() for k in CALIB_KEYS}
+
     def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
         fid = int(self.frame_ids[index])
-        td = self.ego.ds[fid]
-        calib = {k: td["calib", k].numpy() for k in CALIB_KEYS}
+        td, calib = self._calib(fid)
         ego = self.ego.sample(td, calib, fid)
-        has = self.rsu is not None and int(calib["rsu_unit"]) >= 0
-        rsu = self.rsu.sample(self.rsu.ds[fid], calib, fid) if has else self._blank_rsu(ego)
+        lag = self.cfg.msg_latency_ticks  # the message read now was sensed `lag` ticks ago
+        sent = fid - lag if self.ego.ds.locate(fid)[1] >= lag else None
+        sent_calib = calib if lag == 0 else (None if sent is None else self._calib(sent)[1])
+        has = (self.rsu is not None and sent_calib is not None
+               and int(sent_calib["rsu_unit"]) >= 0)
+        rsu = (self.rsu.sample(self.rsu.ds[sent], sent_calib, sent) if has
+               else self._blank_rsu(ego))
         x = self.extra[fid]
         out = {f"ego/{k}": v for k, v in ego.items() if k not in _DROP}
         out.update({f"rsu/{k}": v for k, v in rsu.items() if k not in _DROP})
         out.update(fused_targets(x, self.range))
-        e = rsu_to_ego(calib["T_world_ego"], calib["T_world_rsu"]) if has else torch.eye(4)
+        e = (rsu_to_ego(calib["T_world_ego"], sent_calib["T_world_rsu"]) if has
+             else torch.eye(4))
         out.update(has_rsu=torch.tensor(has), rsu_to_ego=e.float())
         out.update(planning_sample(x, self.cfg, fid))
         return out

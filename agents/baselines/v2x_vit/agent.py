@@ -9,8 +9,8 @@ payload through the channel) and it declares ``channel = {"max_payload_floats": 
 floats>}`` so that ``eval`` sets the env's limit. ``checkpoint`` names the weights,
 ``fingerprint()`` the scale and the target-speed rule. Each step:
 :meth:`~.policy.V2XViTDriver.plan` -> the shared waypoint controller (V2X-ViT is a perception
-method; its waypoints come from a simple waypoint head, docs/baselines.md). There are no shipped
-weights: a run is required.
+method; its waypoints come from a simple waypoint head, docs/baselines.md). Without a run it loads the
+shipped weights (``agents/baselines/weights/v2x_vit``) where the repository has them.
 
 This module imports nothing heavy: the model loads in the constructor.
 """

@@ -42,3 +42,17 @@ def test_remove_stale_tmp_keeps_own_and_other_files(tmp_path_factory):
     assert own.exists() and keep.exists() and not stale.exists()
     os.utime(d / "r.json")
     assert remove_stale_tmp(d / "missing") == []
+
+
+def test_json_safe_turns_nan_inf_and_numpy_scalars_into_json():
+    import json
+    import math
+
+    import numpy as np
+    from v2xbench.files import json_safe
+
+    got = json_safe({"a": math.nan, "b": np.float32(1.5), "c": [np.int64(3), -math.inf],
+                     "d": (np.float64("nan"), "x")})
+    assert got == {"a": None, "b": 1.5, "c": [3, None], "d": [None, "x"]}
+    assert type(got["b"]) is float and type(got["c"][0]) is int
+    json.dumps(got, allow_nan=False)  # strict JSON

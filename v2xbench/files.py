@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import time
 from collections.abc import Iterator
@@ -83,6 +84,20 @@ def atomic_write_text(path: str | Path, text: str) -> Path:
 def atomic_write_json(path: str | Path, obj: Any, **dump_kwargs: Any) -> Path:
     """Write ``obj`` as JSON to ``path`` atomically (``dump_kwargs`` go to ``json.dumps``)."""
     return atomic_write_text(path, json.dumps(obj, **dump_kwargs))
+
+
+def json_safe(obj: Any) -> Any:
+    """JSON-safe copy of nested dicts / lists: NaN and inf become ``None``, NumPy scalars
+    Python numbers (the evaluations' result files)."""
+    if isinstance(obj, dict):
+        return {k: json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if hasattr(obj, "item") and getattr(obj, "shape", None) == ():  # a NumPy scalar
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
 
 
 def remove_stale_tmp(directory: str | Path, older_than_s: float = 0.0) -> list[Path]:

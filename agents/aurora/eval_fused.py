@@ -38,9 +38,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from v2xbench.files import atomic_write_json, atomic_write_text
+from v2xbench.files import atomic_write_json, atomic_write_text, json_safe
 
-from .eval_perception import _concat, _finite, decode_detections, table_row, to_det_boxes
+from .eval_perception import _concat, decode_detections, table_row, to_det_boxes
 
 #: Rows of the result: ``(predictions, ground truth)``; the first is the main table.
 ROWS = (("fused", "fused"), ("fused", "ego"), ("ego_branch", "ego"), ("ego_branch", "fused"))
@@ -226,7 +226,7 @@ def evaluate_fused(run: str | Path, data: str | Path, split: str = "test",
                                   if len(v.frame) else None} for k, v in res["preds"].items()},
               "table": tables["fused@fused"], "tables": tables, "metrics": metrics,
               "ms_per_frame": 1e3 * wall / max(res["frames"], 1)}
-    atomic_write_json(out / "perception.json", _finite(result), indent=1)
+    atomic_write_json(out / "perception.json", json_safe(result), indent=1)
     atomic_write_text(out / "perception.md", f"# AURORA fused perception: {data} ({split})\n\n"
                       f"Run `{run}`, stage {stage}; {res['frames']} frames (every {stride}th), "
                       f"{res['frames_with_unit']} with a roadside unit (its message serialized "

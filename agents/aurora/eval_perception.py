@@ -28,7 +28,7 @@ import torch
 from torch import nn
 from v2xbench.envs.v2x_intersection.evaluation.metrics_perception import DetBoxes, detection_metrics
 
-from v2xbench.files import atomic_write_json, atomic_write_text
+from v2xbench.files import atomic_write_json, atomic_write_text, json_safe
 
 from .config import AuroraConfig
 from .data import AuroraFrames, make_loader
@@ -237,23 +237,12 @@ def evaluate_run(run: str | Path, data: str | Path, split: str = "test",
         result["branches"][branch]["scale"] = cfg.scale
     table = markdown_table({b: r["table"] for b, r in result["branches"].items()})
     result["table"] = table
-    atomic_write_json(out / "perception.json", _finite(result), indent=1)
+    atomic_write_json(out / "perception.json", json_safe(result), indent=1)
     atomic_write_text(out / "perception.md", f"# AURORA perception: {data} ({split})\n\n"
                       f"Run `{run}`, top-{top_k} queries per frame, nuScenes-style metrics "
                       "(envs/v2x_intersection/evaluation/metrics_perception.py).\n\n" + table)
     result["out"] = str(out)
     return result
-
-
-def _finite(obj):
-    """JSON-safe copy: NaN / inf become ``None``."""
-    if isinstance(obj, dict):
-        return {k: _finite(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_finite(v) for v in obj]
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
 
 
 __all__ = ["BRANCH_STAGE", "RUN_CONFIG", "STAGE_BRANCH", "TABLE_COLUMNS", "decode_detections",

@@ -36,7 +36,6 @@ Files (:func:`evaluate_planning`, written atomically): ``metrics.json`` and ``me
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -50,7 +49,7 @@ from v2xbench.envs.v2x_intersection.evaluation.metrics_perception import (
 )
 from v2xbench.envs.v2x_intersection.town.model import COMMAND_NAMES
 
-from v2xbench.files import atomic_write_json, atomic_write_text
+from v2xbench.files import atomic_write_json, atomic_write_text, json_safe
 from v2xbench.locks import dir_lock
 
 HORIZONS = (1.0, 2.0, 3.0)
@@ -319,7 +318,7 @@ def write_result(out: Path, parts: dict[str, list], head: dict, t_steps: int, dt
     rec["constant_velocity"] = constant_velocity_plan(rec["speed"], t_steps, dt)
     for plan in PLANS:
         rec[f"col_{plan}"] = collisions(rec[plan], rec["futures"])
-    result = _finite({
+    result = json_safe({
         **head, "frames": int(len(rec["speed"])), "frames_without_expert_future": int(bad.sum()),
         "frames_with_roadside_unit": int(rec["has_rsu"].sum()),
         "horizons_s": list(HORIZONS), "dt_s": dt,
@@ -332,19 +331,6 @@ def write_result(out: Path, parts: dict[str, list], head: dict, t_steps: int, dt
     atomic_write_json(out / "metrics.json", result, indent=1)
     atomic_write_text(out / "metrics.md", table)
     return dict(result, out=str(out), table=table)
-
-
-def _finite(obj):
-    """JSON-safe copy: NaN / inf become ``None``; numpy scalars become Python numbers."""
-    if isinstance(obj, dict):
-        return {k: _finite(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_finite(v) for v in obj]
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
 
 
 # ---------------------------------------------------------------------- report

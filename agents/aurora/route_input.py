@@ -32,6 +32,8 @@ diffusion planner's anchors, the VAE's expert encoding).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import torch
 
@@ -183,9 +185,10 @@ def route_path(route: torch.Tensor | np.ndarray, count: int, spacing: float) -> 
     return polyline_at(xy, want)
 
 
-def planner_route_path(route: torch.Tensor | np.ndarray, cfg: AuroraConfig) -> torch.Tensor:
+def planner_route_path(route: torch.Tensor | np.ndarray, cfg: Any) -> torch.Tensor:
     """The route-relative planner's polyline of ``route`` rows: ``(..., PATH_POINTS, 2)`` m,
-    ego frame (:func:`route_path`); ``cfg`` is checked to plan in the route frame."""
+    ego frame (:func:`route_path`); ``cfg`` (AURORA's or a baseline's configuration: its
+    ``plan_frame``) is checked to plan in the route frame."""
     if cfg.plan_frame != "route":
         raise ValueError(f"planner_route_path: cfg.plan_frame={cfg.plan_frame!r}; the route "
                          "polyline is the input of a route-frame planner only")

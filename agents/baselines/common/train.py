@@ -21,7 +21,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from v2xbench.files import atomic_write_json, atomic_write_text
+from v2xbench.files import atomic_write_json, atomic_write_text, json_safe
 
 CHECKPOINT = "checkpoint.safetensors"
 #: Run settings that must match to resume a run folder.
@@ -204,7 +204,6 @@ class BaselineRun:
         ``perception.md`` in ``out`` (default ``RUN/eval_<split>``).
         """
         from v2xbench.agents.aurora.eval_perception import (
-            _finite,
             markdown_table,
             predict,
             table_row,
@@ -228,7 +227,7 @@ class BaselineRun:
                "bps_per_unit_frame": 10 * msg_bytes}
         out = Path(out) if out is not None else Path(run) / f"eval_{split}"
         out.mkdir(parents=True, exist_ok=True)
-        atomic_write_json(out / "perception.json", _finite(res), indent=1)
+        atomic_write_json(out / "perception.json", json_safe(res), indent=1)
         atomic_write_text(out / "perception.md", f"# {self.title} perception: {data} ({split})\n\n"
                           f"Run `{run}`, top-{top_k} {self.detections} per frame, nuScenes-style "
                           "metrics (envs/v2x_intersection/evaluation/metrics_perception.py); "

@@ -49,6 +49,7 @@ def test_json_safe_turns_nan_inf_and_numpy_scalars_into_json():
     import math
 
     import numpy as np
+
     from v2xbench.files import json_safe
 
     got = json_safe({"a": math.nan, "b": np.float32(1.5), "c": [np.int64(3), -math.inf],

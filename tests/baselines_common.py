@@ -93,14 +93,17 @@ def assert_same_weights(model: torch.nn.Module, other: torch.nn.Module, path: Pa
         assert torch.equal(a, b), name
 
 
-def drive_one_route(method: str, run: Path, tmp_path: Path, f: int, roadside: str) -> dict:
-    """``v2xbench eval --agent METHOD`` with ``{"run": RUN}`` on one 15-tick route: no error,
-    the channel limit set to the message's ``f`` floats, the method's roadside policy, whole
-    messages of ``16 + 2 f`` bytes sent. Returns the summary."""
+def drive_one_route(method: str, run: Path | None, tmp_path: Path, f: int,
+                    roadside: str) -> dict:
+    """``v2xbench eval --agent METHOD`` with ``{"run": RUN}`` (``None``: no agent config, the
+    shipped weights) on one 15-tick route: no error, the channel limit set to the message's
+    ``f`` floats, the method's roadside policy, whole messages of ``16 + 2 f`` bytes sent.
+    Returns the summary."""
     conf = tmp_path / f"{method}.json"
     conf.write_text(json.dumps({"run": str(run)}))
     res_dir = tmp_path / "eval"
-    assert main(["eval", "--agent", method, "--agent-config", str(conf), "--suite", "test50",
+    config = [] if run is None else ["--agent-config", str(conf)]
+    assert main(["eval", "--agent", method, *config, "--suite", "test50",
                  "--max-routes", "1", "--set", "max_steps=15", "--out", str(res_dir),
                  "--quiet"]) == 0
     route = json.loads(next((res_dir / "routes").glob("*.json")).read_text())
@@ -134,10 +137,46 @@ def assert_export_is_the_run(method: str, run: Path, export: Path) -> None:
     assert agent_cls(run=str(export)).cfg == cfg
     bad = export.with_name("tampered")
     shutil.copytree(export, bad)
-    f = next(bad.glob("*.json"))
+    f = bad / f"{method}.json"  # the run file (listed in the manifest)
     f.write_text(f.read_text().replace("\n", "\n ", 1))
     with pytest.raises(ValueError, match=f"{f.name} fails its SHA-256 check"):
         agent_cls(run=str(bad))
+    for target in (run, run.parent):  # the export never replaces its run
+        with pytest.raises(ValueError, match="is or holds the run"):
+            main_export(method, run, target)
+    other = export.with_name("not_an_export")
+    other.mkdir()
+    (other / "keep.txt").write_text("mine")
+    with pytest.raises(ValueError, match="is not an export"):
+        main_export(method, run, other)
+    assert (other / "keep.txt").read_text() == "mine"
+
+
+def main_export(method: str, run: Path, out: Path) -> dict:
+    """``export_run`` of the baselines (what ``v2xbench baselines export`` calls)."""
+    from v2xbench.agents.baselines.common.export import export_run
+
+    return export_run(method, run, out)
+
+
+def assert_shipped_weights(method: str, roadside: str, tmp_path: Path) -> None:
+    """The repository's shipped weights of ``method`` (``agents/baselines/weights/METHOD``):
+    SHA-256 checked, the default scale, the planning table's planner (route frame, never told
+    the speed, trained on the channel's message age), loaded by the agent without a run, and
+    driving one route through ``v2xbench eval`` without an agent config."""
+    import importlib
+
+    from v2xbench.agents.baselines import BASELINES
+    from v2xbench.agents.baselines.common.export import SHIPPED, verify
+
+    m = verify(SHIPPED / method, method)
+    assert (m["scale"], m["plan_frame"], m["plan_ego_speed"]) == ("default", "route", False)
+    agent = _agent_class(method)()
+    assert Path(agent.run) == SHIPPED / method
+    assert agent.cfg.msg_latency_ticks == 1 and agent.cfg.message_floats() == m["message_floats"]
+    model = importlib.import_module(BASELINES[method] + ".train").load_run(SHIPPED / method)[0]
+    assert m["parameters"] == sum(p.numel() for p in model.parameters())
+    drive_one_route(method, None, tmp_path, m["message_floats"], roadside)
 
 
 def _agent_class(method: str) -> type:
@@ -200,6 +239,7 @@ def open_loop_matches_the_model(method: str, run: Path, data: Path, tmp_path: Pa
     return res
 
 
-__all__ = ["assert_channel_counts", "assert_export_is_the_run", "assert_same_weights", "drive_one_route",
+__all__ = ["assert_channel_counts", "assert_export_is_the_run", "assert_same_weights",
+           "assert_shipped_weights", "drive_one_route",
            "open_loop_matches_the_model", "overfit", "refused_error", "train_and_resume",
            "unit_batch"]

@@ -183,6 +183,12 @@ def test_univ2x_samples_carry_the_roadside_inputs_of_the_channels_latency(univ2x
         changed += not torch.equal(now["rsu/images"], before["rsu/images"])
     assert changed > 0  # the roadside view moves: the latency matters
     assert bool(same[off]["has_rsu"]) and not bool(samples[0]["has_rsu"])
+    # every episode's first tick, not only the data set's: no message yet
+    lagged = UniV2XFrames(tiny_dataset, "all", cfg)
+    starts = [int(o) for o in lagged.ego.ds.offsets[:-1]]
+    assert len(starts) > 1
+    assert not any(bool(lagged[i]["has_rsu"]) for i in starts)
+    assert all(bool(lagged[i + 1]["has_rsu"]) == bool(same[i]["has_rsu"]) for i in starts)
 
 
 # ---------------------------------------------------------------------------------- CoDriving

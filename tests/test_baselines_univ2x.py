@@ -5,6 +5,7 @@ samples, and `v2xbench baselines train univ2x` -> `v2xbench eval --agent univ2x`
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import shutil
 
@@ -190,8 +191,18 @@ def test_no_ego_speed_planner_never_hears_the_speed(tiny_dataset, tmp_path, caps
         assert (cfg.plan_ego_speed, cfg.plan_frame) == want, flags
     # a run written before the switches existed planned in the ego frame, told the speed
     old = {k: v for k, v in cfg.to_dict().items() if k not in ("plan_ego_speed", "plan_frame")}
-    legacy = UniV2XConfig.from_dict(old)
-    assert (legacy.plan_ego_speed, legacy.plan_frame) == (True, "ego")
+    legacy = UniV2XConfig.from_dict({k: v for k, v in old.items() if k != "msg_latency_ticks"})
+    assert (legacy.plan_ego_speed, legacy.plan_frame, legacy.msg_latency_ticks) == (True, "ego", 0)
+    # such a run resumes with the settings it was trained with, and the refusal names a field
+    info = json.loads((run / "univ2x.json").read_text())
+    info["config"] = {k: v for k, v in info["config"].items()
+                      if k not in ("plan_ego_speed", "plan_frame", "msg_latency_ticks")}
+    (run / "univ2x.json").write_text(json.dumps(info))
+    base = ["baselines", "train", "univ2x", "--data", str(data), "--out", str(run), "--scale",
+            "tiny", "--quiet", "--max-steps", "1"]
+    assert main(base) == 2
+    assert "config.plan_frame" in capsys.readouterr().err
+    assert main([*base, "--ego-frame", "--ego-speed", "--msg-latency-ticks", "0"]) == 0
 
 
 def test_route_frame_planner_plans_along_the_observed_route(tiny_dataset):
@@ -256,3 +267,7 @@ def test_cli_trains_resumes_round_trips_plans_open_loop_and_drives_a_route(tiny_
     assert "plan_frame 'route'" in capsys.readouterr().out
     bc.assert_export_is_the_run("univ2x", run, export)
     bc.drive_one_route("univ2x", export, tmp_path, cfg.message_floats(), "UniV2XRoadside")
+
+
+def test_shipped_weights_load_and_drive(tmp_path):
+    bc.assert_shipped_weights("univ2x", "UniV2XRoadside", tmp_path)

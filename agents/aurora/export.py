@@ -81,7 +81,7 @@ def export_run(run: str | Path, stage: int | None, out: str | Path, *,
     if dtype not in DTYPES:
         raise ValueError(f"aurora export: dtype {dtype!r}; known: {', '.join(DTYPES)}")
     system, _, info = load_system(run, stage)
-    out = Path(out)
+    out = check_export_target(out, run, "aurora export")
     tmp = out.with_name(out.name + ".tmp")
     shutil.rmtree(tmp, ignore_errors=True)
     (tmp / LM_DIR).mkdir(parents=True)
@@ -108,6 +108,20 @@ def export_run(run: str | Path, stage: int | None, out: str | Path, *,
                    "base_lm": info["lm"]},
     }
     return finish_export(tmp, out, manifest, command)
+
+
+def check_export_target(out: str | Path, run: str | Path, who: str) -> Path:
+    """``out`` as a path, after refusing (``ValueError``) a folder the export would wrongly
+    replace: the run itself or a folder holding it, or an existing folder that is not an
+    export (no ``manifest.json``)."""
+    out, src = Path(out).resolve(), Path(run).resolve()
+    if out == src or out in src.parents:
+        raise ValueError(f"{who}: --out {out} is or holds the run {src}; the export replaces "
+                         "its folder: choose another")
+    if out.exists() and not (out / MANIFEST).is_file():
+        raise ValueError(f"{who}: --out {out} exists and is not an export (no {MANIFEST}); "
+                         "the export replaces its folder: choose another or remove it")
+    return out
 
 
 def finish_export(tmp: Path, out: Path, manifest: dict, command: str | None) -> dict:
@@ -192,5 +206,5 @@ def load_export(path: str | Path, device: str = "cpu"):
     return system.to(device).eval(), tok, info
 
 
-__all__ = ["FORMAT", "MANIFEST", "SHIPPED", "WEIGHTS", "export_run", "finish_export", "load_export",
-           "sha256_file", "verify_export"]
+__all__ = ["FORMAT", "MANIFEST", "SHIPPED", "WEIGHTS", "check_export_target", "export_run",
+           "finish_export", "load_export", "sha256_file", "verify_export"]

@@ -51,7 +51,9 @@ def _train(args: argparse.Namespace) -> int:
 def _overrides(args: argparse.Namespace) -> dict | None:
     """The configuration fields the train command's switches set (``None``: the scale's)."""
     out = {**({} if args.ego_speed is None else {"plan_ego_speed": args.ego_speed}),
-           **({} if args.plan_frame is None else {"plan_frame": args.plan_frame})}
+           **({} if args.plan_frame is None else {"plan_frame": args.plan_frame}),
+           **({} if args.msg_latency_ticks is None
+              else {"msg_latency_ticks": args.msg_latency_ticks})}
     return out or None
 
 
@@ -104,8 +106,9 @@ def _export(args: argparse.Namespace) -> int:
 def register(sub) -> None:
     """Add ``baselines train``, ``export``, ``eval-perception`` and ``eval-planning`` to the
     ``v2xbench`` parser."""
-    p = sub.add_parser("baselines", help="the paper's cooperative baselines: train, evaluate "
-                       "perception (drive them with `v2xbench eval --agent NAME`)",
+    p = sub.add_parser("baselines", help="the paper's cooperative baselines: train, export, "
+                       "evaluate perception and open-loop planning (drive them with `v2xbench "
+                       "eval --agent NAME`)",
                        description=__doc__)
     bsub = p.add_subparsers(dest="baselines_command", required=True)
     t = bsub.add_parser("train", help="train a baseline on the train split of a data set",
@@ -138,6 +141,10 @@ def register(sub) -> None:
     frame.add_argument("--ego-frame", dest="plan_frame", action="store_const", const="ego",
                        help="the published planners' ego-frame x, y steps (config "
                        "plan_frame='ego')")
+    t.add_argument("--msg-latency-ticks", type=_int_in(0), default=None, metavar="N",
+                   help="UniV2X / UniMM-V2X: training samples pair the ego's tick with the "
+                   "roadside's of N ticks earlier (default 1: the channel's latency; 0: runs "
+                   "trained before 2026-11-28)")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=_train)
     e = bsub.add_parser("eval-perception", help="detection metrics of a trained baseline on a "

@@ -10,8 +10,8 @@ declares ``channel = {"max_payload_floats": <the largest message's floats>}`` so
 sets the env's limit (messages are shorter when fewer cells are chosen). Each step:
 :meth:`~.policy.CoDrivingDriver.plan` -> the native controller (:mod:`.controller`: PID on the
 waypoints; a ``(3,)`` throttle, steer, brake action, so the env's ``action_mode`` must be
-``carla``). Without a run it loads the
-shipped weights (``agents/baselines/weights/codriving``) where the repository has them.
+``carla``). Without a run it loads the shipped weights (``agents/baselines/weights/codriving``)
+where the repository has them.
 
 This module imports nothing heavy: the model loads in the constructor.
 """

@@ -46,10 +46,11 @@ class BaselineAgent:
         if run is not None and (Path(run) / MANIFEST).is_file():
             verify(run, m)  # exported weights: every file as exported
         if run is None:
-            raise FileNotFoundError(f'{m} agent: no run given; pass a trained run with '
-                                    f'--agent-config FILE holding {{"run": "runs/{m}"}} (train '
-                                    f'one with `v2xbench baselines train {m} --data DIR --out '
-                                    f'runs/{m}`)')
+            raise FileNotFoundError(f'{m} agent: no run given and no shipped weights at '
+                                    f'{SHIPPED / m}; pass a trained run with --agent-config '
+                                    f'FILE holding {{"run": "runs/{m}"}} (train one with '
+                                    f'`v2xbench baselines train {m} --data DIR --out runs/{m}`; '
+                                    f'`v2xbench baselines export {m} --run runs/{m}` ships it)')
         load_run, driver_cls, roadside_cls = self._load()
         model, cfg, info = load_run(run, device)
         self.run, self.cfg, self.info = str(Path(run)), cfg, info

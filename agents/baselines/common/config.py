@@ -128,5 +128,5 @@ def check_message_size(cfg: Any, who: str, lower: str) -> None:
                          f"{limit}); lower {lower}")
 
 
-__all__ = ["LEGACY_FIELDS", "TINY_TRAIN", "ScaledConfig", "check_ints", "check_message_size", "check_planning",
-           "check_positive", "check_ranges", "grid_ok"]
+__all__ = ["LEGACY_FIELDS", "TINY_TRAIN", "ScaledConfig", "check_ints", "check_message_size",
+           "check_planning", "check_positive", "check_ranges", "grid_ok"]

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -65,6 +66,10 @@ def evaluate_planning(brun: Any, run: str | Path, data: str | Path, split: str =
         raise FileNotFoundError(f"{brun.method} eval-planning: data directory {data} does not "
                                 f"exist (collect one with {brun.collect_hint})")
     model, cfg, info = brun.load_run(run, device)
+    if ego_speed is not None and not cfg.plan_ego_speed:
+        warnings.warn(f"{brun.method} eval-planning: the run's planner is never told the ego's "
+                      f"speed (plan_ego_speed=false): --ego-speed {ego_speed:g} changes nothing",
+                      stacklevel=2)
     ds = brun.frames(data, split, cfg, stride, False)
     t_steps, dt = int(cfg.plan_waypoints), float(cfg.plan_dt)
     out = Path(out) if out is not None else Path(run) / OUT_DIR
@@ -83,7 +88,8 @@ def evaluate_planning(brun: Any, run: str | Path, data: str | Path, split: str =
                            "checkpoint": info.get("checkpoint"), "fusion": True,
                            "scale": info.get("scale"), "planner": f"{brun.title}'s"},
                 "data": str(data), "split": split, "stride": stride, "command": command,
-                "ego_speed_input": "frame" if ego_speed is None else float(ego_speed)}
+                "ego_speed_input": "frame" if ego_speed is None else float(ego_speed),
+                "plan_ego_speed": bool(cfg.plan_ego_speed), "plan_frame": cfg.plan_frame}
         return write_result(out, parts, head, t_steps, dt, time.perf_counter() - t0, len(ds))
 
 

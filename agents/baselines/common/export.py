@@ -20,6 +20,7 @@ import importlib
 import json
 import shutil
 from pathlib import Path
+from typing import Any
 
 #: The manifest file of an exported folder (AURORA's name).
 MANIFEST = "manifest.json"
@@ -28,7 +29,8 @@ SHIPPED = Path(__file__).resolve().parents[1] / "weights"
 FORMAT = "v2xbench-baseline-export/1"
 
 
-def _run_module(method: str):
+def _run_module(method: str) -> Any:
+    """The method's :class:`~.train.BaselineRun` (``ValueError``: unknown method)."""
     from v2xbench.agents.baselines import BASELINES
 
     if method not in BASELINES:
@@ -44,12 +46,13 @@ def export_run(method: str, run: str | Path, out: str | Path | None = None, *,
     Raises:
         ValueError: unknown method. FileNotFoundError: not a trained run of the method.
     """
-    from v2xbench.agents.aurora.export import finish_export, sha256_file
+    from v2xbench.agents.aurora.export import check_export_target, finish_export, sha256_file
     from v2xbench.agents.baselines.common.train import CHECKPOINT
 
     spec = _run_module(method)
     model, cfg, info = spec.load_run(run)  # checks the run loads into the method's model
-    out = Path(out) if out is not None else SHIPPED / method
+    out = check_export_target(out if out is not None else SHIPPED / method, run,
+                              f"baselines export {method}")
     tmp = out.with_name(out.name + ".tmp")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)

@@ -28,15 +28,23 @@ CHECKPOINT = "checkpoint.safetensors"
 SAME_RUN_KEYS = ("scale", "config", "data", "frame_stride", "seed")
 
 
-def check_same_run(path: Path, info: dict) -> None:
+def check_same_run(path: Path, info: dict, config_cls: Any = None) -> None:
     """Refuse (``ValueError`` naming what differs) a run file at ``path`` whose settings
-    (:data:`SAME_RUN_KEYS`) are not ``info``'s; no file: nothing to check."""
+    (:data:`SAME_RUN_KEYS`) are not ``info``'s; no file: nothing to check. With ``config_cls``
+    the stored configuration is read by its ``from_dict`` first (a run written before a field
+    existed has the field's legacy value) and the differing fields are named."""
     if not path.is_file():
         return
     old = json.loads(path.read_text())
-    diff = [k for k in SAME_RUN_KEYS if old.get(k) != json.loads(json.dumps(info[k]))]
+    if config_cls is not None and isinstance(old.get("config"), dict):
+        old["config"] = config_cls.from_dict(old["config"]).to_dict()
+    old, new = json.loads(json.dumps(old)), json.loads(json.dumps(info))
+    diff = [k for k in SAME_RUN_KEYS if old.get(k) != new[k]]
     if diff:
-        show = [(k, old.get(k), info[k]) for k in diff if k != "config"]
+        show = [(k, old.get(k), new[k]) for k in diff if k != "config"]
+        if "config" in diff and isinstance(old.get("config"), dict):
+            show += [(f"config.{k}", old["config"].get(k), v) for k, v in new["config"].items()
+                     if old["config"].get(k) != v]
         raise ValueError(f"{info['method']} train: {path.parent} holds a run with other settings ("
                          f"{', '.join(diff)} differ{': ' + str(show) if show else ''}); use the "
                          "same settings to resume, or another --out")
@@ -116,7 +124,7 @@ class BaselineRun:
             max_steps: stop after this many optimizer steps in total (run again to go on).
             stride: frame stride (default: the scale's). seed: the run's seed.
             num_workers: data-loader workers (default: the scale's).
-            overrides: configuration fields over the scale's (``{"plan_ego_speed": False}``);
+            overrides: configuration fields over the scale's (``{"plan_frame": "ego"}``);
                 part of the run's settings (a run resumes only with the same).
 
         Returns:
@@ -148,7 +156,7 @@ class BaselineRun:
                 "config": cfg.to_dict(), "data": str(Path(data).resolve()), "split": "train",
                 "frame_stride": hp.frame_stride, "frames": len(ds), "seed": seed,
                 **self.sensor_info(ds)}
-        check_same_run(out / self.run_file, info)
+        check_same_run(out / self.run_file, info, self.config_cls)
         out.mkdir(parents=True, exist_ok=True)
         atomic_write_json(out / self.run_file, info, indent=1)
         loader = make_loader(ds, hp.batch_size, shuffle=True, seed=seed,

@@ -4,8 +4,8 @@
 ``{"run": "runs/unimm_v2x"}`` (a run of ``v2xbench baselines train unimm_v2x``). As UniV2X's
 agent (:class:`~..univ2x.agent.UniV2XAgent`: ``sensors`` mode, the training data's camera size,
 ``channel = {"max_payload_floats": F}``, AURORA's waypoint controller), with UniMM-V2X's model,
-roadside policy and driver. Without a run it loads the
-shipped weights (``agents/baselines/weights/unimm_v2x``) where the repository has them.
+roadside policy and driver. Without a run it loads the shipped weights
+(``agents/baselines/weights/unimm_v2x``) where the repository has them.
 
 This module imports nothing heavy: the model loads in the constructor.
 """

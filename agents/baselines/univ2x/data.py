@@ -32,7 +32,6 @@ tick); the ego's inputs and every other target are the frame's own.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import torch
 from torch.utils.data import Dataset
@@ -92,18 +91,25 @@ class UniV2XFrames(Dataset):
                            "det_mask": torch.zeros(m, dtype=torch.bool)}
         return {k: v.clone() for k, v in self._blank.items()}
 
-    def _calib(self, fid: int) -> tuple[Any, dict]:
-        """``(the ego's TensorDict, its calibration arrays)`` of global frame ``fid``."""
-        td = self.ego.ds[fid]
-        return td, {k: td["calib", k].numpy() for k in CALIB_KEYS}
+    def _sent_calib(self, fid: int, calib: dict) -> tuple[int, dict | None]:
+        """``(global frame, calibration arrays)`` of the frame whose roadside message the ego
+        reads at frame ``fid`` (``cfg.msg_latency_ticks`` earlier; ``None``: before the
+        episode's first tick). Reads only the calibration of that frame."""
+        lag = self.cfg.msg_latency_ticks
+        if lag == 0:
+            return fid, calib
+        e, t = self.ego.ds.locate(fid)
+        if t < lag:
+            return fid, None
+        shard = self.ego.ds.shard(e)
+        return fid - lag, {k: shard["calib", k][t - lag].numpy() for k in CALIB_KEYS}
 
     def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
         fid = int(self.frame_ids[index])
-        td, calib = self._calib(fid)
+        td = self.ego.ds[fid]
+        calib = {k: td["calib", k].numpy() for k in CALIB_KEYS}
         ego = self.ego.sample(td, calib, fid)
-        lag = self.cfg.msg_latency_ticks  # the message read now was sensed `lag` ticks ago
-        sent = fid - lag if self.ego.ds.locate(fid)[1] >= lag else None
-        sent_calib = calib if lag == 0 else (None if sent is None else self._calib(sent)[1])
+        sent, sent_calib = self._sent_calib(fid, calib)
         has = (self.rsu is not None and sent_calib is not None
                and int(sent_calib["rsu_unit"]) >= 0)
         rsu = (self.rsu.sample(self.rsu.ds[sent], sent_calib, sent) if has

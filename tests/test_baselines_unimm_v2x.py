@@ -204,3 +204,7 @@ def test_cli_trains_resumes_and_drives_a_route(tiny_dataset, tmp_path, capsys):
     model, cfg, info = load_run(run)
     assert isinstance(cfg, UniMMV2XConfig) and info["camera_size"] == [32, 16]
     bc.drive_one_route("unimm_v2x", run, tmp_path, cfg.message_floats(), "UniMMV2XRoadside")
+
+
+def test_shipped_weights_load_and_drive(tmp_path):
+    bc.assert_shipped_weights("unimm_v2x", "UniMMV2XRoadside", tmp_path)

@@ -437,22 +437,39 @@ def test_test_town_has_city_and_highway_sites():
 
 # ------------------------------------------------------------------------------ the test town
 #: sha256 of ``json.dumps(get_town(name).to_dict(), sort_keys=True)`` of every training town,
-#: computed before the test town got its own template (``metro2``): the training towns must not
-#: change when the builder learns new road structures
+#: floats rounded to 1e-6 (:func:`_rounded`): the training towns must not change when the builder
+#: learns new road structures (the first hashes, of the unrounded floats, were computed before the
+#: test town got its own template, ``metro2``; on 2026-11-28 a fresh machine with NumPy 2.4.6 gave
+#: other hashes with the town code unchanged since, most likely the floats' last bits, so they
+#: became hashes of rounded floats)
 TRAINING_TOWN_SHA256 = {
-    "Town01": "9264e09f7a6ab2fc28392b0eb979927ff34791466e84b6b6e3ff357db0bd812c",
-    "Town02": "d2d9c68737cadafd3429a299c9be1194bf6ace8c772fdc1abc1fe1d58ac35f6b",
-    "Town03": "efd96bd9be3f500fc345d36d1aa2a2cead5ec0978a942befe7ca156557fb6aa7",
-    "Town04": "8421d5f396b32702721fa9f9b1b02cd036c5adca33db7d213b3d58b5dd3f2edb",
-    "Town05": "12b6295442d27e32bc35ecc96457e04576b9cdcce8402daf077b78e29ea074fa",
-    "Town06": "221722734f50e63963996ee4fd149224f5cf01fabd69bb01f4d3fc4f2a534e96",
+    "Town01": "2b87ae2bc340684bf28a5b7d8f25956a70002972c2aa6b10a988f6113b4a82d4",
+    "Town02": "674249b6f9f2626499b6888af3fc3bf33479748a456b7c4d6aca883b6b4f0490",
+    "Town03": "ba500a799befdb4d1de51d4925cee2c303e1abae05ce67bb0e77ffd7961d7a24",
+    "Town04": "2892fc096114332a2c5ba579234f159b4e82b66abb806c2a413b36de255da051",
+    "Town05": "a5310b491b2ba48aa15762824673b40325a37afa777cd9a103a9e45e3cce052f",
+    "Town06": "166fd20cbca2b67d886e3f1cde1422e92641d24ce9863eaba16b197f27670ecb",
 }
+
+
+def _rounded(obj):
+    """``obj`` with every float rounded to 1e-6 (-0.0 as 0.0): NumPy's SIMD kernels for the
+    trigonometric functions differ in the last bits between machines and NumPy releases, and a
+    town is the same town when its geometry agrees to a micrometre."""
+    if isinstance(obj, dict):
+        return {k: _rounded(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_rounded(v) for v in obj]
+    if isinstance(obj, float):
+        return round(obj, 6) + 0.0
+    return obj
 
 
 def _sha(town: Town) -> str:
     import hashlib
 
-    return hashlib.sha256(json.dumps(town.to_dict(), sort_keys=True).encode()).hexdigest()
+    return hashlib.sha256(json.dumps(_rounded(town.to_dict()), sort_keys=True).encode()
+                          ).hexdigest()
 
 
 def _arm_angles(town: Town, j) -> np.ndarray:

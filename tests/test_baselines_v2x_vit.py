@@ -162,6 +162,40 @@ def test_data_set_and_closed_loop_put_the_lidars_in_the_same_frames(lidar_datase
     assert len(pts) > 0 and float(pts[:, 2].min()) > -0.5  # ground returns at z ~ 0, not -5 m
 
 
+def test_training_messages_are_as_old_as_the_channel_makes_them(lidar_dataset):
+    from v2xbench.agents.baselines.v2x_vit.data import V2XViTFrames
+
+    cfg = dataclasses.replace(CFG, train_max_delay=1)  # ages drawn from 1..1: always 1
+    assert cfg.msg_latency_ticks == 1
+    lagged = V2XViTFrames(lidar_dataset, "all", cfg, delay=None)
+    same = V2XViTFrames(lidar_dataset, "all", cfg, delay=0)
+    legacy = V2XViTFrames(lidar_dataset, "all", dataclasses.replace(cfg, msg_latency_ticks=0),
+                          delay=None)
+    checked = 0
+    for e in range(len(lagged.ds.episodes)):
+        off, end = int(lagged.ds.offsets[e]), int(lagged.ds.offsets[e + 1])
+        first = lagged[off]
+        assert not bool(first["has_rsu"]), "a message at the episode's first tick"
+        assert not first["rsu/point_mask"].any()
+        assert bool(legacy[off]["has_rsu"]) == bool(same[off]["has_rsu"])  # legacy: age 0..1
+        for t in range(off + 1, min(end, off + 6)):
+            s, prev = lagged[t], same[t - 1]
+            if not bool(s["has_rsu"]):
+                continue
+            assert int(s["age"]) == 1
+            assert torch.equal(s["rsu/point_mask"], prev["rsu/point_mask"])  # tick t - 1's
+            assert torch.equal(s["rsu/points"], prev["rsu/points"])
+            assert torch.equal(s["rsu_to_ego"], same[t]["rsu_to_ego"])  # the pose at reading
+            checked += 1
+    assert checked, "no frame with a message"
+    ages = {int(lagged[i]["age"]) for i in range(0, len(lagged), 7)
+            if bool(lagged[i]["has_rsu"])}
+    assert ages == {1}
+    v2xvit = V2XViTFrames(lidar_dataset, "all", CFG, delay=None)  # 1..3
+    assert {int(v2xvit[i]["age"]) for i in range(len(v2xvit))
+            if bool(v2xvit[i]["has_rsu"])} <= {1, 2, 3}
+
+
 def test_tiny_model_overfits_two_samples(lidar_dataset):
     from v2xbench.agents.baselines.v2x_vit.data import V2XViTFrames
     from v2xbench.agents.baselines.v2x_vit.losses import V2XViTCriterion

@@ -90,16 +90,15 @@ def _eval_planning(args: argparse.Namespace) -> int:
 def _export(args: argparse.Namespace) -> int:
     import shlex
 
-    from v2xbench.agents.baselines.common.export import SHIPPED, export_run
+    from v2xbench.agents.baselines.common.export import export_dir, export_run
 
-    out = args.out if args.out is not None else SHIPPED / args.method
     cmd = shlex.join(["v2xbench", "baselines", "export", args.method, "--run", str(args.run),
                       *([] if args.out is None else ["--out", str(args.out)])])
-    m = export_run(args.method, args.run, out, command=cmd)
+    m = export_run(args.method, args.run, args.out, command=cmd)
     size = sum(f["bytes"] for f in m["files"].values())
     print(f"exported {args.method} ({m['scale']}, {m['parameters']:,d} parameters, plan_frame "
           f"{m['plan_frame']!r}, told the speed: {m['plan_ego_speed']}) of {args.run} into "
-          f"{out} ({size / 1e6:.1f} MB)")
+          f"{export_dir(args.method, args.out)} ({size / 1e6:.1f} MB)")
     return 0
 
 
@@ -142,9 +141,10 @@ def register(sub) -> None:
                        help="the published planners' ego-frame x, y steps (config "
                        "plan_frame='ego')")
     t.add_argument("--msg-latency-ticks", type=_int_in(0), default=None, metavar="N",
-                   help="UniV2X / UniMM-V2X: training samples pair the ego's tick with the "
-                   "roadside's of N ticks earlier (default 1: the channel's latency; 0: runs "
-                   "trained before 2026-11-28)")
+                   help="training samples pair the ego's tick with the roadside's of N "
+                   "ticks earlier, none before the first message arrives (default 1: the "
+                   "channel's latency; 0: runs trained before 2026-11-28; V2X-ViT / CoDriving "
+                   "draw older ages up to train_max_delay too)")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=_train)
     e = bsub.add_parser("eval-perception", help="detection metrics of a trained baseline on a "

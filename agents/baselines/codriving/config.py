@@ -92,8 +92,12 @@ class CoDrivingConfig(ScaledConfig):
     plan_start_weight: float = 5.0
     plan_start_speed: float = 0.5
     plan_start_dist: float = 1.0
-    # --- training: a message's age drawn from 0..train_max_delay ticks (the channel's latency)
+    # --- training: a message's age drawn from msg_latency_ticks..train_max_delay ticks
     train_max_delay: int = 1
+    #: The channel's latency in training samples (ticks): a message is at least this old, and a
+    #: frame before the unit's first message arrives has none (data.py, "Delay"); 0: runs
+    #: trained before 2026-11-28 (a message of age 0 at every frame with a unit).
+    msg_latency_ticks: int = 1
     train: StageHParams = field(default_factory=lambda: TINY_TRAIN)
 
     def __post_init__(self) -> None:
@@ -104,7 +108,8 @@ class CoDrivingConfig(ScaledConfig):
                                       "num_commands", "plan_waypoints", "plan_hidden",
                                       "max_cells", "request_route_points",
                                       "request_route_step"))
-        checks.check_ints(self, who, ("compress_channels", "train_max_delay"), lo=0)
+        checks.check_ints(self, who, ("compress_channels", "train_max_delay",
+                                       "msg_latency_ticks"), lo=0)
         checks.check_ranges(self, who)
         for name in ("ego_pillars", "rsu_pillars"):
             g = getattr(self, name)

@@ -22,8 +22,8 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-#: The manifest file of an exported folder (AURORA's name).
-MANIFEST = "manifest.json"
+from v2xbench.agents.aurora.export import MANIFEST  # one name for the manifest file
+
 #: Where the repository's shipped baseline weights live (one folder per method).
 SHIPPED = Path(__file__).resolve().parents[1] / "weights"
 FORMAT = "v2xbench-baseline-export/1"
@@ -36,6 +36,11 @@ def _run_module(method: str) -> Any:
     if method not in BASELINES:
         raise ValueError(f"unknown baseline {method!r}; known: {', '.join(sorted(BASELINES))}")
     return importlib.import_module(BASELINES[method] + ".train").RUN
+
+
+def export_dir(method: str, out: str | Path | None = None) -> Path:
+    """Where ``export_run`` writes: ``out``, else :data:`SHIPPED` ``/ method``."""
+    return Path(out) if out is not None else SHIPPED / method
 
 
 def export_run(method: str, run: str | Path, out: str | Path | None = None, *,
@@ -51,7 +56,7 @@ def export_run(method: str, run: str | Path, out: str | Path | None = None, *,
 
     spec = _run_module(method)
     model, cfg, info = spec.load_run(run)  # checks the run loads into the method's model
-    out = check_export_target(out if out is not None else SHIPPED / method, run,
+    out = check_export_target(export_dir(method, out), run,
                               f"baselines export {method}")
     tmp = out.with_name(out.name + ".tmp")
     shutil.rmtree(tmp, ignore_errors=True)
@@ -86,4 +91,4 @@ def verify(path: str | Path, method: str) -> dict:
     return m
 
 
-__all__ = ["FORMAT", "MANIFEST", "SHIPPED", "export_run", "verify"]
+__all__ = ["FORMAT", "MANIFEST", "SHIPPED", "export_dir", "export_run", "verify"]

@@ -85,9 +85,13 @@ class V2XViTConfig(ScaledConfig):
     plan_start_weight: float = 5.0  # AURORA's start-from-rest weighting
     plan_start_speed: float = 0.5  # m/s
     plan_start_dist: float = 1.0  # m
-    # --- training: a message's age is drawn from 0..train_max_delay ticks (the unit's LiDAR of
-    # that many ticks earlier); frame_stride keeps every k-th frame of each episode
+    # --- training: a message's age is drawn from msg_latency_ticks..train_max_delay ticks (the
+    # unit's LiDAR of that many ticks earlier); frame_stride keeps every k-th frame of each episode
     train_max_delay: int = 3
+    #: The channel's latency in training samples (ticks): a message is at least this old, and a
+    #: frame before the unit's first message arrives has none (data.py, "Delay"); 0: runs
+    #: trained before 2026-11-28 (a message of age 0 at every frame with a unit).
+    msg_latency_ticks: int = 1
     train: StageHParams = field(default_factory=lambda: TINY_TRAIN)
 
     def __post_init__(self) -> None:
@@ -97,7 +101,8 @@ class V2XViTConfig(ScaledConfig):
         checks.check_ints(self, who, ("bev_stride", "pillar_channels", "width", "vit_blocks",
                                       "heads", "num_classes", "num_commands", "plan_waypoints",
                                       "plan_hidden", "max_age"))
-        checks.check_ints(self, who, ("compress_channels", "train_max_delay"), lo=0)
+        checks.check_ints(self, who, ("compress_channels", "train_max_delay",
+                                       "msg_latency_ticks"), lo=0)
         if self.width % self.heads:
             raise ValueError(f"V2XViTConfig: width={self.width} must be divisible by heads="
                              f"{self.heads}")

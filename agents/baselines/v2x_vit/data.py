@@ -23,10 +23,13 @@ key                                    content
 ``frame_id``                           () global frame index
 =====================================  ===================================================
 
-**Delay** (the paper's asynchronous messages): ``delay=None`` draws the age from ``0 ..
-cfg.train_max_delay`` ticks per sample, an int fixes it; the roadside points are then those of
-that many ticks earlier in the same episode (fewer when the episode or the unit's service
-started later). The unit stands still, so its map needs no motion compensation; the objects in
+**Delay** (the paper's asynchronous messages): ``delay=None`` draws the age from
+``cfg.msg_latency_ticks .. max(cfg.msg_latency_ticks, cfg.train_max_delay)`` ticks per sample,
+an int fixes it; the roadside points are then those of that many ticks earlier in the same
+episode (fewer when the episode or the unit's service started later, but never fewer than
+``msg_latency_ticks``, the channel's latency: closed loop has no message before the unit's first
+one arrives, so such a frame has none, ``has_rsu`` false). ``msg_latency_ticks`` = 0 (runs
+trained before 2026-11-28) gives a message of age 0 at every frame with a unit. The unit stands still, so its map needs no motion compensation; the objects in
 it moved, which is what the delay encoding is for. ``E_{r->e}`` is the current one, as in closed
 loop (``v2x_info`` gives the unit's pose when the message is read).
 
@@ -125,14 +128,21 @@ class V2XViTFrames(Dataset):
     def __len__(self) -> int:
         return len(self.frame_ids)
 
-    def _age(self, e: int, t: int, unit: int) -> int:
-        want = (int(torch.randint(0, self.cfg.train_max_delay + 1, ()))
-                if self.delay is None else self.delay)
+    def _age(self, e: int, t: int, unit: int) -> int | None:
+        """The age (ticks) of the message ``unit`` delivers at tick ``t`` of episode ``e``;
+        ``None``: no message has arrived yet (module docstring, "Delay")."""
+        lag = self.cfg.msg_latency_ticks
+        if self.delay is None:
+            top = max(lag, self.cfg.train_max_delay)
+            want = int(torch.randint(lag, top + 1, ()))
+        else:
+            want = self.delay
+        lo = min(lag, want)
         units = self.ds.shard(e)["calib", "rsu_unit"]
         d = min(want, t)
-        while d > 0 and int(units[t - d]) != unit:
+        while d > lo and int(units[t - d]) != unit:
             d -= 1
-        return d
+        return d if d >= lo and int(units[t - d]) == unit else None
 
     def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
         fid = int(self.frame_ids[index])
@@ -141,11 +151,9 @@ class V2XViTFrames(Dataset):
         ego, ego_mask = lidar_points(x["lidar", "ego", "points"].numpy(),
                                      int(x["lidar", "ego", "count"]), calib["T_ego_lidar"][0])
         unit = int(calib["rsu_unit"])
-        has = unit >= 0
-        age = 0
+        age = self._age(*self.ds.locate(fid), unit) if unit >= 0 else None
+        has = age is not None
         if has:
-            e, t = self.ds.locate(fid)
-            age = self._age(e, t, unit)
             old = self.ds[fid - age] if age else x
             old_calib = {k: old["calib", k].numpy() for k in CALIB}
             rsu, rsu_mask = lidar_points(old["lidar", "rsu", "points"].numpy(),
@@ -158,7 +166,7 @@ class V2XViTFrames(Dataset):
             e_re = torch.eye(4)
         out = {"ego/points": ego, "ego/point_mask": ego_mask, "rsu/points": rsu,
                "rsu/point_mask": rsu_mask, "has_rsu": torch.tensor(has),
-               "age": torch.tensor(age, dtype=torch.long), "rsu_to_ego": e_re.float()}
+               "age": torch.tensor(age or 0, dtype=torch.long), "rsu_to_ego": e_re.float()}
         out.update(fused_targets(x, self.range))
         out.update(planning_sample(x, self.cfg, fid))
         return out

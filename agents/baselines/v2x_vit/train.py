@@ -33,9 +33,10 @@ class V2XViTRun(BaselineRun):
     detections = "heatmap peaks"
 
     def frames(self, data: str | Path, split: str, cfg: V2XViTConfig, stride: int, train: bool):
-        """:class:`~.data.V2XViTFrames` of ``split`` (``delay=None`` when training, else 0)."""
+        """:class:`~.data.V2XViTFrames` of ``split`` (``delay=None`` when training, else the
+        channel's latency ``cfg.msg_latency_ticks``, the age closed loop delivers)."""
         return self.part(self.frames_cls)(data, split, cfg, stride=stride,
-                                          delay=None if train else 0)
+                                          delay=None if train else cfg.msg_latency_ticks)
 
     def sensor_info(self, ds) -> dict:
         """The data set's ``lidar_scale`` (the agent declares it)."""

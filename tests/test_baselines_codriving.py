@@ -240,8 +240,8 @@ def test_bad_input_raises_clear_errors(tiny_dataset, lidar_dataset):
         rsu.act({"unit": np.zeros(6)})
     with pytest.raises(ValueError, match="no route_points"):
         rsu.reset({})
-    with pytest.raises(FileNotFoundError, match="no run given"):
-        CoDrivingAgent()
+    with pytest.raises(FileNotFoundError, match="not a trained CoDriving run"):
+        CoDrivingAgent(run=str(tiny_dataset / "no_such_run"))  # (no run: the shipped weights)
 
 
 def test_cli_trains_plans_open_loop_and_the_agent_drives_through_eval(lidar_dataset, tmp_path,
@@ -286,3 +286,7 @@ def test_cli_trains_plans_open_loop_and_the_agent_drives_through_eval(lidar_data
     per_cell, empty = 2 * cfg.cell_floats(), 16 + 2 * cfg.message_floats(0)  # 12, 28 bytes
     assert any((sent - empty * n) % per_cell == 0 and 1 <= (sent - empty * n) // per_cell
                <= n * cfg.max_cells for n in range(1, 16)), sent
+
+
+def test_shipped_weights_load_and_drive(tmp_path):
+    bc.assert_shipped_weights("codriving", "CoDrivingRoadside", tmp_path, fixed_size=False)

@@ -143,8 +143,9 @@ def register(sub) -> None:
     t.add_argument("--msg-latency-ticks", type=_int_in(0), default=None, metavar="N",
                    help="training samples pair the ego's tick with the roadside's of N "
                    "ticks earlier, none before the first message arrives (default 1: the "
-                   "channel's latency; 0: runs trained before 2026-11-28; V2X-ViT / CoDriving "
-                   "draw older ages up to train_max_delay too)")
+                   "channel's latency; 0: UniV2X / UniMM-V2X runs trained before the second, "
+                   "V2X-ViT / CoDriving runs before the third stop of 2026-11-28; V2X-ViT / "
+                   "CoDriving draw older ages up to train_max_delay too)")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=_train)
     e = bsub.add_parser("eval-perception", help="detection metrics of a trained baseline on a "

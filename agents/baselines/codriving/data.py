@@ -10,8 +10,9 @@ key             content
                 ``request_route_points``, the rows ``request_route_step`` m apart)
 ==============  ==========================================================================
 
-Message ages are drawn from ``0 .. train_max_delay`` ticks in training (the unit's LiDAR of that
-many ticks earlier), 0 in evaluation, as V2X-ViT's.
+Message ages are drawn from ``msg_latency_ticks .. train_max_delay`` ticks in training (the
+unit's LiDAR of that many ticks earlier; at the default both are 1), ``msg_latency_ticks`` in
+evaluation, none before the unit's first message arrives, as V2X-ViT's.
 """
 
 from __future__ import annotations

@@ -15,7 +15,8 @@ from .plan_frame import check_switches
 
 #: Fields a run written before they existed (2026-11-28) had in effect: its planner was told the
 #: ego's speed, in the ego frame (the defaults since: the route frame, never told the speed);
-#: UniV2X / UniMM-V2X trained on the same tick's roadside message (since: one tick older).
+#: UniV2X / UniMM-V2X trained on the same tick's roadside message (since the second stop: one
+#: tick older), V2X-ViT / CoDriving on ages from 0 (since the third stop: from 1 tick).
 LEGACY_FIELDS: dict[str, Any] = {"plan_ego_speed": True, "plan_frame": "ego",
                                  "msg_latency_ticks": 0}
 

@@ -22,7 +22,13 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-from v2xbench.agents.aurora.export import MANIFEST  # one name for the manifest file
+from v2xbench.agents.aurora.export import (  # AURORA's export format, for the baselines
+    MANIFEST,
+    check_export_target,
+    finish_export,
+    sha256_file,
+    verify_export,
+)
 
 #: Where the repository's shipped baseline weights live (one folder per method).
 SHIPPED = Path(__file__).resolve().parents[1] / "weights"
@@ -51,7 +57,6 @@ def export_run(method: str, run: str | Path, out: str | Path | None = None, *,
     Raises:
         ValueError: unknown method. FileNotFoundError: not a trained run of the method.
     """
-    from v2xbench.agents.aurora.export import check_export_target, finish_export, sha256_file
     from v2xbench.agents.baselines.common.train import CHECKPOINT
 
     spec = _run_module(method)
@@ -82,8 +87,6 @@ def verify(path: str | Path, method: str) -> dict:
         FileNotFoundError: a missing manifest or file. ValueError: a changed file, another
             format or another method's weights.
     """
-    from v2xbench.agents.aurora.export import verify_export
-
     m = verify_export(path, FORMAT, f"{method} weights",
                       f"v2xbench baselines export {method} --run RUN --out DIR")
     if m.get("method") != method:

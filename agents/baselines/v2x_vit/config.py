@@ -90,7 +90,8 @@ class V2XViTConfig(ScaledConfig):
     train_max_delay: int = 3
     #: The channel's latency in training samples (ticks): a message is at least this old, and a
     #: frame before the unit's first message arrives has none (data.py, "Delay"); 0: runs
-    #: trained before 2026-11-28 (a message of age 0 at every frame with a unit).
+    #: trained before the third stop of 2026-11-28 (ages from 0, a message at every frame with
+    #: a unit).
     msg_latency_ticks: int = 1
     train: StageHParams = field(default_factory=lambda: TINY_TRAIN)
 

@@ -25,12 +25,16 @@ key                                    content
 
 **Delay** (the paper's asynchronous messages): ``delay=None`` draws the age from
 ``cfg.msg_latency_ticks .. max(cfg.msg_latency_ticks, cfg.train_max_delay)`` ticks per sample,
-an int fixes it; the roadside points are then those of that many ticks earlier in the same
-episode (fewer when the episode or the unit's service started later, but never fewer than
-``msg_latency_ticks``, the channel's latency: closed loop has no message before the unit's first
-one arrives, so such a frame has none, ``has_rsu`` false). ``msg_latency_ticks`` = 0 (runs
-trained before 2026-11-28) gives a message of age 0 at every frame with a unit. The unit stands still, so its map needs no motion compensation; the objects in
-it moved, which is what the delay encoding is for. ``E_{r->e}`` is the current one, as in closed
+an int fixes it (taken as is when below ``msg_latency_ticks``); the roadside points are then
+those of that many ticks earlier in the same episode (fewer when the episode or the unit's
+service started later, but never fewer than ``msg_latency_ticks``, the channel's latency: closed
+loop has no message before the unit's first one arrives, so such a frame has none, ``has_rsu``
+false). ``msg_latency_ticks`` = 0 (runs trained before the third stop of 2026-11-28) gives a
+message of age 0 at every frame with a unit. One difference remains: at a handover between
+units (or for a few ticks after the ego leaves a unit's range) closed loop still delivers the
+previous unit's last message, with that unit's pose; here such a frame has no message. The unit
+stands still, so its map needs no motion compensation; the objects in it moved, which is what
+the delay encoding is for. ``E_{r->e}`` is the current one, as in closed
 loop (``v2x_info`` gives the unit's pose when the message is read).
 
 Frames: every ``stride``-th frame of each episode of the split.

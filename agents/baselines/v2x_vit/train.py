@@ -23,8 +23,8 @@ FORMAT = "v2xbench-v2x_vit-run/1"
 
 
 class V2XViTRun(BaselineRun):
-    """V2X-ViT's data set (both agents' LiDAR; message ages drawn per training sample, age 0 in
-    evaluation), model and loss."""
+    """V2X-ViT's data set (both agents' LiDAR; message ages drawn per training sample, the
+    channel's latency ``msg_latency_ticks`` in evaluation), model and loss."""
 
     method, title, run_format, config_cls = "v2x_vit", "V2X-ViT", FORMAT, V2XViTConfig
     frames_cls, model_cls = "data:V2XViTFrames", "model:V2XViT"

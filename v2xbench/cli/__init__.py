@@ -18,7 +18,8 @@ Commands:
     warmup      compile the numba kernels ahead of time (first use in a fresh environment)
     aurora      AURORA: train (stages 0-5, pipeline), export weights, evaluate perception and
                 planning, ask / answer Chat-V2XBench questions
-    baselines   the paper's cooperative baselines (UniV2X): train, evaluate perception
+    baselines   the paper's cooperative baselines (V2X-ViT, CoDriving, UniV2X, UniMM-V2X): train,
+                export weights, evaluate perception and open-loop planning
     experiments run a config of trainings and evaluations (resumable), build the paper's tables
 """
 

@@ -194,8 +194,8 @@ def test_univ2x_samples_carry_the_roadside_inputs_of_the_channels_latency(univ2x
 # ---------------------------------------------------------------------------------- CoDriving
 @pytest.fixture(scope="module")
 def codriving(tmp_path_factory):
-    """``(model, cfg, driver, samples, observations, request rows, unit observations)`` of the
-    replayed episode of the tiny LiDAR data set; ``request rows[t]`` are the ego-frame route rows
+    """``(model, cfg, driver, samples, observations, request rows, unit observations, data
+    folder)`` of the replayed episode of the tiny LiDAR data set (``samples``: message age 0); ``request rows[t]`` are the ego-frame route rows
     the closed-loop roadside built its request from at tick ``t`` (as
     :class:`CoDrivingRoadside` does, from the unit observation ``t``)."""
     from v2xbench.agents.baselines.codriving.config import CoDrivingConfig
@@ -230,7 +230,7 @@ def codriving(tmp_path_factory):
         yaw = math.atan2(t_world_ego[1, 0], t_world_ego[0, 0])
         rows.append(torch.from_numpy(world_to_local_2d(world, xy, yaw).astype(np.float32)))
     return model, cfg, CoDrivingDriver(model.ego, cfg, scale), samples, agent.obs, rows, \
-        roadside.seen
+        roadside.seen, data
 
 
 def test_codriving_closed_loop_ego_inputs_equal_the_data_sets(codriving):
@@ -238,7 +238,7 @@ def test_codriving_closed_loop_ego_inputs_equal_the_data_sets(codriving):
     from v2xbench.agents.baselines.codriving.request import request_map
     from v2xbench.agents.baselines.v2x_vit.data import lidar_points
 
-    model, cfg, driver, samples, observations, rows, seen = codriving
+    model, cfg, driver, samples, observations, rows, seen, _ = codriving
     assert all(bool(s["has_rsu"]) for s in samples), "the episode should have a unit throughout"
     sent_any = 0
     with torch.no_grad():
@@ -272,7 +272,26 @@ def test_codriving_closed_loop_ego_inputs_equal_the_data_sets(codriving):
 
 
 def test_codriving_roadside_requests_the_cells_training_requests(codriving):
-    _, _, _, samples, _, rows, _ = codriving
+    _, _, _, samples, _, rows, _, _ = codriving
     with torch.no_grad():
         for t, r in enumerate(rows):
             assert torch.allclose(r, samples[t]["route"], atol=1e-3), t
+
+
+def test_codriving_training_samples_carry_the_message_closed_loop_delivers(codriving):
+    """The training samples (message ages drawn from ``msg_latency_ticks`` = 1 to
+    ``train_max_delay`` = 1 at ``tiny``) pair tick t with the roadside LiDAR of tick t - 1, the
+    one closed loop's message at t was made from (the test above), and no message at tick 0
+    (closed loop's first message arrives at tick 1)."""
+    from v2xbench.agents.baselines.codriving.data import CoDrivingFrames
+
+    _, cfg, _, samples, observations, _, _, data = codriving
+    assert (cfg.msg_latency_ticks, cfg.train_max_delay) == (1, 1)
+    train = CoDrivingFrames(data, "all", cfg, delay=None)
+    off = int(train.ds.offsets[EPISODE])
+    assert not bool(train[off]["has_rsu"])
+    for t in range(1, len(observations)):
+        s = train[off + t]
+        assert bool(s["has_rsu"]) and int(s["age"]) == 1, t
+        assert torch.equal(s["rsu/point_mask"], samples[t - 1]["rsu/point_mask"]), t
+        assert torch.equal(s["rsu/points"], samples[t - 1]["rsu/points"]), t

@@ -20,8 +20,6 @@ import numpy as np
 from v2xbench.agents.baselines.codriving.agent import CoDrivingAgent
 from v2xbench.agents.baselines.common.policy import SPEED
 
-STILL = 0.3  # m/s
-
 
 class ProbeCoDriving(CoDrivingAgent):
     """The registered ``codriving`` agent (shipped weights) writing one JSON line a tick."""
@@ -49,10 +47,10 @@ ProbeCoDriving.__module__ = CoDrivingAgent.__module__
 
 def summarize(path: Path) -> dict:
     """Where the probed run stands for good and what it plans from there."""
+    from standstill import stands_from  # the script's folder (run as a script; not as an agent)
+
     rows = [json.loads(line) for line in path.read_text().splitlines()]
-    v = np.array([r["v"] for r in rows])
-    moving = np.flatnonzero(v > STILL)
-    start = int(moving[-1]) + 1 if len(moving) else 0
+    start = stands_from(np.array([r["v"] for r in rows]))
     tail = rows[start:]
     target = np.array([r["target"] for r in tail])
     reach = np.array([np.hypot(*r["wp"][-1]) for r in tail])
@@ -71,9 +69,9 @@ def main() -> None:
     s = summarize(args.log)
     print(json.dumps(s, indent=1))
     if args.out is not None:
-        tmp = args.out.with_suffix(".tmp")
-        tmp.write_text(json.dumps(s, indent=1) + "\n")
-        tmp.rename(args.out)
+        from standstill import write_json
+
+        write_json(s, args.out)
 
 
 if __name__ == "__main__":

@@ -16,8 +16,22 @@ from pathlib import Path
 
 import numpy as np
 
+from v2xbench.files import atomic_write_text
+
 STILL = 0.3  # m/s: standing
 TAIL = 600  # ticks (60 s at 10 Hz): standing for good
+
+
+def stands_from(speeds: np.ndarray) -> int:
+    """The tick from which the ego stands (< ``STILL``) to the end: 0 when it never moves,
+    ``len(speeds)`` when it moves at the last tick."""
+    moving = np.flatnonzero(np.asarray(speeds, float) > STILL)
+    return int(moving[-1]) + 1 if len(moving) else 0
+
+
+def write_json(obj: dict, path: Path) -> None:
+    """``obj`` as indented JSON with a final newline, written atomically."""
+    atomic_write_text(path, json.dumps(obj, indent=1) + "\n")
 
 
 def summarize(folder: Path) -> dict:
@@ -27,9 +41,9 @@ def summarize(folder: Path) -> dict:
         r = json.loads(f.read_text())
         v = np.asarray(r["record"]["ego_speed"], float)
         moving = v > STILL
-        last = int(np.flatnonzero(moving)[-1]) if moving.any() else -1
         runs[r["job_id"]] = {"ended_by": r["ended_by"], "ticks": len(v),
-                             "stands_from_tick": last + 1, "never_moves": bool(not moving.any()),
+                             "stands_from_tick": stands_from(v),
+                             "never_moves": bool(not moving.any()),
                              "scenario_types": r["scenario_types"]}
         still, ticks = still + int((~moving).sum()), ticks + len(v)
     if not runs:
@@ -56,9 +70,7 @@ def main() -> None:
               f"ticks, {s['runs_ending_standing_60s']} end standing >= 60 s, "
               f"{s['runs_never_moving']} never move")
     if args.out is not None:
-        tmp = args.out.with_suffix(".tmp")
-        tmp.write_text(json.dumps(out, indent=1) + "\n")
-        tmp.rename(args.out)
+        write_json(out, args.out)
 
 
 if __name__ == "__main__":

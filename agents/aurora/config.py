@@ -57,6 +57,10 @@ class StageHParams:
         grad_clip: max global gradient norm (``<= 0``: no clipping).
         frame_stride: keep every ``frame_stride``-th frame of the training split.
         num_workers: data-loader worker processes.
+        rest_stride: keep every k-th frame where the ego stands and the expert stays (0: the
+            ``frame_stride``; :mod:`~v2xbench.agents.aurora.frame_balance`; the baselines).
+        start_stride: keep every k-th frame where the standing ego sets off (0: the
+            ``frame_stride``).
     """
 
     batch_size: int = 12
@@ -70,13 +74,15 @@ class StageHParams:
     grad_clip: float = 35.0
     frame_stride: int = 1
     num_workers: int = 0
+    rest_stride: int = 0
+    start_stride: int = 0
 
     def __post_init__(self) -> None:
         for name in ("batch_size", "epochs", "frame_stride"):
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 1:
                 raise ValueError(f"StageHParams: {name}={v!r} must be an int >= 1")
-        for name in ("warmup_iters", "num_workers"):
+        for name in ("warmup_iters", "num_workers", "rest_stride", "start_stride"):
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 0:
                 raise ValueError(f"StageHParams: {name}={v!r} must be an int >= 0")

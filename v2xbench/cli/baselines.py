@@ -43,7 +43,8 @@ def _train(args: argparse.Namespace) -> int:
     s = m.train(args.data, args.out, scale=args.scale, device=args.device,
                      max_steps=args.max_steps, stride=args.stride, seed=args.seed,
                      progress=not args.quiet, num_workers=args.workers,
-                     overrides=_overrides(args))
+                     overrides=_overrides(args), rest_stride=args.rest_stride,
+                     start_stride=args.start_stride)
     print(m.format_summary(s))
     return 0
 
@@ -124,6 +125,13 @@ def register(sub) -> None:
                    help="stop after N optimizer steps in total (run again to go on)")
     t.add_argument("--stride", type=_int_in(1), default=None,
                    help="every K-th frame of each episode (default: the scale's)")
+    t.add_argument("--rest-stride", type=_int_in(0), default=None,
+                   help="every K-th frame where the ego stands and the expert stays (0: "
+                   "--stride; default: the scale's); fewer of these teach a standing car to "
+                   "stay less (agents/aurora/frame_balance.py)")
+    t.add_argument("--start-stride", type=_int_in(0), default=None,
+                   help="every K-th frame where the standing ego sets off (0: --stride; "
+                   "default: the scale's)")
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--device", default="cpu", help="torch device (default: cpu)")
     t.add_argument("--workers", type=_int_in(0), default=None,

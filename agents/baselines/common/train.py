@@ -21,11 +21,13 @@ import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from v2xbench.files import atomic_write_json, atomic_write_text, json_safe
 
 CHECKPOINT = "checkpoint.safetensors"
 #: Run settings that must match to resume a run folder.
-SAME_RUN_KEYS = ("scale", "config", "data", "frame_stride", "seed")
+SAME_RUN_KEYS = ("scale", "config", "data", "frame_stride", "frame_balance", "seed")
 
 
 def check_same_run(path: Path, info: dict, config_cls: Any = None) -> None:
@@ -39,9 +41,9 @@ def check_same_run(path: Path, info: dict, config_cls: Any = None) -> None:
     if config_cls is not None and isinstance(old.get("config"), dict):
         old["config"] = config_cls.from_dict(old["config"]).to_dict()
     old, new = json.loads(json.dumps(old)), json.loads(json.dumps(info))
-    diff = [k for k in SAME_RUN_KEYS if old.get(k) != new[k]]
+    diff = [k for k in SAME_RUN_KEYS if old.get(k) != new.get(k)]
     if diff:
-        show = [(k, old.get(k), new[k]) for k in diff if k != "config"]
+        show = [(k, old.get(k), new.get(k)) for k in diff if k != "config"]
         if "config" in diff and isinstance(old.get("config"), dict):
             show += [(f"config.{k}", old["config"].get(k), v) for k, v in new["config"].items()
                      if old["config"].get(k) != v]
@@ -115,7 +117,8 @@ class BaselineRun:
     def train(self, data: str | Path, out: str | Path, *, scale: str = "default",
               device: str = "cpu", max_steps: int | None = None, stride: int | None = None,
               seed: int = 0, progress: bool = True, num_workers: int | None = None,
-              overrides: dict | None = None) -> dict:
+              overrides: dict | None = None, rest_stride: int | None = None,
+              start_stride: int | None = None) -> dict:
         """Train the method on the ``train`` split of ``data`` into the run folder ``out``.
 
         Args:
@@ -126,6 +129,9 @@ class BaselineRun:
             num_workers: data-loader workers (default: the scale's).
             overrides: configuration fields over the scale's (``{"plan_frame": "ego"}``);
                 part of the run's settings (a run resumes only with the same).
+            rest_stride, start_stride: keep every k-th frame where the ego stands and the
+                expert stays / sets off (default: the scale's; 0: ``stride``;
+                :mod:`~v2xbench.agents.aurora.frame_balance`).
 
         Returns:
             :func:`~v2xbench.agents.aurora.trainer.fit`'s summary plus ``scale``, ``frames``,
@@ -150,12 +156,24 @@ class BaselineRun:
             hp = dataclasses.replace(hp, frame_stride=stride)
         if num_workers is not None:
             hp = dataclasses.replace(hp, num_workers=num_workers)
-        ds = self.frames(data, "train", cfg, hp.frame_stride, True)
+        if rest_stride is not None:
+            hp = dataclasses.replace(hp, rest_stride=rest_stride)
+        if start_stride is not None:
+            hp = dataclasses.replace(hp, start_stride=start_stride)
+        balance = {k: getattr(hp, k) for k in ("rest_stride", "start_stride") if getattr(hp, k)}
+        ds = self.frames(data, "train", cfg, 1 if balance else hp.frame_stride, True)
+        if balance:
+            from v2xbench.agents.aurora.frame_balance import balanced_frame_ids, class_counts
+
+            keep = balanced_frame_ids(data, "train", hp.frame_stride, hp.rest_stride,
+                                      hp.start_stride)
+            ds.frame_ids = np.intersect1d(ds.frame_ids, keep)
+            balance["classes"] = class_counts(data, "train", ds.frame_ids)
         out = Path(out)
         info = {"format": self.run_format, "method": self.method, "scale": scale,
                 "config": cfg.to_dict(), "data": str(Path(data).resolve()), "split": "train",
                 "frame_stride": hp.frame_stride, "frames": len(ds), "seed": seed,
-                **self.sensor_info(ds)}
+                **({"frame_balance": balance} if balance else {}), **self.sensor_info(ds)}
         check_same_run(out / self.run_file, info, self.config_cls)
         out.mkdir(parents=True, exist_ok=True)
         atomic_write_json(out / self.run_file, info, indent=1)

@@ -1,0 +1,88 @@
+"""Which training frames to keep when the ego stands: fewer of the frames where it stays, more of
+the frames where it sets off (the inertia problem of imitation, Codevilla et al., ICCV 2019).
+
+In the expert's data the ego stands (speed < :data:`REST_SPEED`) in about half of the frames, and
+in almost all of them the expert plans to stay (about 30 frames in 31 on the 20-route LiDAR set):
+at a light, behind a stopped car, parked before a gap. A planner that sees such a frame learns
+that a standing car stays, and in closed loop a car that stopped for any reason stays for good
+(`docs/baselines.md`, "Why the baselines run out of time"). :func:`balanced_frame_ids` thins the
+frames where the standing ego stays (every ``rest_stride``-th) and thickens the frames where it
+sets off (every ``start_stride``-th), the moving frames keeping the usual ``stride``:
+
+=========  ====================================================  ===============
+class      a frame of the class                                  kept every
+=========  ====================================================  ===============
+moving     ego speed >= ``REST_SPEED``                           ``stride``
+resting    standing, the expert's last waypoint <= ``START_M``   ``rest_stride``
+starting   standing, the expert's last waypoint > ``START_M``     ``start_stride``
+=========  ====================================================  ===============
+
+A stride of 0 means ``stride`` (the class is not rebalanced). Strides count the frame's index in
+its episode, as the plain ``stride`` does, so the selection is a fixed subset, the same every run.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+#: Below this speed (m/s) the ego stands (the threshold of ``docs/results/standstill``).
+REST_SPEED = 0.3
+#: A standing ego whose expert's last waypoint (3 s ahead) is farther than this (m) sets off.
+START_M = 1.0
+
+
+def frame_classes(speed: np.ndarray, waypoints: np.ndarray) -> np.ndarray:
+    """Per frame: 0 moving, 1 resting, 2 starting (module docstring), from the ego's ``(T,)``
+    speed and the expert's ``(T, N, 2)`` ego-frame waypoints."""
+    speed = np.asarray(speed, np.float64).reshape(-1)
+    last = np.linalg.norm(np.asarray(waypoints, np.float64).reshape(len(speed), -1, 2)[:, -1],
+                          axis=-1)
+    rest = speed < REST_SPEED
+    return np.where(rest, np.where(last > START_M, 2, 1), 0).astype(np.int8)
+
+
+def keep_mask(classes: np.ndarray, stride: int, rest_stride: int = 0,
+              start_stride: int = 0) -> np.ndarray:
+    """Boolean mask over one episode's frames (index = tick in the episode)."""
+    for name, v, lo in (("stride", stride, 1), ("rest_stride", rest_stride, 0),
+                        ("start_stride", start_stride, 0)):
+        if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < lo:
+            raise ValueError(f"frame balance: {name}={v!r} must be an int >= {lo}")
+    t = np.arange(len(classes))
+    per_class = np.array([stride, rest_stride or stride, start_stride or stride])
+    return t % per_class[np.asarray(classes, np.int64)] == 0
+
+
+def balanced_frame_ids(root: str | Path, split: str, stride: int, rest_stride: int = 0,
+                       start_stride: int = 0) -> np.ndarray:
+    """Sorted global frame ids of ``split`` of the data set at ``root`` kept by
+    :func:`keep_mask` (the ids :class:`~v2xbench.collectors.dataset.loader.V2XDataset` uses)."""
+    from v2xbench.collectors.dataset.loader import V2XDataset
+
+    ds = V2XDataset(root, split, keys=["ego_speed", "expert_waypoints"])
+    out = []
+    for e in range(len(ds.episodes)):
+        sh = ds.shard(e)
+        cls = frame_classes(np.asarray(sh["ego_speed"]), np.asarray(sh["expert_waypoints"]))
+        out.append(ds.offsets[e] + np.flatnonzero(keep_mask(cls, stride, rest_stride,
+                                                            start_stride)))
+    return np.concatenate(out).astype(np.int64) if out else np.zeros(0, np.int64)
+
+
+def class_counts(root: str | Path, split: str, frame_ids: np.ndarray) -> dict[str, int]:
+    """How many of ``frame_ids`` are moving, resting and starting (for the run file)."""
+    from v2xbench.collectors.dataset.loader import V2XDataset
+
+    ds = V2XDataset(root, split, keys=["ego_speed", "expert_waypoints"])
+    cls = np.concatenate([frame_classes(np.asarray(ds.shard(e)["ego_speed"]),
+                                        np.asarray(ds.shard(e)["expert_waypoints"]))
+                          for e in range(len(ds.episodes))] or [np.zeros(0, np.int8)])
+    picked = cls[np.asarray(frame_ids, np.int64)]
+    return {name: int((picked == i).sum()) for i, name in enumerate(("moving", "resting",
+                                                                        "starting"))}
+
+
+__all__ = ["REST_SPEED", "START_M", "balanced_frame_ids", "class_counts", "frame_classes",
+           "keep_mask"]

@@ -14,6 +14,7 @@ from v2xbench.agents.aurora.frame_balance import (
     class_counts,
     frame_classes,
     keep_mask,
+    split_classes,
 )
 from v2xbench.collectors.dataset.loader import V2XDataset
 
@@ -48,14 +49,16 @@ def test_on_a_collected_set_the_plain_stride_is_unchanged_and_start_frames_all_k
     ds = V2XDataset(tiny_dataset, "all", keys=["ego_speed", "expert_waypoints"])
     plain = np.concatenate([ds.offsets[e] + np.arange(n)[np.arange(n) % 3 == 0] for e, n in
                             enumerate(np.diff(ds.offsets))])
-    assert np.array_equal(balanced_frame_ids(tiny_dataset, "all", 3), plain)
-    every = balanced_frame_ids(tiny_dataset, "all", 1)
-    total = class_counts(tiny_dataset, "all", every)
+    offsets, classes = split_classes(tiny_dataset, "all")
+    assert np.array_equal(offsets, ds.offsets)
+    assert np.array_equal(balanced_frame_ids(offsets, classes, 3), plain)
+    every = balanced_frame_ids(offsets, classes, 1)
+    total = class_counts(classes, every)
     # every episode starts at rest with the expert setting off
     assert sum(total.values()) == len(every) == ds.offsets[-1] and total["starting"] >= 2
-    kept = class_counts(tiny_dataset, "all", balanced_frame_ids(tiny_dataset, "all", 3, 1000, 1))
+    kept = class_counts(classes, balanced_frame_ids(offsets, classes, 3, 1000, 1))
     assert kept["starting"] == total["starting"]  # every starting frame
-    assert kept["moving"] == class_counts(tiny_dataset, "all", plain)["moving"]
+    assert kept["moving"] == class_counts(classes, plain)["moving"]
     assert kept["resting"] <= total["resting"]
 
 
@@ -66,9 +69,10 @@ def test_a_baseline_run_records_its_balance_and_resumes_only_with_it(tiny_datase
     s = train(tiny_dataset, run, scale="tiny", max_steps=1, stride=2, rest_stride=6,
               start_stride=1, progress=False)
     info = __import__("json").loads((run / "univ2x.json").read_text())
-    keep = balanced_frame_ids(tiny_dataset, "train", 2, 6, 1)
+    offsets, classes = split_classes(tiny_dataset, "train")
+    keep = balanced_frame_ids(offsets, classes, 2, 6, 1)
     assert info["frame_balance"]["rest_stride"] == 6 and s["frames"] == info["frames"] == len(keep)
-    assert info["frame_balance"]["classes"] == class_counts(tiny_dataset, "train", keep)
+    assert info["frame_balance"]["classes"] == class_counts(classes, keep)
     with pytest.raises(ValueError, match="frame_balance"):
         train(tiny_dataset, run, scale="tiny", max_steps=2, stride=2, rest_stride=5,
               start_stride=1, progress=False)

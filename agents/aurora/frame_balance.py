@@ -55,34 +55,36 @@ def keep_mask(classes: np.ndarray, stride: int, rest_stride: int = 0,
     return t % per_class[np.asarray(classes, np.int64)] == 0
 
 
-def balanced_frame_ids(root: str | Path, split: str, stride: int, rest_stride: int = 0,
-                       start_stride: int = 0) -> np.ndarray:
-    """Sorted global frame ids of ``split`` of the data set at ``root`` kept by
-    :func:`keep_mask` (the ids :class:`~v2xbench.collectors.dataset.loader.V2XDataset` uses)."""
+def split_classes(root: str | Path, split: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(offsets, classes)`` of ``split`` of the data set at ``root``: the episodes' first global
+    frame ids (and the total at the end, as :class:`~v2xbench.collectors.dataset.loader.V2XDataset`
+    has them) and every frame's :func:`frame_classes` (read once)."""
     from v2xbench.collectors.dataset.loader import V2XDataset
 
     ds = V2XDataset(root, split, keys=["ego_speed", "expert_waypoints"])
-    out = []
-    for e in range(len(ds.episodes)):
-        sh = ds.shard(e)
-        cls = frame_classes(np.asarray(sh["ego_speed"]), np.asarray(sh["expert_waypoints"]))
-        out.append(ds.offsets[e] + np.flatnonzero(keep_mask(cls, stride, rest_stride,
-                                                            start_stride)))
+    cls = [frame_classes(np.asarray(ds.shard(e)["ego_speed"]),
+                         np.asarray(ds.shard(e)["expert_waypoints"]))
+           for e in range(len(ds.episodes))]
+    return (np.asarray(ds.offsets, np.int64),
+            np.concatenate(cls) if cls else np.zeros(0, np.int8))
+
+
+def balanced_frame_ids(offsets: np.ndarray, classes: np.ndarray, stride: int,
+                       rest_stride: int = 0, start_stride: int = 0) -> np.ndarray:
+    """Sorted global frame ids kept by :func:`keep_mask`, episode by episode, of a split's
+    :func:`split_classes`."""
+    out = [offsets[e] + np.flatnonzero(keep_mask(classes[offsets[e]:offsets[e + 1]], stride,
+                                                 rest_stride, start_stride))
+           for e in range(len(offsets) - 1)]
     return np.concatenate(out).astype(np.int64) if out else np.zeros(0, np.int64)
 
 
-def class_counts(root: str | Path, split: str, frame_ids: np.ndarray) -> dict[str, int]:
+def class_counts(classes: np.ndarray, frame_ids: np.ndarray) -> dict[str, int]:
     """How many of ``frame_ids`` are moving, resting and starting (for the run file)."""
-    from v2xbench.collectors.dataset.loader import V2XDataset
-
-    ds = V2XDataset(root, split, keys=["ego_speed", "expert_waypoints"])
-    cls = np.concatenate([frame_classes(np.asarray(ds.shard(e)["ego_speed"]),
-                                        np.asarray(ds.shard(e)["expert_waypoints"]))
-                          for e in range(len(ds.episodes))] or [np.zeros(0, np.int8)])
-    picked = cls[np.asarray(frame_ids, np.int64)]
+    picked = np.asarray(classes)[np.asarray(frame_ids, np.int64)]
     return {name: int((picked == i).sum()) for i, name in enumerate(("moving", "resting",
                                                                         "starting"))}
 
 
 __all__ = ["REST_SPEED", "START_M", "balanced_frame_ids", "class_counts", "frame_classes",
-           "keep_mask"]
+           "keep_mask", "split_classes"]

@@ -163,12 +163,13 @@ class BaselineRun:
         balance = {k: getattr(hp, k) for k in ("rest_stride", "start_stride") if getattr(hp, k)}
         ds = self.frames(data, "train", cfg, 1 if balance else hp.frame_stride, True)
         if balance:
-            from v2xbench.agents.aurora.frame_balance import balanced_frame_ids, class_counts
+            from v2xbench.agents.aurora import frame_balance as fb
 
-            keep = balanced_frame_ids(data, "train", hp.frame_stride, hp.rest_stride,
-                                      hp.start_stride)
+            offsets, classes = fb.split_classes(data, "train")
+            keep = fb.balanced_frame_ids(offsets, classes, hp.frame_stride, hp.rest_stride,
+                                         hp.start_stride)
             ds.frame_ids = np.intersect1d(ds.frame_ids, keep)
-            balance["classes"] = class_counts(data, "train", ds.frame_ids)
+            balance["classes"] = fb.class_counts(classes, ds.frame_ids)
         out = Path(out)
         info = {"format": self.run_format, "method": self.method, "scale": scale,
                 "config": cfg.to_dict(), "data": str(Path(data).resolve()), "split": "train",

@@ -15,10 +15,11 @@ import json
 from pathlib import Path
 
 import numpy as np
+from v2xbench.agents.aurora.frame_balance import REST_SPEED
 
 from v2xbench.files import atomic_write_text
 
-STILL = 0.3  # m/s: standing
+STILL = REST_SPEED  # m/s: standing (the threshold of the training-frame balance)
 TAIL = 600  # ticks (60 s at 10 Hz): standing for good
 
 

@@ -65,4 +65,27 @@ def apply_agent_channel(overrides: dict[str, Any], declared: dict[str, int],
     return out
 
 
-__all__ = ["apply_agent_channel", "apply_agent_sensors"]
+def agent_env_overrides(agent: Any, label: str,
+                        overrides: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The env overrides of a run driven by ``agent``: ``(recorded, world)``. ``recorded``:
+    ``overrides`` with the agent's declared sensors and channel filled in (what results and the
+    fingerprint report); ``world``: those plus the agent's ``obs_mode`` (unless overridden) and the
+    world's ``rsu_policy`` (``roadside.world_rsu_policy``), what the agent's world is made with.
+
+    Raises:
+        ValueError: as :func:`apply_agent_sensors`, :func:`apply_agent_channel` and
+            ``world_rsu_policy``.
+    """
+    from v2xbench.agents.interface import declared_channel, declared_sensors
+
+    from .roadside import world_rsu_policy
+
+    recorded = apply_agent_sensors(dict(overrides), declared_sensors(agent, label), label)
+    recorded = apply_agent_channel(recorded, declared_channel(agent, label), label)
+    world = dict(recorded)
+    world.setdefault("obs_mode", agent.obs_mode)
+    world["rsu_policy"] = world_rsu_policy(agent, world)
+    return recorded, world
+
+
+__all__ = ["agent_env_overrides", "apply_agent_channel", "apply_agent_sensors"]

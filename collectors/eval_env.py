@@ -75,7 +75,7 @@ from v2xbench.envs.v2x_intersection.sim.world import World
 from v2xbench.envs.v2x_intersection.suites.route_files import load_suite_cached
 
 from . import jobs as J
-from .roadside import roadside_runner, world_rsu_policy
+from .roadside import roadside_runner
 from .route_log import RouteLog, build_result, ended_by_code
 
 
@@ -219,20 +219,12 @@ class EvalEnv(EnvBase):
         bad = {"suite", "route_index"} & set(overrides)
         if bad:
             raise ValueError(f"EvalEnv: config keys {sorted(bad)} are chosen by the job queue")
-        if self.agent is not None:  # its declared sensors configure the env (agent_sensors.py)
-            from v2xbench.agents.interface import declared_channel, declared_sensors
-
-            from .agent_sensors import apply_agent_channel, apply_agent_sensors
-
-            needs = declared_sensors(self.agent, self.agent_spec)
-            overrides = apply_agent_sensors(overrides, needs, self.agent_spec)
-            overrides = apply_agent_channel(overrides, declared_channel(self.agent,
-                                                                        self.agent_spec),
-                                            self.agent_spec)
         self.overrides = dict(overrides)
-        if self.agent is not None:  # the agent's declarations choose the mode and the RSU policy
-            overrides.setdefault("obs_mode", self.agent.obs_mode)
-            overrides["rsu_policy"] = world_rsu_policy(self.agent, overrides)
+        if self.agent is not None:  # its declarations configure the env (agent_sensors.py)
+            from .agent_sensors import agent_env_overrides
+
+            self.overrides, overrides = agent_env_overrides(self.agent, self.agent_spec,
+                                                            overrides)
         overrides.setdefault("town", self.routes[0].town if self.routes else "Town01")
         self.config = make_config(**overrides)
         self.obs_keys = tuple(ego_space(self.config).spaces)  # what a protocol agent's act gets

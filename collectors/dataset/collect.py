@@ -86,6 +86,11 @@ class CollectConfig:
         max_boxes: rows per GT box set. keyframe_every: ticks between keyframes.
         val_fraction: share of routes held out as ``val`` (by a hash of the route id).
         env: ``EnvConfig`` overrides (e.g. ``{"num_vehicles": 10}``).
+        driver: an agent that drives instead of the expert, which still labels every frame
+            (:mod:`.driver`, DAgger); ``None``: the expert drives.
+        driver_config: the driver's keyword arguments.
+        expert_share: share of the ticks on which the expert's control executes instead of the
+            driver's (DAgger's beta; only with a driver).
     """
 
     suite: str = "train"
@@ -101,8 +106,14 @@ class CollectConfig:
     val_fraction: float = 0.1
     env: dict = field(default_factory=dict)
     objects_obs: bool = True
+    driver: str | None = None
+    driver_config: dict = field(default_factory=dict)
+    expert_share: float = 0.0
 
     def __post_init__(self) -> None:
+        from .driver import check_driver_args
+
+        check_driver_args(self.driver, self.driver_config, self.expert_share)
         if not isinstance(self.suite, str) or not self.suite:
             raise ValueError(f"CollectConfig: suite={self.suite!r} must be a suite name or path")
         if isinstance(self.sensors, str) or not all(isinstance(x, str) for x in self.sensors):
@@ -125,7 +136,7 @@ class CollectConfig:
             raise ValueError(f"CollectConfig: perturb={self.perturb!r} must be true or false")
         if not isinstance(self.env, dict):
             raise ValueError(f"CollectConfig: env={self.env!r} must be a dict of EnvConfig fields")
-        bad = {"suite", "route_index", "obs_mode"} & set(self.env)
+        bad = {"suite", "route_index", "obs_mode", "town"} & set(self.env)
         if bad:
             raise ValueError(f"CollectConfig: env keys {sorted(bad)} are chosen by the collector")
         from v2xbench.envs.v2x_intersection.sim.config import SENSOR_FIELDS, make_config
@@ -282,15 +293,22 @@ def _save_images(frame: dict, tmp: Path, root_rel: str, tick: int) -> dict[str, 
     return out
 
 
-def _drive(cfg, world, expert, tracker, cap, rig, rcfg, perturber, tmp, rel, episode):
-    """Step one episode; returns ``(frame records, keyframe facts, how it ended)``."""
+def _drive(cfg, world, expert, tracker, cap, rig, rcfg, perturber, tmp, rel, episode,
+           driver=None, share=None):
+    """Step one episode; returns ``(frame records, keyframe facts, how it ended)``. With a
+    ``driver`` (:class:`.driver.LearnedDriver`) it drives and the expert labels; ``share``: the
+    stream that picks the ticks the expert's control executes (:func:`.driver.share_stream`)."""
     from ..chat.facts import keyframe_facts
 
     rows, keyframes = [], []
     history: dict = {"speed": {}, "command": {}}
     ended = "max_ticks"
+    info = tracker.info() if driver is not None and driver.info_style else None
     while True:
-        control = expert.act(None)
+        control = expert.act(None)  # the label of this tick (and the expert's own control)
+        if driver is not None:  # called every tick (its state follows the drive); one draw a tick
+            mine, expert_turn = driver.act(world, info), share.random() < cfg.expert_share
+            control = control if expert_turn else mine
         frame = rig.capture(world)
         executed, noisy = perturber.apply(world.tick, control, float(world.table.speed[0]),
                                           expert.last_plan.reason)
@@ -302,8 +320,9 @@ def _drive(cfg, world, expert, tracker, cap, rig, rcfg, perturber, tmp, rel, epi
             keyframes.append(keyframe_facts(world, frame, expert, history, images, episode))
         if world.tick >= cap:
             break
-        events = world.step_builtin(executed)
-        _, term, trunc, _ = tracker.after_step(events, with_info=False)
+        events = world.step_builtin(executed) if driver is None else driver.step(world, executed)
+        _, term, trunc, info = tracker.after_step(
+            events, with_info=driver is not None and driver.info_style is not None)
         if world.is_route_complete():
             ended = "route_complete"
         elif term or trunc:
@@ -330,11 +349,20 @@ def run_episode(cfg: CollectConfig, job: J.Job, root: str | Path) -> dict:
     t0 = time.perf_counter()
     spec = load_suite_cached(cfg.suite)[job.route_index]
     seed = J.job_seed(spec.seed, job.seed_index)
-    world = World(make_config(town=spec.town, obs_mode="objects", **cfg.env))
+    driver, share = None, None
+    env = {"obs_mode": "objects", **cfg.env}
+    if cfg.driver is not None:
+        from .driver import LearnedDriver, share_stream
+
+        driver, share = LearnedDriver(cfg.driver, cfg.driver_config, cfg.env), share_stream(seed)
+        env = driver.overrides
+    world = World(make_config(town=spec.town, **env))
     world.reset(seed=seed, spec=spec)
     expert = Expert()
     expert.bind(world)
     expert.reset({})
+    if driver is not None:
+        driver.reset(world, spec.town, seed)
     tracker = EpisodeTracker(world)
     cap = tracker.max_steps if cfg.max_ticks is None else min(cfg.max_ticks, tracker.max_steps)
     rig = _rig(cfg)
@@ -346,7 +374,7 @@ def run_episode(cfg: CollectConfig, job: J.Job, root: str | Path) -> dict:
                "scenarios": [s.type for s in spec.scenarios]}
     try:
         rows, keyframes, ended = _drive(cfg, world, expert, tracker, cap, rig, rcfg, perturber, tmp, rel,
-                                        episode)
+                                        episode, driver, share)
     except Exception:
         shutil.rmtree(tmp, ignore_errors=True)  # a failed episode leaves nothing behind
         raise
@@ -422,7 +450,8 @@ def collect(cfg: CollectConfig, root: str | Path, workers: int = 1, progress: bo
 
     Raises:
         ValueError: a bad argument, ``root`` is in use by another run (``DirectoryLocked``) or
-            holds a data set collected with other settings.
+            holds a data set collected with other settings (or another driver), a driver that
+            cannot drive (:class:`.driver.LearnedDriver`).
     """
     from v2xbench.envs.v2x_intersection.suites.route_files import load_suite_cached
 
@@ -430,20 +459,41 @@ def collect(cfg: CollectConfig, root: str | Path, workers: int = 1, progress: bo
     _check_run(root, workers, max_episodes)
     routes = load_suite_cached(cfg.suite)
     jobs = J.make_jobs([r.id for r in routes], cfg.seeds, cfg.max_routes)
+    driver = None
+    if cfg.driver is not None:  # built once here: a bad driver is refused before any episode
+        from .driver import LearnedDriver
+
+        driver = LearnedDriver(cfg.driver, cfg.driver_config, cfg.env).identity()
     with dir_lock(root, "collect"):
-        return _collect_locked(cfg, root, jobs, workers, progress, max_episodes)
+        return _collect_locked(cfg, root, jobs, workers, progress, max_episodes, driver)
 
 
-def _start_manifest(cfg: CollectConfig, root: Path, jobs: list) -> tuple[dict, dict]:
+def _stored_config(d) -> dict:
+    """A manifest's config as :meth:`CollectConfig.to_json` writes it today (fields added since
+    it was written read as their defaults; one that does not read comes back as stored)."""
+    if not isinstance(d, dict):
+        return {}
+    try:
+        return CollectConfig.from_json(d).to_json()
+    except ValueError:
+        return d
+
+
+def _start_manifest(cfg: CollectConfig, root: Path, jobs: list,
+                    driver: dict | None) -> tuple[dict, dict]:
     """The manifest at the start of a run (after clearing an interrupted one's leftovers) and
-    the finished shards."""
+    the finished shards (``driver``: :func:`.driver.driver_identity` or ``None``)."""
     if (root / "manifest.json").exists():
         old = load_manifest(root)
-        if old.get("config") != cfg.to_json():
-            was = old.get("config") if isinstance(old.get("config"), dict) else {}
+        was = _stored_config(old.get("config"))
+        if was != cfg.to_json():
             diff = {k: (was.get(k), v) for k, v in cfg.to_json().items() if was.get(k) != v}
             raise ValueError(f"{root} was collected with other settings (old, new): {diff}; "
                              "use another --out or the same settings")
+        if old.get("driver") != driver:
+            raise ValueError(f"{root} was driven by another driver or other weights (old, new): "
+                             f"{old.get('driver')}, {driver}; use another --out or the same "
+                             "driver")
         shard_info = dict(old.get("shards", {}))
     else:
         shard_info = {}
@@ -456,6 +506,8 @@ def _start_manifest(cfg: CollectConfig, root: Path, jobs: list) -> tuple[dict, d
                 "sensor_config": cfg.sensor_config(),
                 "episodes": [j.job_id for j in jobs],
                 "shards": {k: v for k, v in shard_info.items() if k in done}, "failed": {}}
+    if driver is not None:
+        manifest["driver"] = driver
     return manifest, done
 
 
@@ -464,8 +516,8 @@ def _write_manifest(manifest: dict, root: Path) -> None:
 
 
 def _collect_locked(cfg: CollectConfig, root: Path, jobs: list, workers: int, progress: bool,
-                    max_episodes: int | None) -> dict:
-    manifest, done = _start_manifest(cfg, root, jobs)
+                    max_episodes: int | None, driver: dict | None) -> dict:
+    manifest, done = _start_manifest(cfg, root, jobs, driver)
     _write_manifest(manifest, root)
     todo = [j for j in jobs if j.job_id not in done]
     if max_episodes is not None:

@@ -66,7 +66,7 @@ from v2xbench.envs.v2x_intersection.api.observations import (
     EGO_FEATURES,
     OBJECT_FEATURES,
     V2X_INFO_FEATURES,
-    ego_observation,
+    objects_observation,
 )
 from v2xbench.envs.v2x_intersection.core.geometry import invert_transform
 from v2xbench.envs.v2x_intersection.sensors import BEV_CHANNELS, EGO_CAMERA_NAMES, boxes_in_frame
@@ -203,7 +203,7 @@ def reason_code(reason: str) -> int:
 def light_info(world, obs: dict | None = None) -> tuple[int, bool, float]:
     """``(light_state, affects_ego, stop-line distance)`` as the ego observation computes them
     (``obs``: that observation when already computed)."""
-    ego = (obs if obs is not None else ego_observation(world))["ego"]
+    ego = (obs if obs is not None else objects_observation(world))["ego"]
     state, line = int(ego[_LIGHT]), float(ego[_LINE])
     return state, bool(0 <= state <= 2 and 0.0 <= line <= LIGHT_RANGE), line
 
@@ -264,7 +264,7 @@ def frame_record(world, frame: dict, expert, control: np.ndarray, perturbed: boo
     t = world.table
     cal = frame["calibration"]
     t_ego_world = invert_transform(cal["T_world_ego"])
-    obs = ego_observation(world)
+    obs = objects_observation(world)  # obs/* is the objects mode whatever the world's mode
     state, affects, line = light_info(world, obs)
     obs_route = obs["route"]
     plan = expert.last_plan

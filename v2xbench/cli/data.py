@@ -36,6 +36,17 @@ def _camera_size(text: str) -> tuple[int, int]:
     return int(m.group(1)), int(m.group(2))
 
 
+def _driver_config(args: argparse.Namespace) -> dict | None:
+    """``--driver-config FILE``: the driver's keyword arguments (a JSON object)."""
+    if args.driver_config is None:
+        return None
+    if args.driver is None:
+        raise ValueError("collect: --driver-config needs --driver")
+    from v2xbench.collectors.agent_config import load_agent_config
+
+    return load_agent_config(args.driver_config)
+
+
 def _collect(args: argparse.Namespace) -> int:
     from v2xbench.collectors.dataset.collect import CollectConfig, collect
 
@@ -43,7 +54,9 @@ def _collect(args: argparse.Namespace) -> int:
     cfg = CollectConfig.for_scale(args.scale, suite=args.suite, seeds=args.seeds, max_routes=args.max_routes,
                                   max_ticks=args.max_ticks, sensors=sensors, camera_size=args.camera_size,
                                   perturb=False if args.no_perturb else None, env=parse_set(args.set) or None,
-                                  val_fraction=args.val_fraction, lidar_scale=args.lidar_scale)
+                                  val_fraction=args.val_fraction, lidar_scale=args.lidar_scale,
+                                  driver=args.driver, driver_config=_driver_config(args),
+                                  expert_share=args.expert_share)
     t0 = time.perf_counter()
     man = collect(cfg, args.out, workers=args.workers, progress=not args.quiet, max_episodes=args.max_episodes)
     frames = sum(s["frames"] for s in man["shards"].values())
@@ -146,6 +159,14 @@ def register(sub) -> None:
     co.add_argument("--val-fraction", type=float, default=None,
                     help="share of train-suite routes held out as the val split (default 0.1)")
     co.add_argument("--no-perturb", action="store_true", help="no recovery noise")
+    co.add_argument("--driver", default=None, metavar="AGENT",
+                    help="DAgger: this agent (as v2xbench eval --agent) drives, the expert labels "
+                    "every frame (collectors/dataset/driver.py)")
+    co.add_argument("--driver-config", default=None, metavar="FILE",
+                    help="the driver's keyword arguments (JSON, as --agent-config)")
+    co.add_argument("--expert-share", type=float, default=None, metavar="P",
+                    help="with --driver: share of ticks on which the expert's control executes "
+                    "(DAgger's beta; default 0)")
     co.add_argument("--set", action="append", metavar="KEY=VALUE", help="environment config override (repeatable)")
     co.add_argument("--quiet", action="store_true", help="no progress bar")
     co.set_defaults(func=_collect)

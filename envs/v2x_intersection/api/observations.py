@@ -240,6 +240,20 @@ def _rows(objs: np.ndarray, vis: np.ndarray, m: int) -> np.ndarray:
 
 def ego_observation(world) -> dict[str, np.ndarray]:
     """Fill the ego observation (see module docstring)."""
+    objects = world.config.obs_mode == "objects"
+    out = _vector_observation(world, objects)
+    return out if objects else _sensor_keys(world, out)
+
+
+def objects_observation(world) -> dict[str, np.ndarray]:
+    """The ``objects``-mode ego observation (``ego``, ``route``, ``v2x_*``, ``objects``) whatever
+    the world's ``obs_mode``: what the data set records as ``obs/*`` when a sensors-mode agent
+    drives the collection (``collectors/dataset/driver.py``)."""
+    return _vector_observation(world, True)
+
+
+def _vector_observation(world, objects: bool) -> dict[str, np.ndarray]:
+    """The ego observation's vector keys, with ``objects`` when asked (no sensor keys)."""
     cfg = world.config
     if HAVE_JIT:
         m = cfg.max_objects
@@ -247,10 +261,10 @@ def ego_observation(world) -> dict[str, np.ndarray]:
                "v2x_objects": np.empty((m, len(OBJECT_FEATURES)), np.float32),
                "v2x_info": np.empty(len(V2X_INFO_FEATURES), np.float32),
                "v2x_payload": np.empty(cfg.max_payload_floats, np.float32)}
-        if cfg.obs_mode == "objects":
+        if objects:
             out["objects"] = np.empty((m, len(OBJECT_FEATURES)), np.float32)
         fill_objects_observation(world, out)
-        return out if cfg.obs_mode == "objects" else _sensor_keys(world, out)
+        return out
     t = world.table  # NumPy path
     ego_xy, ego_yaw = t.pos[0], float(t.yaw[0])
     # route ahead
@@ -278,15 +292,14 @@ def ego_observation(world) -> dict[str, np.ndarray]:
                     world.monitor.route_completion], np.float32)
     v2x, info, raw = _v2x(world, ego_xy, ego_yaw)
     out = {"ego": ego, "route": route, "v2x_objects": v2x, "v2x_info": info, "v2x_payload": raw}
-    if cfg.obs_mode == "objects":
+    if objects:
         from ..sim.world import object_rows  # (world imports this module)
 
         objs = object_rows(t, np.flatnonzero(world.ego_vis >= VISIBLE_THRESHOLD), ego_xy, ego_yaw,
                            world.object_classes())
         vis = world.ego_vis[objs[:, 9].astype(np.int64)] if len(objs) else np.zeros(0)
         out["objects"] = _rows(objs, vis, cfg.max_objects)
-        return out
-    return _sensor_keys(world, out)
+    return out
 
 
 def _sensor_keys(world, out: dict) -> dict:

@@ -130,3 +130,34 @@ def test_manifest_written_before_the_driver_fields_still_resumes(tiny_dataset, t
     (root / "manifest.json").write_text(json.dumps(man))
     again = collect(TINY, root, progress=False)
     assert again["complete"] and load_manifest(root)["config"]["driver"] is None
+
+
+def test_first_seed_and_merge_aggregate_a_driven_set(tiny_dataset, tmp_path):
+    """DAgger's aggregation: the expert's set and a driven one on other seeds, merged."""
+    from v2xbench.collectors.dataset.loader import V2XDataset
+    from v2xbench.collectors.dataset.merge import merge
+
+    driven = tmp_path / "driven"
+    cfg = dataclasses.replace(ONE, driver="route_follower", perturb=False, first_seed=1)
+    man = collect(cfg, driven, progress=False)
+    assert man["episodes"] == ["train_000_s1"]  # another world seed of the same route
+    out = tmp_path / "merged"
+    merged = merge([tiny_dataset, driven], out)
+    assert validate(out)["ok"] and set(merged["shards"]) == {"train_000_s0", "train_001_s0",
+                                                             "train_000_s1"}
+    assert [m["driver"] for m in merged["merged_from"]][0] is None
+    ds = V2XDataset(out, "all", keys=["control"])
+    assert len(ds) == sum(s["frames"] for s in merged["shards"].values())
+    assert torch.equal(load_shard(out, "train_000_s1")["control"],
+                       load_shard(driven, "train_000_s1")["control"])
+    with pytest.raises(ValueError, match="merged data set"):
+        collect(TINY, out, progress=False)
+    with pytest.raises(ValueError, match="in both"):  # shard names must not clash
+        merge([tiny_dataset, tiny_dataset], tmp_path / "twice")
+    other = tmp_path / "other"
+    collect(dataclasses.replace(ONE, first_seed=2, camera_size=(16, 8)), other, progress=False)
+    with pytest.raises(ValueError, match="records other data"):
+        merge([tiny_dataset, other], tmp_path / "mixed")
+    with pytest.raises(ValueError, match="exists"):
+        merge([tiny_dataset, driven], out)
+    assert not (tmp_path / "mixed").exists() and not (tmp_path / "twice").exists()

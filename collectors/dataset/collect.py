@@ -77,6 +77,9 @@ class CollectConfig:
     Attributes:
         suite: route suite (``train``, ``val``, ``test50`` or a suite JSON path).
         seeds: seed indices per route. max_routes: only the first N routes (``None``: all).
+        first_seed: the first seed index (episodes ``<route>_s<first_seed>`` on): another
+            collection of the same routes with other world seeds, whose shards a
+            ``data merge`` can join to this one's (:mod:`.merge`).
         max_ticks: cap per episode (``None``: the route's time budget, ``episode.time_budget_steps``).
         sensors: stored every tick (``record.SENSORS``); keyframe images are always written.
         camera_size: ``(width, height)`` of the 7 cameras (``EnvConfig.camera_size``).
@@ -95,6 +98,7 @@ class CollectConfig:
 
     suite: str = "train"
     seeds: int = 1
+    first_seed: int = 0
     max_routes: int | None = None
     max_ticks: int | None = None
     sensors: tuple[str, ...] = DEFAULT_SENSORS
@@ -120,6 +124,9 @@ class CollectConfig:
             raise ValueError(f"CollectConfig: sensors={self.sensors!r} must be a list of names")
         RecordConfig(tuple(self.sensors), self.max_boxes, self.objects_obs)  # validates all
         _positive_int("seeds", self.seeds, MAX_SEEDS)
+        if not _is_int(self.first_seed) or not 0 <= self.first_seed <= MAX_SEEDS:
+            raise ValueError(f"CollectConfig: first_seed={self.first_seed!r} must be an int in "
+                             f"[0, {MAX_SEEDS}]")
         _positive_int("max_routes", self.max_routes, None, none_ok=True)
         _positive_int("max_ticks", self.max_ticks, None, none_ok=True)
         _positive_int("keyframe_every", self.keyframe_every, None)
@@ -458,7 +465,8 @@ def collect(cfg: CollectConfig, root: str | Path, workers: int = 1, progress: bo
     root = Path(root)
     _check_run(root, workers, max_episodes)
     routes = load_suite_cached(cfg.suite)
-    jobs = J.make_jobs([r.id for r in routes], cfg.seeds, cfg.max_routes)
+    jobs = [j for j in J.make_jobs([r.id for r in routes], cfg.first_seed + cfg.seeds,
+                                   cfg.max_routes) if j.seed_index >= cfg.first_seed]
     driver = None
     if cfg.driver is not None:  # built once here: a bad driver is refused before any episode
         from .driver import LearnedDriver
@@ -485,6 +493,9 @@ def _start_manifest(cfg: CollectConfig, root: Path, jobs: list,
     the finished shards (``driver``: :func:`.driver.driver_identity` or ``None``)."""
     if (root / "manifest.json").exists():
         old = load_manifest(root)
+        if "merged_from" in old:
+            raise ValueError(f"{root} is a merged data set (v2xbench data merge); collect into "
+                             "its sources or another --out")
         was = _stored_config(old.get("config"))
         if was != cfg.to_json():
             diff = {k: (was.get(k), v) for k, v in cfg.to_json().items() if was.get(k) != v}

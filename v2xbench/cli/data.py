@@ -51,7 +51,8 @@ def _collect(args: argparse.Namespace) -> int:
     from v2xbench.collectors.dataset.collect import CollectConfig, collect
 
     sensors = tuple(s for s in args.sensors.split(",") if s) if args.sensors is not None else None
-    cfg = CollectConfig.for_scale(args.scale, suite=args.suite, seeds=args.seeds, max_routes=args.max_routes,
+    cfg = CollectConfig.for_scale(args.scale, suite=args.suite, seeds=args.seeds,
+                                  first_seed=args.first_seed, max_routes=args.max_routes,
                                   max_ticks=args.max_ticks, sensors=sensors, camera_size=args.camera_size,
                                   perturb=False if args.no_perturb else None, env=parse_set(args.set) or None,
                                   val_fraction=args.val_fraction, lidar_scale=args.lidar_scale,
@@ -70,6 +71,16 @@ def _collect(args: argparse.Namespace) -> int:
         print(f"v2xbench: {len(man['failed'])} episodes failed (listed above); run again to retry",
               file=sys.stderr)
         return 1
+    return 0
+
+
+def _data_merge(args: argparse.Namespace) -> int:
+    from v2xbench.collectors.dataset.merge import merge
+
+    man = merge(args.sources, args.out)
+    frames = sum(s["frames"] for s in man["shards"].values())
+    print(f"{len(man['shards'])} episodes, {frames} frames from {len(args.sources)} data sets in "
+          f"{args.out}")
     return 0
 
 
@@ -143,6 +154,9 @@ def register(sub) -> None:
                     help="tiny: 3 routes x 150 ticks; default: every route once; paper: 2 seeds per route (~105K frames)")
     co.add_argument("--seeds", type=_int_in(1), default=None,
                     help="seed indices per route (overrides the scale)")
+    co.add_argument("--first-seed", type=_int_in(0), default=None,
+                    help="first seed index (default 0): episodes <route>_s<K>..., other world "
+                    "seeds of the same routes (for `data merge`)")
     co.add_argument("--max-routes", type=_int_in(1), default=None, help="only the first N routes")
     co.add_argument("--max-ticks", type=_int_in(1), default=None, help="cap per episode (ticks)")
     co.add_argument("--max-episodes", type=_int_in(1), default=None,
@@ -176,6 +190,11 @@ def register(sub) -> None:
     dv.add_argument("root", help="data set folder")
     dv.add_argument("--quick", action="store_true", help="sizes only, no checksums")
     dv.set_defaults(func=_data_validate)
+    dm = das.add_parser("merge", help="one data set from several (hard links; e.g. the expert's "
+                        "and a --driver collection)")
+    dm.add_argument("sources", nargs="+", help="data set folders (same sensors, no shared shards)")
+    dm.add_argument("--out", required=True, help="the new data set folder (must not exist)")
+    dm.set_defaults(func=_data_merge)
     qa = sub.add_parser("qa", help="Chat-V2XBench: build, stats, score")
     qas = qa.add_subparsers(dest="qa_command", required=True)
     qb = qas.add_parser("build", help="generate QA pairs (our JSONL + LLaVA JSONL) from a data set")

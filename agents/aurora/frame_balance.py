@@ -62,9 +62,10 @@ def split_classes(root: str | Path, split: str) -> tuple[np.ndarray, np.ndarray]
     from v2xbench.collectors.dataset.loader import V2XDataset
 
     ds = V2XDataset(root, split, keys=["ego_speed", "expert_waypoints"])
-    cls = [frame_classes(np.asarray(ds.shard(e)["ego_speed"]),
-                         np.asarray(ds.shard(e)["expert_waypoints"]))
-           for e in range(len(ds.episodes))]
+    cls = []
+    for e in range(len(ds.episodes)):
+        sh = ds.shard(e)
+        cls.append(frame_classes(np.asarray(sh["ego_speed"]), np.asarray(sh["expert_waypoints"])))
     return (np.asarray(ds.offsets, np.int64),
             np.concatenate(cls) if cls else np.zeros(0, np.int8))
 

@@ -310,7 +310,8 @@ def _drive(cfg, world, expert, tracker, cap, rig, rcfg, perturber, tmp, rel, epi
     rows, keyframes = [], []
     history: dict = {"speed": {}, "command": {}}
     ended = "max_ticks"
-    info = tracker.info() if driver is not None and driver.info_style else None
+    wants_info = driver is not None and driver.info_style is not None  # its act takes info
+    info = tracker.info() if wants_info else None
     while True:
         control = expert.act(None)  # the label of this tick (and the expert's own control)
         if driver is not None:  # called every tick (its state follows the drive); one draw a tick
@@ -328,8 +329,7 @@ def _drive(cfg, world, expert, tracker, cap, rig, rcfg, perturber, tmp, rel, epi
         if world.tick >= cap:
             break
         events = world.step_builtin(executed) if driver is None else driver.step(world, executed)
-        _, term, trunc, info = tracker.after_step(
-            events, with_info=driver is not None and driver.info_style is not None)
+        _, term, trunc, info = tracker.after_step(events, with_info=wants_info)
         if world.is_route_complete():
             ended = "route_complete"
         elif term or trunc:

@@ -24,6 +24,12 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from v2xbench.agents.interface import call_act, to_control
+from v2xbench.envs.v2x_intersection.api.observations import (
+    ego_observation,
+    ego_space,
+    validate_control,
+)
 
 #: salt of the per-episode stream that chooses who drives each tick
 _SHARE_SALT = 0x5DA66E12
@@ -74,9 +80,11 @@ class LearnedDriver:
         return {"spec": self.spec, **declared(self.agent, self.spec)}
 
     def reset(self, world, town: str, seed: int) -> None:
-        """The agent's (and its roadside policy's) ``reset`` with the route's info."""
+        """The agent's (and its roadside policy's) ``reset`` with the route's info; the keys of
+        the world's Gymnasium observation, what :meth:`act` hands the agent."""
         from ..eval_env import route_info
 
+        self._keys = tuple(ego_space(world.config).spaces)
         info = route_info(world, town, seed)
         self.agent.reset(info)
         if self.roadside is not None:
@@ -84,16 +92,9 @@ class LearnedDriver:
 
     def act(self, world, info: dict | None) -> np.ndarray:
         """The agent's ``(3,)`` control for the world's current tick (its observation of the
-        world's ``obs_mode``, as the Gymnasium env gives it)."""
-        from v2xbench.agents.interface import call_act, to_control
-        from v2xbench.envs.v2x_intersection.api.observations import (
-            ego_observation,
-            ego_space,
-            validate_control,
-        )
-
+        world's ``obs_mode``, as the Gymnasium env gives it; :meth:`reset` first)."""
         obs = ego_observation(world)
-        view = {k: obs[k] for k in ego_space(world.config).spaces}
+        view = {k: obs[k] for k in self._keys}
         out = call_act(self.agent, view, info, self.info_style)
         return validate_control(to_control(out, view, world.config.action_mode),
                                 f"driver {self.spec!r} output").astype(np.float32)

@@ -77,7 +77,8 @@ refuses a ``--set max_payload_floats`` with another value before any route runs,
 
 **Fingerprint** (what ``eval`` keys its results by, ``collectors/agent_fingerprint.py``): the
 agent's code, its configuration, and what it declares: ``checkpoint`` (a path or a list of paths;
-each file, or every file under a folder, is hashed with SHA-256) and ``fingerprint()`` (a string,
+each file, or every file under a folder, is hashed with SHA-256; one inside the installed package
+is keyed by its path there, any other by the path given) and ``fingerprint()`` (a string,
 for anything else, e.g. a model registry id). Declare the weights the agent loads, so that results
 of other weights are never mixed with its own.
 

@@ -13,7 +13,9 @@ carries its digest). Its *components* (:func:`make_fingerprint`):
   side, excluded); for another factory the file that defines it;
 - ``checkpoint``: SHA-256 of each file or folder the agent declares in ``checkpoint``, and for a
   TorchRL policy passed to ``evaluate`` its architecture and weights (:func:`declared`,
-  :func:`policy_digest`);
+  :func:`policy_digest`); a file inside the installed package (shipped weights) is keyed by its
+  path there (``v2xbench/agents/...``: the same key from every clone, :func:`checkpoint_key`),
+  any other by the path as declared;
 - ``agent_fingerprint``: what the agent's ``fingerprint()`` returns;
 - ``agent_config``: the ``--agent-config`` contents (not its path);
 - ``config_overrides``: the env overrides (``--set``); ``obs_mode``, ``rsu_policy`` and
@@ -203,6 +205,52 @@ def _checkpoint_paths(value: Any, label: str) -> list[str]:
     return [str(p) for p in items]
 
 
+#: prefix of the key of a checkpoint inside the installed package (:func:`checkpoint_key`)
+PACKAGE_PREFIX = "v2xbench/"
+
+
+def checkpoint_key(path: str) -> str:
+    """The fingerprint's key of a declared checkpoint: ``v2xbench/<path in the package>`` for a
+    file or folder inside the installed package (shipped weights: one key whichever folder the
+    package is installed or cloned in), otherwise the path as declared."""
+    try:
+        rel = Path(path).resolve().relative_to(_agents_root().parent)
+    except ValueError:
+        return path
+    return PACKAGE_PREFIX + rel.as_posix()
+
+
+def _rekey_legacy(old: dict, new: dict) -> dict:
+    """``old``'s checkpoint digests re-keyed as :func:`checkpoint_key` keys them in ``new``: a
+    path written before (``/some/clone/agents/x``, ``agents/x``) becomes ``v2xbench/agents/x``
+    when ``new`` has that key; other keys stay."""
+    out = {}
+    for k, v in old.items():
+        for nk in new:
+            rel = nk[len(PACKAGE_PREFIX):]
+            if nk.startswith(PACKAGE_PREFIX) and (k == rel or k.endswith("/" + rel)):
+                k = nk
+                break
+        out[k] = v
+    return out
+
+
+def legacy_match(old: dict, new: dict) -> bool:
+    """Whether fingerprint components ``old`` (a ``run.json`` written before in-package checkpoints
+    were keyed by :func:`checkpoint_key`) describe the same run as ``new``: equal once ``old``'s
+    absolute checkpoint paths are re-keyed, the digests unchanged."""
+    if old == new or set(old) != set(new):
+        return False
+    fixed = dict(old)
+    if isinstance(old.get("checkpoint"), dict) and isinstance(new.get("checkpoint"), dict):
+        fixed["checkpoint"] = _rekey_legacy(old["checkpoint"], new["checkpoint"])
+    ro, rn = old.get("roadside"), new.get("roadside")
+    if isinstance(ro, dict) and isinstance(rn, dict) and isinstance(ro.get("checkpoint"), dict) \
+            and isinstance(rn.get("checkpoint"), dict):
+        fixed["roadside"] = {**ro, "checkpoint": _rekey_legacy(ro["checkpoint"], rn["checkpoint"])}
+    return fixed == new
+
+
 def declared(agent: Any, label: str = "agent") -> dict:
     """What an agent instance declares: ``{"checkpoint": {path: sha256}, "fingerprint": str |
     None}`` (``interface`` module docstring, "Fingerprint").
@@ -215,9 +263,9 @@ def declared(agent: Any, label: str = "agent") -> dict:
     for p in _checkpoint_paths(getattr(agent, "checkpoint", None), label):
         path = Path(p)
         if path.is_file():
-            ckpt[p] = sha256_file(path)
+            ckpt[checkpoint_key(p)] = sha256_file(path)
         elif path.is_dir():
-            ckpt[p] = sha256_tree(path)
+            ckpt[checkpoint_key(p)] = sha256_tree(path)
         else:
             raise ValueError(
                 f"agent {label!r} declares checkpoint {p!r}, which is neither a file nor a folder"

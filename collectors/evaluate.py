@@ -85,6 +85,7 @@ from .agent_fingerprint import (
     code_digests,
     declared,
     describe_differences,
+    legacy_match,
     make_fingerprint,
     policy_digest,
 )
@@ -173,7 +174,14 @@ def _prepare_directory(out: Path, manifest: dict, overwrite: bool) -> None:
             )
         if old is not None:
             comp = (old.get("fingerprint") or {}).get("components") or {}
-            diffs = describe_differences(comp, manifest["fingerprint"]["components"])
+            new_fp = manifest["fingerprint"]
+            diffs = describe_differences(comp, new_fp["components"])
+            if diffs and legacy_match(comp, new_fp["components"]):
+                n = J.retag_results(out, old["fingerprint"].get("digest"), new_fp["digest"])
+                _say(f"{out}: run.json keyed the shipped weights by their absolute path (written "
+                     f"before v2xbench keyed them by their path in the package); same agent, "
+                     f"same weights: {n} result(s) re-keyed and resumed")
+                diffs = []
             if diffs:
                 raise ValueError(
                     f"{out} holds results of another run; what differs: "

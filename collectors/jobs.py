@@ -269,6 +269,24 @@ class ForeignResults(ValueError):
     """Result files of another fingerprint (or of none) in an output directory."""
 
 
+def retag_results(out: str | Path, old: str, new: str) -> int:
+    """Rewrite the ``fingerprint`` digest of ``out``'s result files from ``old`` to ``new``
+    (atomically, one file at a time; a file of another digest is left alone). Returns how many
+    were rewritten. For a fingerprint whose form changed while the run it describes did not
+    (``agent_fingerprint.legacy_match``)."""
+    n = 0
+    for path in sorted(routes_dir(out).glob("*.json")):
+        try:
+            d = json.loads(path.read_text())
+        except (UnicodeDecodeError, json.JSONDecodeError):
+            continue  # unreadable: discard_unreadable_results deals with it
+        if isinstance(d, dict) and d.get("fingerprint") == old:
+            d["fingerprint"] = new
+            write_json_atomic(d, path)
+            n += 1
+    return n
+
+
 def discard_unreadable_results(out: str | Path, jobs: Iterable[Job],
                                fingerprint: str | None = None) -> list[Path]:
     """Remove the result files of ``jobs`` that do not read back (:func:`read_result`), each with

@@ -227,3 +227,66 @@ def test_torchrl_policy_weights_are_its_checkpoint(suite, tmp_path):  # noqa: F8
         lin.bias.add_(0.1)
     with pytest.raises(ValueError, match="checkpoint: policy changed"):
         evaluate(policy, suite, **kw)
+
+
+def test_shipped_weights_are_keyed_by_their_path_in_the_package(suite, tmp_path,  # noqa: F811
+                                                                capsys):
+    """Weights inside the installed package are keyed ``v2xbench/agents/...`` (one key from every
+    clone); a run.json written before, keyed by an absolute path, resumes when the weights are the
+    same (its results re-keyed) and is refused when they are not."""
+    import v2xbench.agents.interface as iface
+    from v2xbench.collectors.agent_fingerprint import checkpoint_key, make_fingerprint
+
+    inside = str(Path(iface.__file__).resolve())
+    assert checkpoint_key(inside) == "v2xbench/agents/interface.py"
+    assert checkpoint_key(str(tmp_path / "w.bin")) == str(tmp_path / "w.bin")
+    spec, out = _agent(tmp_path), tmp_path / "out"
+    conf = tmp_path / "conf.json"
+    conf.write_text(json.dumps({"weights": inside}))
+    args = ("--agent-config", str(conf), "--max-routes", "1")
+    assert _eval(spec, suite, out, *args) == 0
+    run = json.loads((out / "run.json").read_text())
+    comp = run["fingerprint"]["components"]
+    assert list(comp["checkpoint"]) == ["v2xbench/agents/interface.py"]
+    digest = run["fingerprint"]["digest"]
+
+    def make_legacy(sha: str) -> str:  # as an earlier v2xbench wrote it from another clone
+        old = dict(comp, checkpoint={"/elsewhere/clone/agents/interface.py": sha})
+        fp = make_fingerprint(old)
+        J.write_json_atomic({**run, "fingerprint": fp}, out / "run.json")
+        return fp["digest"]
+
+    legacy = make_legacy(comp["checkpoint"]["v2xbench/agents/interface.py"])
+    assert J.retag_results(out, digest, legacy) == 1
+    before = _mtimes(out)
+    capsys.readouterr()
+    assert _eval(spec, suite, out, *args) == 0  # same weights: re-keyed, nothing runs again
+    assert "1 result(s) re-keyed and resumed" in capsys.readouterr().err
+    assert json.loads((out / "summary.json").read_text())["run"]["jobs_run"] == 0
+    assert J.read_result(out, "tiny_0_s0")["fingerprint"] == digest
+    assert json.loads((out / "run.json").read_text())["fingerprint"]["digest"] == digest
+    assert set(_mtimes(out)) == set(before)
+    legacy = make_legacy("0" * 64)  # other weights under the old key: refused
+    assert J.retag_results(out, digest, legacy) == 1
+    assert _eval(spec, suite, out, *args) == 2
+    assert "holds results of another run" in capsys.readouterr().err
+    assert J.read_result(out, "tiny_0_s0")["fingerprint"] == legacy  # nothing touched
+
+
+def test_legacy_match_rekeys_only_absolute_paths_of_the_same_file():
+    from v2xbench.collectors.agent_fingerprint import legacy_match
+
+    new = {"spec": "codriving", "fingerprint": "f",
+           "checkpoint": {"v2xbench/agents/w/c.safetensors": "ab", "/runs/x.bin": "cd"}}
+    old = dict(new, checkpoint={"/clone/agents/w/c.safetensors": "ab", "/runs/x.bin": "cd"})
+    assert legacy_match(old, new)
+    assert not legacy_match(new, new)  # equal is no legacy form
+    assert not legacy_match(dict(old, fingerprint="g"), new)  # something else differs
+    assert not legacy_match(dict(old, checkpoint={**old["checkpoint"],
+                                                  "/clone/agents/w/c.safetensors": "ff"}), new)
+    assert not legacy_match(dict(old, checkpoint={"/clone/other/w/d.safetensors": "ab",
+                                                  "/runs/x.bin": "cd"}), new)
+    assert legacy_match(dict(old, checkpoint={"agents/w/c.safetensors": "ab",
+                                              "/runs/x.bin": "cd"}), new)  # relative to the clone
+    assert not legacy_match(dict(old, checkpoint={"/clone/xagents/w/c.safetensors": "ab",
+                                                  "/runs/x.bin": "cd"}), new)

@@ -41,6 +41,7 @@ from v2xbench.files import atomic_write_json, check_output_dir, remove_stale_tmp
 from v2xbench.locks import dir_lock
 
 from .. import jobs as J
+from ..agent_fingerprint import legacy_match
 from .parent_watch import exit_with_parent
 from .perturb import PerturbConfig, Perturber
 from .record import (
@@ -501,7 +502,8 @@ def _start_manifest(cfg: CollectConfig, root: Path, jobs: list,
             diff = {k: (was.get(k), v) for k, v in cfg.to_json().items() if was.get(k) != v}
             raise ValueError(f"{root} was collected with other settings (old, new): {diff}; "
                              "use another --out or the same settings")
-        if old.get("driver") != driver:
+        was_driver = old.get("driver")
+        if was_driver != driver and not (was_driver and driver and legacy_match(was_driver, driver)):
             raise ValueError(f"{root} was driven by another driver or other weights (old, new): "
                              f"{old.get('driver')}, {driver}; use another --out or the same "
                              "driver")

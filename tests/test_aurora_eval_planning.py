@@ -19,6 +19,7 @@ from v2xbench.agents.aurora.policy import AuroraPolicyNet
 from v2xbench.agents.aurora.system import load_system
 from v2xbench.collectors.chat.export import build as build_qa
 from v2xbench.collectors.dataset.loader import V2XDataset
+from v2xbench.collectors.dataset.record import REASONS
 from v2xbench.envs.v2x_intersection.core.classes import CAR, PEDESTRIAN, TRAFFIC_SIGN
 from v2xbench.envs.v2x_intersection.sensors import EGO_CAMERA_NAMES
 
@@ -68,6 +69,11 @@ def test_command_writes_the_metrics(tiny_run, tmp_path, capsys, monkeypatch):
     table = (out / "metrics.md").read_text()
     assert "| all |" in table and "start from rest" in table
     assert m["stay_at_rest"]["expert_3s_within"] == EP.STAY_DIST
+    reasons = EP.split_reasons(data, "all")  # the expert's binding constraint, every frame
+    assert len(reasons) == ds.offsets[-1]
+    per = m["per_reason"]
+    assert sum(g["frames"] for g in per.values()) == m["frames"]
+    assert set(per) <= set(REASONS) and "expert's reason" in table
 
     # exported float32 weights give the run's numbers; --out is honoured
     w = tmp_path / "w"
@@ -180,3 +186,19 @@ def test_collision_is_counted_on_an_overlap():
     jitter = np.tile([[0.003, 0.05]], (6, 1))[None]
     assert np.allclose(EP.plan_headings(jitter), 0.0)
     assert not EP.collisions(jitter, fut).any()
+
+
+def test_per_reason_shows_a_planner_driving_through_a_red_light():
+    """Two frames the expert stops at a red light (it plans to stay), one free: a model that
+    plans 5 m/s everywhere has planned speed 5 on the red frames where the expert has 0."""
+    dt, t = 0.5, 6
+    drive = EP.constant_velocity_plan(np.full(3, 5.0), t, dt)
+    expert = np.stack([np.zeros((t, 2)), np.zeros((t, 2)), drive[2]])
+    rec = {"model": drive, "expert": expert, "speed": np.array([2.0, 0.0, 5.0]),
+           "reason": np.array([REASONS.index("red"), REASONS.index("red"),
+                               REASONS.index("free")])}
+    per = EP.per_reason(rec, dt)
+    assert set(per) == {"red", "free"} and per["red"]["frames"] == 2
+    assert per["red"]["expert_speed_3s"] == 0 and per["red"]["model_speed_3s"] == pytest.approx(5)
+    assert per["red"]["model_l2_3s"] == pytest.approx(15) and per["red"]["ego_speed"] == 1
+    assert per["free"]["model_l2_3s"] == pytest.approx(0)

@@ -29,6 +29,11 @@ without a unit, gets none. Metrics, overall and per navigation command
   policy's target speed, :func:`~.policy.target_speed`) and over 3 s ``|wp_3s| / 3 s``;
   ``stay_at_rest``: the same where the ego stands and the expert stays (3 s waypoint within
   1.5 m), so that a planner which always drives off shows.
+- ``per_reason``: per binding constraint of the expert's speed at the frame (``expert_reason``:
+  free road, a leader, a red or yellow light, a stop sign, yielding, a conflict, ...;
+  :data:`~v2xbench.collectors.dataset.record.REASONS`): the ego's speed and the expert's and the
+  model's planned speed over 3 s, and the L2 at 3 s. A planner that drives on where the expert
+  stops for a red light shows here, whatever its mean L2.
 
 Files (:func:`evaluate_planning`, written atomically): ``metrics.json`` and ``metrics.md`` in
 ``--out`` (default ``RUN/eval_planning`` or ``DIR/eval_planning``).
@@ -161,8 +166,43 @@ def start_from_rest(rec: Mapping[str, np.ndarray], dt: float, stay: bool = False
     return out
 
 
+def split_reasons(root: str | Path, split: str) -> np.ndarray | None:
+    """Every frame's ``expert_reason`` of ``split`` of the data set at ``root``, indexed by the
+    split's global frame id (``None`` for a data set without the field)."""
+    from v2xbench.collectors.dataset.loader import V2XDataset
+
+    ds = V2XDataset(root, split, keys=["expert_reason"])
+    out = []
+    for e in range(len(ds.episodes)):
+        sh = ds.shard(e)
+        if "expert_reason" not in sh:
+            return None
+        out.append(np.asarray(sh["expert_reason"], np.int64).reshape(-1))
+    return np.concatenate(out) if out else np.zeros(0, np.int64)
+
+
+def per_reason(rec: Mapping[str, np.ndarray], dt: float) -> dict:
+    """Per ``expert_reason`` present (``rec["reason"]``): frames, the ego's mean speed, the
+    expert's and the model's mean planned speed over 3 s (``|wp_3s| / 3 s``) and the model's L2
+    at 3 s (module docstring)."""
+    from v2xbench.collectors.dataset.record import REASONS
+
+    k3 = int(round(3.0 / dt)) - 1
+    out = {}
+    for r in sorted(set(int(v) for v in rec["reason"])):
+        rows = rec["reason"] == r
+        name = REASONS[r] if 0 <= r < len(REASONS) else f"reason_{r}"
+        m, ex = rec["model"][rows], rec["expert"][rows]
+        out[name] = {"frames": int(rows.sum()), "ego_speed": _mean(rec["speed"][rows]),
+                     "expert_speed_3s": _mean(np.linalg.norm(ex[:, k3], axis=-1) / 3.0),
+                     "model_speed_3s": _mean(np.linalg.norm(m[:, k3], axis=-1) / 3.0),
+                     "model_l2_3s": _mean(np.linalg.norm(m[:, k3] - ex[:, k3], axis=-1))}
+    return out
+
+
 def summarize(rec: Mapping[str, np.ndarray], dt: float) -> dict:
-    """``overall``, ``per_command`` (commands present) and ``start_from_rest`` metrics."""
+    """``overall``, ``per_command`` (commands present), ``start_from_rest`` / ``stay_at_rest``
+    and, where ``rec`` has ``reason``, ``per_reason`` metrics."""
     every = np.ones(len(rec["speed"]), bool)
     per = {}
     for c in sorted(set(int(v) for v in rec["command"])):
@@ -170,7 +210,8 @@ def summarize(rec: Mapping[str, np.ndarray], dt: float) -> dict:
         per[name] = group_metrics(rec, rec["command"] == c, dt)
     return {"overall": group_metrics(rec, every, dt), "per_command": per,
             "start_from_rest": start_from_rest(rec, dt),
-            "stay_at_rest": start_from_rest(rec, dt, stay=True)}
+            "stay_at_rest": start_from_rest(rec, dt, stay=True),
+            "per_reason": per_reason(rec, dt) if "reason" in rec else None}
 
 
 # ---------------------------------------------------------------------- the model
@@ -312,6 +353,9 @@ def write_result(out: Path, parts: dict[str, list], head: dict, t_steps: int, dt
     ``head``: the evaluator's ``format``, ``source``, ``data``, ``split``, ``stride``,
     ``command`` (and a baseline's ``title``)."""
     rec = {k: np.concatenate(v) for k, v in parts.items()}
+    reasons = split_reasons(head["data"], head["split"]) if head.get("data") else None
+    if reasons is not None:
+        rec["reason"] = reasons[rec["frame_id"]]
     bad = ~np.isfinite(rec["expert"]).all((1, 2))
     if bad.any():  # no expert future recorded: nothing to compare with
         rec = {k: v[~bad] for k, v in rec.items()}
@@ -387,6 +431,15 @@ def markdown(result: Mapping) -> str:
     for plan in ("model", "expert"):
         lines.append(f"| {plan} | {_f(s[plan]['speed_wp0_wp1'])} | {_f(s[plan]['speed_3s'])} | "
                      f"{_f(r[plan]['speed_wp0_wp1'])} | {_f(r[plan]['speed_3s'])} |")
+    if result.get("per_reason"):
+        lines += ["", "Per binding constraint of the expert's speed (`expert_reason`): speeds in "
+                  "m/s, planned speed = distance to the 3 s waypoint / 3 s.", "",
+                  "| expert's reason | n | ego speed | expert planned | model planned | "
+                  "L2 3 s model |", "|---|---|---|---|---|---|"]
+        for name, g in result["per_reason"].items():
+            lines.append(f"| {name} | {g['frames']} | {_f(g['ego_speed'])} | "
+                         f"{_f(g['expert_speed_3s'])} | {_f(g['model_speed_3s'])} | "
+                         f"{_f(g['model_l2_3s'])} |")
     return "\n".join(lines) + "\n"
 
 
@@ -394,5 +447,6 @@ __all__ = ["ACTOR_CLASSES", "HEADING_MIN_STEP", "HORIZONS", "OUT_DIR", "START_DI
            "output_dir",
            "START_SPEED", "STAY_DIST", "actor_futures", "add_batch", "check_settings", "collisions",
            "constant_velocity_plan", "evaluate_planning", "group_metrics", "load_model",
-           "markdown", "new_parts", "plan_headings", "predict", "start_from_rest", "summarize",
+           "markdown", "new_parts", "per_reason", "plan_headings", "predict", "split_reasons",
+           "start_from_rest", "summarize",
            "write_result"]

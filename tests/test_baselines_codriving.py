@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import torch
 from v2xbench.agents.baselines.codriving.config import CoDrivingConfig
-from v2xbench.agents.baselines.codriving.controller import NativeController
+from v2xbench.agents.baselines.codriving.controller import LightBrake, NativeController
 from v2xbench.agents.baselines.codriving.fusion import scatter_to_ego
 from v2xbench.agents.baselines.codriving.losses import boxes_to_rsu
 from v2xbench.agents.baselines.codriving.message import (
@@ -197,6 +197,21 @@ def test_native_controller_steers_toward_the_waypoints_and_brakes_to_stop():
         ctl.control(np.full((6, 2), np.nan), 1.0, 1.0)
 
 
+def test_light_brake_stops_for_red_before_the_line_and_not_after():
+    from v2xbench.envs.v2x_intersection.traffic.signals import GREEN, NO_SIGNAL, RED, YELLOW
+    from v2xbench.envs.v2x_intersection.traffic.vehicles import STOP_LINE_SETBACK as back
+
+    brake = LightBrake(decel=4.0, margin=2.5, yellow_decel=3.0)
+    # 10 m/s: stopping needs 12.5 m + 2.5 m margin; the line is 4.5 m before the lane's end
+    assert brake(RED, back + 14.0, 10.0) and not brake(RED, back + 16.0, 10.0)
+    assert not brake(GREEN, back + 5.0, 10.0) and not brake(NO_SIGNAL, back + 5.0, 10.0)
+    assert not brake(RED, back - 0.5, 10.0)  # past the line: go on through
+    assert not brake(RED, -1.0, 0.0)  # no stop line ahead
+    assert brake(RED, back + 1.0, 0.0)  # standing at the line: stay
+    # yellow: only where 3 m/s^2 still stops before the line (16.7 m at 10 m/s)
+    assert not brake(YELLOW, back + 14.0, 10.0) and brake(YELLOW, back + 2.0, 1.0)
+
+
 def test_training_a_few_steps_lowers_the_loss(lidar_dataset):
     from v2xbench.agents.baselines.codriving.data import CoDrivingFrames
     from v2xbench.agents.baselines.codriving.losses import CoDrivingCriterion
@@ -290,3 +305,12 @@ def test_cli_trains_plans_open_loop_and_the_agent_drives_through_eval(lidar_data
 
 def test_shipped_weights_load_and_drive(tmp_path):
     bc.assert_shipped_weights("codriving", "CoDrivingRoadside", tmp_path, fixed_size=False)
+
+
+def test_light_brake_is_a_checked_option_in_the_fingerprint():
+    from v2xbench.agents.baselines.codriving.agent import CoDrivingAgent
+
+    with pytest.raises(ValueError, match="light_brake"):
+        CoDrivingAgent(light_brake="yes")
+    plain, braking = CoDrivingAgent(), CoDrivingAgent(light_brake=True)
+    assert "light-brake" in braking.fingerprint() and "light-brake" not in plain.fingerprint()

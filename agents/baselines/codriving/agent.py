@@ -10,7 +10,9 @@ declares ``channel = {"max_payload_floats": <the largest message's floats>}`` so
 sets the env's limit (messages are shorter when fewer cells are chosen). Each step:
 :meth:`~.policy.CoDrivingDriver.plan` -> the native controller (:mod:`.controller`: PID on the
 waypoints; a ``(3,)`` throttle, steer, brake action, so the env's ``action_mode`` must be
-``carla``). Without a run it loads the shipped weights (``agents/baselines/weights/codriving``)
+``carla``). ``{"light_brake": true}`` adds the published system's traffic-light brake
+(:class:`~.controller.LightBrake`, from the ego vector's light state: our CoDriving has no
+camera). Without a run it loads the shipped weights (``agents/baselines/weights/codriving``)
 where the repository has them.
 
 This module imports nothing heavy: the model loads in the constructor.
@@ -23,8 +25,8 @@ import time
 import numpy as np
 
 from ..common.agent import BaselineAgent
-from ..common.policy import SPEED
-from .controller import NativeController
+from ..common.policy import LIGHT_STATE, SPEED, STOP_DIST
+from .controller import LightBrake, NativeController
 
 
 class CoDrivingAgent(BaselineAgent):
@@ -34,9 +36,13 @@ class CoDrivingAgent(BaselineAgent):
     method = "codriving"
     driver_cls, roadside_cls = "CoDrivingDriver", "CoDrivingRoadside"
 
-    def __init__(self, run: str | None = None, device: str = "cpu") -> None:
+    def __init__(self, run: str | None = None, device: str = "cpu",
+                 light_brake: bool = False) -> None:
+        if not isinstance(light_brake, bool):
+            raise ValueError(f"codriving: light_brake={light_brake!r} must be true or false")
         super().__init__(run, device)
         self.controller = NativeController()
+        self.light_brake = LightBrake() if light_brake else None
 
     def _sensors(self, info: dict):
         """The sensors declaration and the setting its driver takes."""
@@ -45,7 +51,8 @@ class CoDrivingAgent(BaselineAgent):
 
     def fingerprint(self) -> str:
         """The shared fingerprint plus the native controller."""
-        return super().fingerprint() + " controller=native-pid"
+        light = f" light-brake={self.light_brake}" if self.light_brake else ""
+        return super().fingerprint() + " controller=native-pid" + light
 
     def reset(self, route_info: dict) -> None:
         """A new route: the counters and the controller's PIDs."""
@@ -58,7 +65,12 @@ class CoDrivingAgent(BaselineAgent):
         wps, speed = self.driver.plan(obs)
         self.infer_s += time.perf_counter() - t0
         self.ticks += 1
-        return self.controller.control(wps, float(obs["ego"][SPEED]), speed)
+        ego = obs["ego"]
+        control = self.controller.control(wps, float(ego[SPEED]), speed)
+        if self.light_brake is not None and self.light_brake(ego[LIGHT_STATE], ego[STOP_DIST],
+                                                             float(ego[SPEED])):
+            control[0], control[2] = 0.0, 1.0
+        return control
 
 
 __all__ = ["CoDrivingAgent"]

@@ -9,6 +9,15 @@ controller rather than a shared one): two PID loops on the model's waypoints.
   clipped to ``[0, max_throttle]``, is the throttle; the ego brakes fully when the target is
   below ``stop_speed`` or the speed exceeds the target by ``brake_ratio``.
 
+**Traffic-light brake** (:class:`LightBrake`, off by default; ``{"light_brake": true}`` in the
+agent's config): the published CoDriving predicts a traffic-light hazard from a front camera and
+brakes fully while it is predicted (V2Xverse's ``traffic_light_brake``). Our CoDriving sees only
+LiDAR, which carries no light colour, so instead it reads the light of its lane from the ego
+vector every agent observes (``obs["ego"]``: ``light_state``, ``dist_to_stop_line``;
+docs/environment.md) and brakes while a red light's stop line is within its stopping distance
+(``v^2 / (2 decel) + margin``), and on yellow only where it can still stop comfortably. Stop signs
+stay the planner's.
+
 Both PIDs keep the last ``window`` errors for their integral and derivative terms (TransFuser's
 and InterFuser's controller form); :meth:`NativeController.reset` clears them at a new route.
 The gains and limits are TransFuser's (turn 1.25 / 0.75 / 0.3, speed 5 / 0.5 / 1, window 20,
@@ -51,6 +60,34 @@ class PID:
         return self.g.kp * e[-1] + self.g.ki * float(e.mean()) + self.g.kd * float(e[-1] - e[-2])
 
 
+@dataclass(frozen=True)
+class LightBrake:
+    """Whether to brake for the light of the ego's lane (module docstring).
+
+    Attributes:
+        decel: m/s^2 the stop envelope assumes. margin: m before the stop line to stop at.
+        yellow_decel: on yellow, brake only if stopping before the line needs at most this.
+    """
+
+    decel: float = 4.0
+    margin: float = 2.5
+    yellow_decel: float = 3.0
+
+    def __call__(self, light_state: float, dist_to_lane_end: float, speed: float) -> bool:
+        """``light_state`` / ``dist_to_lane_end`` as in the ego vector (``-1``: none), ``speed``
+        m/s: brake this tick?"""
+        from v2xbench.envs.v2x_intersection.traffic.signals import RED, YELLOW
+        from v2xbench.envs.v2x_intersection.traffic.vehicles import STOP_LINE_SETBACK
+
+        if dist_to_lane_end < 0 or int(light_state) not in (RED, YELLOW):
+            return False
+        to_line = float(dist_to_lane_end) - STOP_LINE_SETBACK  # the ego's centre to the line
+        v = max(float(speed), 0.0)
+        if to_line < 0 or to_line > v * v / (2 * self.decel) + self.margin:
+            return False  # past the line, or not yet near it
+        return int(light_state) == RED or to_line >= v * v / (2 * self.yellow_decel)
+
+
 class NativeController:
     """Waypoints + target speed -> ``(throttle, steer, brake)`` (module docstring)."""
 
@@ -89,4 +126,4 @@ class NativeController:
         return np.array([throttle, steer, 1.0 if brake else 0.0], np.float32)
 
 
-__all__ = ["NativeController", "PID", "PIDGains"]
+__all__ = ["LightBrake", "NativeController", "PID", "PIDGains"]

@@ -32,7 +32,7 @@ without a unit, gets none. Metrics, overall and per navigation command
 - ``per_reason``: per binding constraint of the expert's speed at the frame (``expert_reason``:
   free road, a leader, a red or yellow light, a stop sign, yielding, a conflict, ...;
   :data:`~v2xbench.collectors.dataset.record.REASONS`): the ego's speed and the expert's and the
-  model's planned speed over 3 s, and the L2 at 3 s. A planner that drives on where the expert
+  model's planned speed over 3 s, and the L2 at 3 s; again on the frames where the ego moves. A planner that drives on where the expert
   stops for a red light shows here, whatever its mean L2.
 
 Files (:func:`evaluate_planning`, written atomically): ``metrics.json`` and ``metrics.md`` in
@@ -184,19 +184,24 @@ def split_reasons(root: str | Path, split: str) -> np.ndarray | None:
 def per_reason(rec: Mapping[str, np.ndarray], dt: float) -> dict:
     """Per ``expert_reason`` present (``rec["reason"]``): frames, the ego's mean speed, the
     expert's and the model's mean planned speed over 3 s (``|wp_3s| / 3 s``) and the model's L2
-    at 3 s (module docstring)."""
+    at 3 s (module docstring); the same under ``moving`` for the frames where the ego moves
+    (>= :data:`START_SPEED`: approaching a red light, say, rather than standing at it)."""
     from v2xbench.collectors.dataset.record import REASONS
 
     k3 = int(round(3.0 / dt)) - 1
+
+    def speeds(rows: np.ndarray) -> dict:
+        m, ex = rec["model"][rows], rec["expert"][rows]
+        return {"frames": int(rows.sum()), "ego_speed": _mean(rec["speed"][rows]),
+                "expert_speed_3s": _mean(np.linalg.norm(ex[:, k3], axis=-1) / 3.0),
+                "model_speed_3s": _mean(np.linalg.norm(m[:, k3], axis=-1) / 3.0),
+                "model_l2_3s": _mean(np.linalg.norm(m[:, k3] - ex[:, k3], axis=-1))}
+
     out = {}
     for r in sorted(set(int(v) for v in rec["reason"])):
         rows = rec["reason"] == r
         name = REASONS[r] if 0 <= r < len(REASONS) else f"reason_{r}"
-        m, ex = rec["model"][rows], rec["expert"][rows]
-        out[name] = {"frames": int(rows.sum()), "ego_speed": _mean(rec["speed"][rows]),
-                     "expert_speed_3s": _mean(np.linalg.norm(ex[:, k3], axis=-1) / 3.0),
-                     "model_speed_3s": _mean(np.linalg.norm(m[:, k3], axis=-1) / 3.0),
-                     "model_l2_3s": _mean(np.linalg.norm(m[:, k3] - ex[:, k3], axis=-1))}
+        out[name] = {**speeds(rows), "moving": speeds(rows & (rec["speed"] >= START_SPEED))}
     return out
 
 
@@ -435,11 +440,14 @@ def markdown(result: Mapping) -> str:
         lines += ["", "Per binding constraint of the expert's speed (`expert_reason`): speeds in "
                   "m/s, planned speed = distance to the 3 s waypoint / 3 s.", "",
                   "| expert's reason | n | ego speed | expert planned | model planned | "
-                  "L2 3 s model |", "|---|---|---|---|---|---|"]
+                  "L2 3 s model | n moving | expert planned, moving | model planned, moving |",
+                  "|---|---|---|---|---|---|---|---|---|"]
         for name, g in result["per_reason"].items():
+            mv = g["moving"]
             lines.append(f"| {name} | {g['frames']} | {_f(g['ego_speed'])} | "
                          f"{_f(g['expert_speed_3s'])} | {_f(g['model_speed_3s'])} | "
-                         f"{_f(g['model_l2_3s'])} |")
+                         f"{_f(g['model_l2_3s'])} | {mv['frames']} | "
+                         f"{_f(mv['expert_speed_3s'])} | {_f(mv['model_speed_3s'])} |")
     return "\n".join(lines) + "\n"
 
 

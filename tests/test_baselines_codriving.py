@@ -199,17 +199,15 @@ def test_native_controller_steers_toward_the_waypoints_and_brakes_to_stop():
 
 def test_light_brake_stops_for_red_before_the_line_and_not_after():
     from v2xbench.envs.v2x_intersection.traffic.signals import GREEN, NO_SIGNAL, RED, YELLOW
-    from v2xbench.envs.v2x_intersection.traffic.vehicles import STOP_LINE_SETBACK as back
 
     brake = LightBrake(decel=4.0, margin=2.5, yellow_decel=3.0)
-    # 10 m/s: stopping needs 12.5 m + 2.5 m margin; the line is 4.5 m before the lane's end
-    assert brake(RED, back + 14.0, 10.0) and not brake(RED, back + 16.0, 10.0)
-    assert not brake(GREEN, back + 5.0, 10.0) and not brake(NO_SIGNAL, back + 5.0, 10.0)
-    assert not brake(RED, back - 0.5, 10.0)  # past the line: go on through
-    assert not brake(RED, -1.0, 0.0)  # no stop line ahead
-    assert brake(RED, back + 1.0, 0.0)  # standing at the line: stay
+    # 10 m/s: stopping needs 12.5 m + 2.5 m margin before the stop line
+    assert brake(RED, 14.0, 10.0) and not brake(RED, 16.0, 10.0)
+    assert not brake(GREEN, 5.0, 10.0) and not brake(NO_SIGNAL, 5.0, 10.0)
+    assert not brake(RED, -1.0, 10.0)  # no stop line ahead (or past it: the ego vector's -1)
+    assert brake(RED, 1.0, 0.0) and brake(RED, 0.0, 0.5)  # standing at the line: stay
     # yellow: only where 3 m/s^2 still stops before the line (16.7 m at 10 m/s)
-    assert not brake(YELLOW, back + 14.0, 10.0) and brake(YELLOW, back + 2.0, 1.0)
+    assert not brake(YELLOW, 14.0, 10.0) and brake(YELLOW, 2.0, 1.0)
 
 
 def test_training_a_few_steps_lowers_the_loss(lidar_dataset):

@@ -73,16 +73,15 @@ class LightBrake:
     margin: float = 2.5
     yellow_decel: float = 3.0
 
-    def __call__(self, light_state: float, dist_to_lane_end: float, speed: float) -> bool:
-        """``light_state`` / ``dist_to_lane_end`` as in the ego vector (``-1``: none), ``speed``
-        m/s: brake this tick?"""
+    def __call__(self, light_state: float, dist_to_line: float, speed: float) -> bool:
+        """``light_state`` / ``dist_to_stop_line`` as in the ego vector (the ego's centre to its
+        lane's stop line, the line red-light infractions are counted at; ``-1``: none),
+        ``speed`` m/s: brake this tick?"""
         from v2xbench.envs.v2x_intersection.traffic.signals import RED, YELLOW
-        from v2xbench.envs.v2x_intersection.traffic.vehicles import STOP_LINE_SETBACK
 
-        if dist_to_lane_end < 0 or int(light_state) not in (RED, YELLOW):
+        if dist_to_line < 0 or int(light_state) not in (RED, YELLOW):
             return False
-        to_line = float(dist_to_lane_end) - STOP_LINE_SETBACK  # the ego's centre to the line
-        v = max(float(speed), 0.0)
+        to_line, v = float(dist_to_line), max(float(speed), 0.0)
         if to_line < 0 or to_line > v * v / (2 * self.decel) + self.margin:
             return False  # past the line, or not yet near it
         return int(light_state) == RED or to_line >= v * v / (2 * self.yellow_decel)

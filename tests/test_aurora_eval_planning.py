@@ -203,3 +203,5 @@ def test_per_reason_shows_a_planner_driving_through_a_red_light():
     assert per["red"]["model_l2_3s"] == pytest.approx(15) and per["red"]["ego_speed"] == 1
     assert per["free"]["model_l2_3s"] == pytest.approx(0)
     assert per["red"]["moving"]["frames"] == 1 and per["red"]["moving"]["ego_speed"] == 2
+    assert per["red"]["standing"]["frames"] == 1 and per["red"]["standing"]["model_speed_3s"] == \
+        pytest.approx(5) and per["red"]["standing"]["expert_speed_3s"] == 0

@@ -32,7 +32,8 @@ without a unit, gets none. Metrics, overall and per navigation command
 - ``per_reason``: per binding constraint of the expert's speed at the frame (``expert_reason``:
   free road, a leader, a red or yellow light, a stop sign, yielding, a conflict, ...;
   :data:`~v2xbench.collectors.dataset.record.REASONS`): the ego's speed and the expert's and the
-  model's planned speed over 3 s, and the L2 at 3 s; again on the frames where the ego moves. A planner that drives on where the expert
+  model's planned speed over 3 s, and the L2 at 3 s; again on the frames where the ego moves
+  and where it stands. A planner that drives on where the expert
   stops for a red light shows here, whatever its mean L2.
 
 Files (:func:`evaluate_planning`, written atomically): ``metrics.json`` and ``metrics.md`` in
@@ -184,8 +185,9 @@ def split_reasons(root: str | Path, split: str) -> np.ndarray | None:
 def per_reason(rec: Mapping[str, np.ndarray], dt: float) -> dict:
     """Per ``expert_reason`` present (``rec["reason"]``): frames, the ego's mean speed, the
     expert's and the model's mean planned speed over 3 s (``|wp_3s| / 3 s``) and the model's L2
-    at 3 s (module docstring); the same under ``moving`` for the frames where the ego moves
-    (>= :data:`START_SPEED`: approaching a red light, say, rather than standing at it)."""
+    at 3 s (module docstring); the same under ``moving`` and ``standing`` for the frames where
+    the ego moves (>= :data:`START_SPEED`: approaching a red light, say) and where it stands (at
+    the light: only the light, or the car ahead, says to stay)."""
     from v2xbench.collectors.dataset.record import REASONS
 
     k3 = int(round(3.0 / dt)) - 1
@@ -201,7 +203,9 @@ def per_reason(rec: Mapping[str, np.ndarray], dt: float) -> dict:
     for r in sorted(set(int(v) for v in rec["reason"])):
         rows = rec["reason"] == r
         name = REASONS[r] if 0 <= r < len(REASONS) else f"reason_{r}"
-        out[name] = {**speeds(rows), "moving": speeds(rows & (rec["speed"] >= START_SPEED))}
+        moving = rec["speed"] >= START_SPEED
+        out[name] = {**speeds(rows), "moving": speeds(rows & moving),
+                     "standing": speeds(rows & ~moving)}
     return out
 
 
@@ -440,14 +444,17 @@ def markdown(result: Mapping) -> str:
         lines += ["", "Per binding constraint of the expert's speed (`expert_reason`): speeds in "
                   "m/s, planned speed = distance to the 3 s waypoint / 3 s.", "",
                   "| expert's reason | n | ego speed | expert planned | model planned | "
-                  "L2 3 s model | n moving | expert planned, moving | model planned, moving |",
-                  "|---|---|---|---|---|---|---|---|---|"]
+                  "L2 3 s model | n moving | expert, moving | model, moving | n standing | "
+                  "expert, standing | model, standing |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for name, g in result["per_reason"].items():
-            mv = g["moving"]
+            mv, st = g["moving"], g["standing"]
             lines.append(f"| {name} | {g['frames']} | {_f(g['ego_speed'])} | "
                          f"{_f(g['expert_speed_3s'])} | {_f(g['model_speed_3s'])} | "
                          f"{_f(g['model_l2_3s'])} | {mv['frames']} | "
-                         f"{_f(mv['expert_speed_3s'])} | {_f(mv['model_speed_3s'])} |")
+                         f"{_f(mv['expert_speed_3s'])} | {_f(mv['model_speed_3s'])} | "
+                         f"{st['frames']} | {_f(st['expert_speed_3s'])} | "
+                         f"{_f(st['model_speed_3s'])} |")
     return "\n".join(lines) + "\n"
 
 

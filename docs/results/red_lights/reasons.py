@@ -29,23 +29,26 @@ def standing(g: dict) -> dict:
     return out
 
 
+def _cells(pr: dict, key: str) -> str:
+    return " | ".join(f"{pr[r]['moving'][key]:.2f} | {standing(pr[r])[key]:.2f}" for r in REASONS)
+
+
 def table(runs: dict[str, dict]) -> str:
-    """The Markdown table of ``runs`` (name -> metrics)."""
-    first = next(iter(runs.values()))["per_reason"]
-    head = ["| who | " + " | ".join(f"{r}, moving | {r}, standing" for r in REASONS) + " |",
-            "|---|" + "---|---|" * len(REASONS)]
-    rows = []
-    for who, key in (("expert", "expert_speed_3s"),):
-        rows.append(f"| {who} | " + " | ".join(
-            f"{first[r]['moving'][key]:.2f} | {standing(first[r])[key]:.2f}" for r in REASONS) + " |")
+    """The Markdown table of ``runs`` (name -> metrics): the expert's row once per data set (its
+    frames' counts after it), then each run's."""
+    head = ["| who (data set) | " + " | ".join(f"{r}, moving | {r}, standing" for r in REASONS)
+            + " |", "|---|" + "---|---|" * len(REASONS)]
+    rows, seen, notes = [], set(), []
     for name, m in runs.items():
-        pr = m["per_reason"]
-        rows.append(f"| {name} | " + " | ".join(
-            f"{pr[r]['moving']['model_speed_3s']:.2f} | {standing(pr[r])['model_speed_3s']:.2f}"
-            for r in REASONS) + " |")
-    counts = ", ".join(f"{r} {first[r]['moving']['frames']} / {standing(first[r])['frames']}"
-                       for r in REASONS)
-    return "\n".join(head + rows) + f"\n\nFrames (moving / standing) of the first run: {counts}.\n"
+        data, pr = Path(m["data"]).name, m["per_reason"]
+        if data not in seen:
+            seen.add(data)
+            rows.append(f"| expert ({data}) | {_cells(pr, 'expert_speed_3s')} |")
+            counts = ", ".join(f"{r} {pr[r]['moving']['frames']} / {standing(pr[r])['frames']}"
+                               for r in REASONS)
+            notes.append(f"{data}: frames (moving / standing) {counts}.")
+        rows.append(f"| {name} ({data}) | {_cells(pr, 'model_speed_3s')} |")
+    return "\n".join(head + rows) + "\n\n" + "\n".join(notes) + "\n"
 
 
 def main() -> None:

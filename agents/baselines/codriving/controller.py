@@ -82,8 +82,8 @@ class LightBrake:
         if dist_to_line < 0 or int(light_state) not in (RED, YELLOW):
             return False
         to_line, v = float(dist_to_line), max(float(speed), 0.0)
-        if to_line < 0 or to_line > v * v / (2 * self.decel) + self.margin:
-            return False  # past the line, or not yet near it
+        if to_line > v * v / (2 * self.decel) + self.margin:
+            return False  # not yet near the line
         return int(light_state) == RED or to_line >= v * v / (2 * self.yellow_decel)
 
 

@@ -15,7 +15,7 @@ from v2xbench.agents.aurora.rsu_agent import received_payload
 from v2xbench.envs.v2x_intersection.api.observations import EGO_FEATURES
 
 SPEED, COMMAND = 0, 2  # obs["ego"][SPEED]; obs["route"][:, COMMAND]
-#: obs["ego"] columns of the light of the ego's lane and the distance to its lane's end
+#: obs["ego"] columns of the light of the ego's lane and the distance to its stop line
 LIGHT_STATE, STOP_DIST = EGO_FEATURES.index("light_state"), EGO_FEATURES.index("dist_to_stop_line")
 
 

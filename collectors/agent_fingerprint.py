@@ -238,7 +238,7 @@ def _rekey_legacy(old: dict, new: dict) -> dict:
 def legacy_match(old: dict, new: dict) -> bool:
     """Whether fingerprint components ``old`` (a ``run.json`` written before in-package checkpoints
     were keyed by :func:`checkpoint_key`) describe the same run as ``new``: equal once ``old``'s
-    absolute checkpoint paths are re-keyed, the digests unchanged."""
+    checkpoint paths (absolute, or relative to the clone) are re-keyed, the digests unchanged."""
     if old == new or set(old) != set(new):
         return False
     fixed = dict(old)

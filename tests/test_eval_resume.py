@@ -273,7 +273,7 @@ def test_shipped_weights_are_keyed_by_their_path_in_the_package(suite, tmp_path,
     assert J.read_result(out, "tiny_0_s0")["fingerprint"] == legacy  # nothing touched
 
 
-def test_legacy_match_rekeys_only_absolute_paths_of_the_same_file():
+def test_legacy_match_rekeys_old_paths_of_the_same_file_only():
     from v2xbench.collectors.agent_fingerprint import legacy_match
 
     new = {"spec": "codriving", "fingerprint": "f",

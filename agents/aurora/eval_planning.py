@@ -199,11 +199,10 @@ def per_reason(rec: Mapping[str, np.ndarray], dt: float) -> dict:
                 "model_speed_3s": _mean(np.linalg.norm(m[:, k3], axis=-1) / 3.0),
                 "model_l2_3s": _mean(np.linalg.norm(m[:, k3] - ex[:, k3], axis=-1))}
 
-    out = {}
+    out, moving = {}, rec["speed"] >= START_SPEED
     for r in sorted(set(int(v) for v in rec["reason"])):
         rows = rec["reason"] == r
         name = REASONS[r] if 0 <= r < len(REASONS) else f"reason_{r}"
-        moving = rec["speed"] >= START_SPEED
         out[name] = {**speeds(rows), "moving": speeds(rows & moving),
                      "standing": speeds(rows & ~moving)}
     return out

@@ -1,7 +1,8 @@
 """CoDriving with and without its light brake on the same route runs: docs/baselines.md, "Red
 lights". Reads two ``v2xbench eval`` output folders and compares the runs both hold (matched by
-job id: route and seed): mean DS with its bootstrap 95 % CI (the package's ``bootstrap_ci``),
-RC, infractions per km driven, and the paired DS difference (per run) with its bootstrap CI.
+job id: route and seed): the package's suite summary of those runs (``aggregate``: mean DS with
+its bootstrap 95 % CI, RC, infractions per km driven), and the paired DS difference (per run)
+with its bootstrap CI.
 
     python docs/results/red_lights/light_brake.py NAME=EVAL_DIR BASE=EVAL_DIR ... --out FILE.json
 
@@ -15,9 +16,7 @@ import json
 from pathlib import Path
 
 import numpy as np
-from v2xbench.envs.v2x_intersection.evaluation.metrics import bootstrap_ci
-
-COUNTS = ("red_light", "stop_sign", "collision_vehicle", "collision_pedestrian")
+from v2xbench.envs.v2x_intersection.evaluation.metrics import aggregate, bootstrap_ci
 
 
 def runs(folder: str | Path) -> dict[str, dict]:
@@ -27,16 +26,6 @@ def runs(folder: str | Path) -> dict[str, dict]:
         r = json.loads(f.read_text())
         out[r["job_id"]] = r["metrics"]
     return out
-
-
-def stats(ms: list[dict]) -> dict:
-    """Mean DS [CI], RC and infractions per km of a list of per-run metrics."""
-    ds = [m["driving_score"] for m in ms]
-    lo, hi = bootstrap_ci(ds)
-    km = sum(m["km_completed"] for m in ms)
-    return {"runs": len(ms), "driving_score": float(np.mean(ds)), "ci": [lo, hi],
-            "route_completion": float(np.mean([m["route_completion"] for m in ms])),
-            "km": km, **{f"{c}_per_km": sum(m[f"n_{c}"] for m in ms) / km for c in COUNTS}}
 
 
 def main() -> None:
@@ -51,17 +40,18 @@ def main() -> None:
         theirs = runs(folder)
         common = sorted(set(mine) & set(theirs))
         diff = [mine[j]["driving_score"] - theirs[j]["driving_score"] for j in common]
-        result[f"{name} vs {other}"] = {"jobs": common, name: stats([mine[j] for j in common]),
-                                        other: stats([theirs[j] for j in common]),
-                                        "paired_ds_difference": float(np.mean(diff)),
-                                        "paired_ds_difference_ci": list(bootstrap_ci(diff))}
+        d = {"jobs": common, name: aggregate([mine[j] for j in common], len(common)),
+             other: aggregate([theirs[j] for j in common], len(common)),
+             "paired_ds_difference": float(np.mean(diff)),
+             "paired_ds_difference_ci": list(bootstrap_ci(diff))}
+        result[f"{name} vs {other}"] = d
         for who in (name, other):
-            s = result[f"{name} vs {other}"][who]
-            print(f"{who:28s} {s['runs']} runs DS {s['driving_score']:.1f} [{s['ci'][0]:.1f}, "
-                  f"{s['ci'][1]:.1f}] RC {s['route_completion']:.1f} red/km "
-                  f"{s['red_light_per_km']:.2f} stop/km {s['stop_sign_per_km']:.2f} veh/km "
-                  f"{s['collision_vehicle_per_km']:.2f} ped/km {s['collision_pedestrian_per_km']:.2f}")
-        d = result[f"{name} vs {other}"]
+            s = d[who]
+            print(f"{who:28s} {s['n_finished']:.0f} runs DS {s['driving_score']:.1f} "
+                  f"[{s['driving_score_ci_low']:.1f}, {s['driving_score_ci_high']:.1f}] "
+                  f"RC {s['route_completion']:.1f} red/km {s['red_light_per_km']:.2f} stop/km "
+                  f"{s['stop_sign_per_km']:.2f} veh/km {s['collision_vehicle_per_km']:.2f} "
+                  f"ped/km {s['collision_pedestrian_per_km']:.2f}")
         print(f"paired DS difference {d['paired_ds_difference']:+.1f} "
               f"[{d['paired_ds_difference_ci'][0]:+.1f}, {d['paired_ds_difference_ci'][1]:+.1f}]")
     if a.out:

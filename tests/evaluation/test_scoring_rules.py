@@ -23,7 +23,12 @@ from v2xbench.envs.v2x_intersection.evaluation.infractions import (
     HELD_BY_RED_M,
     HIT_VRU_LEAVES_S,
     OUTSIDE_LANES,
+    SIDE_FRONT,
+    SIDE_LEFT,
+    SIDE_REAR,
+    SIDE_RIGHT,
     EventMonitor,
+    contact_side,
 )
 from v2xbench.envs.v2x_intersection.sim.config import make_config
 from v2xbench.envs.v2x_intersection.sim.world import World
@@ -162,6 +167,35 @@ def test_a_bicycle_is_a_vehicle(kind, code, monitor_path):
     assert [e[0] for e in ev] == [code] and ev[0][2] == 1
     assert M.infraction_score(_record(mon)) == pytest.approx(M.INFRACTION_FACTORS[infractions.EVENT_NAMES[code]])
     assert M.infraction_score(_record(mon)) == pytest.approx(0.5 if kind == PEDESTRIAN else 0.6)
+
+
+@pytest.mark.parametrize("yaw", [0.0, 2.0])
+def test_collision_side_is_where_the_other_party_was(yaw, monitor_path):
+    """A collision's value says where on the ego the other vehicle was, in the ego's frame (its
+    heading ``yaw``): ahead, behind, left, right; the metric counts vehicle collisions by side."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    sides = []
+    for ahead, left, tick in [(4.0, 0.5, 1), (-4.5, -0.3, 100), (1.0, 2.0, 200), (-1.0, -2.0, 300)]:
+        mon = _collision_monitor()
+        t = table(2)
+        t.yaw[0] = yaw
+        t.pos[1] = (c * ahead - s * left, s * ahead + c * left)
+        ev = _stand(mon, t, 0.0, tick, [1])
+        assert [e[0] for e in ev] == [COLLISION_VEHICLE]
+        sides.append(int(ev[0][3]))
+    assert sides == [SIDE_FRONT, SIDE_REAR, SIDE_LEFT, SIDE_RIGHT]
+    assert contact_side(1.0, 0.99, 0.0) == SIDE_FRONT and contact_side(1.0, 1.01, 0.0) == SIDE_LEFT
+    assert contact_side(-1.0, -0.99, 0.0) == SIDE_REAR and contact_side(-0.99, -1.0, 0.0) == SIDE_RIGHT
+    rec = _record(mon)
+    rec.events = np.asarray([(COLLISION_VEHICLE, k, k, side) for k, side in enumerate(sides + [SIDE_FRONT])], float)
+    assert M.collision_sides(rec) == {"n_collision_vehicle_front": 2.0, "n_collision_vehicle_side": 2.0,
+                                      "n_collision_vehicle_rear": 1.0}
+    agg = M.aggregate([M.compute_metrics(rec)], 1)
+    km = M.km_completed(rec)
+    assert agg["collision_vehicle_front_per_km"] == pytest.approx(2.0 / km)
+    assert agg["collision_vehicle_rear_per_km"] == pytest.approx(1.0 / km)
+    rec.events[:, 3] = 0.0  # a record from before the sides were recorded: no side counts
+    assert M.collision_sides(rec) == {}
 
 
 def test_same_actor_ignored_for_5_s_after_its_registration(monitor_path):

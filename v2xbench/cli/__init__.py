@@ -7,6 +7,8 @@ Commands:
     scenarios   list the 38 scenario types, or render a video of each
     eval        closed-loop evaluation of an agent on a route suite (per-route JSON, summary)
     leaderboard leaderboard table, plots and per-scenario breakdown from evaluation results
+    incidents   how an agent's red lights (set off after standing, slowed, drove through) and
+                vehicle collisions (drove into a car, was hit, side; repeats) happened
     bench       benchmark suite (speed vs highway-env, sensors, batched worlds, eval time, memory)
     profile     where a tick's time goes: per stage and per numba kernel (objects or batched)
     floor       an objects tick's kernels back to back, without the Python between them

@@ -1,4 +1,4 @@
-"""``v2xbench eval`` and ``leaderboard``: closed-loop evaluation and its tables."""
+"""``v2xbench eval``, ``leaderboard`` and ``incidents``: closed-loop evaluation and its tables."""
 
 from __future__ import annotations
 
@@ -52,6 +52,17 @@ def _leaderboard(args: argparse.Namespace) -> int:
     if res["note"]:
         print(res["note"], file=sys.stderr)
     print(f"wrote {res['markdown']}" + (f" and {len(res['plots'])} plots" if res["plots"] else ""))
+    return 0
+
+
+def _incidents(args: argparse.Namespace) -> int:
+    from v2xbench.collectors.incidents import build_incidents, incidents_markdown
+
+    named = [tuple(x.split("=", 1)) if "=" in x else (Path(x).name, x) for x in args.results]
+    rows = build_incidents(named, args.out)
+    print(incidents_markdown(rows))
+    if args.out:
+        print(f"wrote {Path(args.out).with_suffix('.md')} and {Path(args.out).with_suffix('.json')}")
     return 0
 
 
@@ -121,3 +132,10 @@ def register(sub) -> None:
     lb.add_argument("--out", default="leaderboard")
     lb.add_argument("--no-plots", action="store_true", help="only the markdown and JSON tables")
     lb.set_defaults(func=_leaderboard)
+    inc = sub.add_parser("incidents", help="how an agent's red lights and vehicle collisions happened "
+                         "(from eval result dirs)")
+    inc.add_argument("results", nargs="+", metavar="[NAME=]DIR",
+                     help="eval output folders (routes/*.json), optionally named NAME=DIR")
+    inc.add_argument("--out", default=None, metavar="PATH",
+                     help="also write PATH.md and PATH.json (atomically)")
+    inc.set_defaults(func=_incidents)

@@ -9,6 +9,9 @@ CARLA Leaderboard 2.0's criteria:
   within :data:`COLLISION_SAME_ACTOR_S` of it is ignored, and so is any contact while the ego is
   within :data:`COLLISION_NEAR_M` of where it was at a registered collision; such a place is
   forgotten once the ego is more than :data:`COLLISION_FORGET_M` from it. Bicycles are vehicles.
+  A collision's ``value`` is where on the ego the other party was (``SIDE_*``, :func:`contact_side`:
+  front, left, right, rear; 0 for statics), so "the ego drove into the car ahead" and "a car
+  drove into the ego" can be told apart.
 - outside the route's lanes (``OutsideRouteLanesTest``): off the drivable lanes, or (outside
   junctions) on a lane that is not one of the route's, the opposite lane included. Scenarios that
   need the ego to leave its lanes may switch the second part off (``route_lanes_test``, CARLA's
@@ -66,6 +69,11 @@ NUM_EVENTS = len(EVENT_NAMES)
 COLLISION_SAME_ACTOR_S = 5.0  # s: the last registered collision's party is ignored this long after it
 COLLISION_NEAR_M = 3.0  # m: contacts while the ego is this close to a registered collision's place are ignored
 COLLISION_FORGET_M = 5.0  # m: a registered collision's place is forgotten once the ego is further from it
+# A collision event's ``value`` says where on the ego the other party was (its centre's bearing in
+# the ego's frame): ahead within 45 degrees of the heading, behind within 45, else left or right.
+# 0 is a static party (and every collision of records written before the sides were recorded).
+SIDE_UNKNOWN, SIDE_FRONT, SIDE_LEFT, SIDE_RIGHT, SIDE_REAR = range(5)
+SIDE_NAMES = ("unknown", "front", "left", "right", "rear")
 HIT_VRU_LEAVES_S = 2.0  # s after its collision with the ego, a pedestrian or cyclist leaves the world
 ROUTE_DEVIATION_M = 30.0  # m
 BLOCKED_S = 180.0  # s without moving (no red light ahead) ends the route
@@ -304,7 +312,8 @@ class EventMonitor:
                     COLLISION_VEHICLE if kind in (CAR, LARGE_VEHICLE, BICYCLE) else COLLISION_STATIC)
             if kind in (PEDESTRIAN, BICYCLE):
                 self._leave_at.setdefault(key, tick + int(round(HIT_VRU_LEAVES_S / self.dt)))
-            self.emit(code, tick, int(t.actor_id[c]))
+            ox, oy = t.pos[c].tolist()
+            self.emit(code, tick, int(t.actor_id[c]), float(contact_side(ox - ex, oy - ey, float(t.yaw[0]))))
 
     def _lane_events(self, tick: int, ne: int) -> None:
         """Emit the ``ne`` lane events the kernel wrote."""
@@ -332,6 +341,18 @@ class EventMonitor:
     def _is_stop_lane(self, lane: int) -> bool:
         j = self.town.index.junction_ahead[lane]
         return j >= 0 and lane in self.town.junctions[j].stop_lanes
+
+
+def contact_side(dx: float, dy: float, ego_yaw: float) -> int:
+    """``SIDE_*`` code of a party whose centre is ``(dx, dy)`` (world frame) from the ego's centre:
+    front / rear within 45 degrees of the ego's heading / its reverse, else left or right."""
+    bearing = math.degrees(math.atan2(dy, dx) - ego_yaw)
+    bearing = (bearing + 180.0) % 360.0 - 180.0
+    if abs(bearing) <= 45.0:
+        return SIDE_FRONT
+    if abs(bearing) >= 135.0:
+        return SIDE_REAR
+    return SIDE_LEFT if bearing > 0 else SIDE_RIGHT
 
 
 def _lane_lists(town: Town) -> dict[str, list]:

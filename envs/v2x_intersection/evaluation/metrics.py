@@ -19,6 +19,12 @@ infraction_score    IS, product of one factor per infraction (:data:`INFRACTION_
                     registered party is ignored for 5 s, any contact within 3 m of a registered
                     collision's place until the ego is 5 m from it), so every collision row
                     counts once here.
+collision sides     ``n_collision_vehicle_{front,side,rear}``: vehicle collisions by where on
+                    the ego the other vehicle was (the event's ``SIDE_*`` value: its centre
+                    within 45 degrees of the ego's heading, of its reverse, or between); the
+                    ego driving into a car ahead is ``front``, a car driving into the ego from
+                    behind ``rear``. Not part of IS. Records from before the sides were recorded
+                    give no such counts.
 driving_score       DS = RC x IS (0-100).
 efficiency          Bench2Drive: the route is cut into :data:`NUM_CHECKPOINTS` equal-length
                     checkpoints by route arc length; in each, over the ticks with at least one
@@ -65,6 +71,10 @@ from .infractions import (
     COLLISION_VEHICLE,
     EVENT_NAMES,
     RED_LIGHT,
+    SIDE_FRONT,
+    SIDE_LEFT,
+    SIDE_REAR,
+    SIDE_RIGHT,
     STOP_SIGN,
 )
 
@@ -277,6 +287,19 @@ def infraction_counts(r: RouteRecord) -> dict[str, float]:
     out["n_scenario_timeout"] = out.get("n_scenario_timeout", 0.0) + r.scenario_timeouts
     out["n_yield_emergency"] = out.get("n_yield_emergency", 0.0) + r.yield_emergency_failures
     return out
+
+
+@register_metric("collision_sides")
+def collision_sides(r: RouteRecord) -> dict[str, float]:
+    """``n_collision_vehicle_front`` / ``_side`` / ``_rear``: vehicle collisions by where on the
+    ego the other vehicle was (empty for records written before sides were recorded)."""
+    veh = r.events[r.events[:, 0].astype(np.int64) == COLLISION_VEHICLE]
+    side = veh[:, 3].astype(np.int64)
+    if not len(side) or not np.all(side > 0):  # an older record: its collisions carry no side
+        return {}
+    return {"n_collision_vehicle_front": float(np.sum(side == SIDE_FRONT)),
+            "n_collision_vehicle_side": float(np.sum((side == SIDE_LEFT) | (side == SIDE_RIGHT))),
+            "n_collision_vehicle_rear": float(np.sum(side == SIDE_REAR))}
 
 
 def outside_lanes_percent(r: RouteRecord) -> float:

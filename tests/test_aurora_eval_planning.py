@@ -205,3 +205,5 @@ def test_per_reason_shows_a_planner_driving_through_a_red_light():
     assert per["red"]["moving"]["frames"] == 1 and per["red"]["moving"]["ego_speed"] == 2
     assert per["red"]["standing"]["frames"] == 1 and per["red"]["standing"]["model_speed_3s"] == \
         pytest.approx(5) and per["red"]["standing"]["expert_speed_3s"] == 0
+    assert per["red"]["model_go_share"] == 1 and per["red"]["expert_go_share"] == 0
+    assert per["free"]["expert_go_share"] == 1 and per["red"]["standing"]["model_go_share"] == 1

@@ -32,9 +32,11 @@ without a unit, gets none. Metrics, overall and per navigation command
 - ``per_reason``: per binding constraint of the expert's speed at the frame (``expert_reason``:
   free road, a leader, a red or yellow light, a stop sign, yielding, a conflict, ...;
   :data:`~v2xbench.collectors.dataset.record.REASONS`): the ego's speed and the expert's and the
-  model's planned speed over 3 s, and the L2 at 3 s; again on the frames where the ego moves
-  and where it stands. A planner that drives on where the expert
-  stops for a red light shows here, whatever its mean L2.
+  model's planned speed over 3 s, the share of frames whose plan "goes" (at least
+  :data:`GO_SPEED` over 3 s; a small mean can be a few frames that go, and in closed loop one
+  such frame sets a standing car off), and the L2 at 3 s; again on the frames where the ego
+  moves and where it stands. A planner that drives on where the expert stops for a red light
+  shows here, whatever its mean L2.
 
 Files (:func:`evaluate_planning`, written atomically): ``metrics.json`` and ``metrics.md`` in
 ``--out`` (default ``RUN/eval_planning`` or ``DIR/eval_planning``).
@@ -64,6 +66,7 @@ ACTOR_CLASSES = tuple(int(c) for c in np.concatenate([VEHICLE_CLASSES, VRU_CLASS
 START_SPEED = 0.5  # m/s: the ego stands below this
 START_DIST = 5.0  # m: ... and the expert's 3 s waypoint is farther than this
 STAY_DIST = 1.5  # m: the expert stays at rest (its 3 s waypoint within this)
+GO_SPEED = 1.0  # m/s: a plan this fast over 3 s "goes" (per_reason's go shares)
 HEADING_MIN_STEP = 0.25  # m between waypoints (0.5 m/s): shorter steps keep the last heading
 PLANS = ("model", "constant_velocity", "expert")
 OUT_DIR = "eval_planning"
@@ -131,6 +134,10 @@ def _mean(x: np.ndarray) -> float | None:
     return float(np.mean(x)) if len(x) else None
 
 
+def _pct(x: float | None) -> str:
+    return "-" if x is None else f"{100.0 * x:.0f} %"
+
+
 def group_metrics(rec: Mapping[str, np.ndarray], rows: np.ndarray, dt: float) -> dict:
     """Metrics of the frames ``rows`` (bool ``(N,)``) of the per-frame records ``rec``
     (:func:`evaluate_planning`: ``expert``, ``model``, ``constant_velocity`` ``(N, T, 2)``;
@@ -194,9 +201,10 @@ def per_reason(rec: Mapping[str, np.ndarray], dt: float) -> dict:
 
     def speeds(rows: np.ndarray) -> dict:
         m, ex = rec["model"][rows], rec["expert"][rows]
+        vm, ve = np.linalg.norm(m[:, k3], axis=-1) / 3.0, np.linalg.norm(ex[:, k3], axis=-1) / 3.0
         return {"frames": int(rows.sum()), "ego_speed": _mean(rec["speed"][rows]),
-                "expert_speed_3s": _mean(np.linalg.norm(ex[:, k3], axis=-1) / 3.0),
-                "model_speed_3s": _mean(np.linalg.norm(m[:, k3], axis=-1) / 3.0),
+                "expert_speed_3s": _mean(ve), "model_speed_3s": _mean(vm),
+                "expert_go_share": _mean(ve >= GO_SPEED), "model_go_share": _mean(vm >= GO_SPEED),
                 "model_l2_3s": _mean(np.linalg.norm(m[:, k3] - ex[:, k3], axis=-1))}
 
     out, moving = {}, rec["speed"] >= START_SPEED
@@ -444,8 +452,8 @@ def markdown(result: Mapping) -> str:
                   "m/s, planned speed = distance to the 3 s waypoint / 3 s.", "",
                   "| expert's reason | n | ego speed | expert planned | model planned | "
                   "L2 3 s model | n moving | expert, moving | model, moving | n standing | "
-                  "expert, standing | model, standing |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "expert, standing | model, standing | goes, standing: expert / model |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for name, g in result["per_reason"].items():
             mv, st = g["moving"], g["standing"]
             lines.append(f"| {name} | {g['frames']} | {_f(g['ego_speed'])} | "
@@ -453,11 +461,12 @@ def markdown(result: Mapping) -> str:
                          f"{_f(g['model_l2_3s'])} | {mv['frames']} | "
                          f"{_f(mv['expert_speed_3s'])} | {_f(mv['model_speed_3s'])} | "
                          f"{st['frames']} | {_f(st['expert_speed_3s'])} | "
-                         f"{_f(st['model_speed_3s'])} |")
+                         f"{_f(st['model_speed_3s'])} | {_pct(st.get('expert_go_share'))} / "
+                         f"{_pct(st.get('model_go_share'))} |")
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["ACTOR_CLASSES", "HEADING_MIN_STEP", "HORIZONS", "OUT_DIR", "START_DIST",
+__all__ = ["ACTOR_CLASSES", "GO_SPEED", "HEADING_MIN_STEP", "HORIZONS", "OUT_DIR", "START_DIST",
            "output_dir",
            "START_SPEED", "STAY_DIST", "actor_futures", "add_batch", "check_settings", "collisions",
            "constant_velocity_plan", "evaluate_planning", "group_metrics", "load_model",

@@ -7,8 +7,9 @@ events) and says how each red light and vehicle collision came about:
 - **red lights**, by what the ego did in the :data:`LOOKBACK_S` before it crossed the stop line:
   ``set_off`` (it stood, below :data:`STANDING_MPS`, and then went while the light was red),
   ``slowed`` (its slowest speed was below :data:`SLOW_MPS` without standing) or ``drove_through``
-  (never below :data:`SLOW_MPS`); for the set-offs, how long it had stood and how many seconds
-  it drove from rest to the line;
+  (never below :data:`SLOW_MPS`); for the set-offs, how long it had stood (how many stood
+  less than :data:`SHORT_STAND_S`: a rolling stop) and how many seconds it drove from rest to
+  the line;
 - **vehicle collisions**, by where on the ego the other vehicle was (``front``: the ego drove
   into it; ``rear``: it drove into the ego; ``side``; ``unknown`` for records written before the
   sides were recorded, ``infractions.contact_side``), whether the ego stood, and ``repeats``: the
@@ -38,6 +39,7 @@ from v2xbench.files import atomic_write_text
 LOOKBACK_S = 10.0  # s before the stop line that say how the ego came to a red light
 STANDING_MPS = 0.3  # m/s: slower is standing
 SLOW_MPS = 2.0  # m/s: a red light approached slower than this (without standing) "slowed"
+SHORT_STAND_S = 2.0  # s: a set-off after a stand shorter than this is a rolling stop
 REPEAT_S = 6.0  # s: the same vehicle registered again within this is one contact counted twice
 RED_KINDS = ("set_off", "slowed", "drove_through")
 SIDES = ("front", "side", "rear", "unknown")
@@ -120,6 +122,7 @@ def folder_incidents(folder: str | Path) -> dict:
     for kind in RED_KINDS:
         s[f"red_{kind}"] = sum(r["kind"] == kind for r in reds)
     setoffs = [r for r in reds if r["kind"] == "set_off"]
+    s["red_set_off_stood_under_2s"] = sum(r["standing_s"] < SHORT_STAND_S for r in setoffs)
     s["red_set_off_median_standing_s"] = _median([r["standing_s"] for r in setoffs])
     s["red_set_off_median_to_line_s"] = _median([r["to_line_s"] for r in setoffs])
     s["red_median_speed_at_line"] = _median([r["speed"] for r in reds])
@@ -140,12 +143,13 @@ def _f(x, nd: int = 1) -> str:
 
 def incidents_markdown(rows: dict[str, dict]) -> str:
     """Two tables (red lights, vehicle collisions), one row per named folder."""
-    lines = ["| agent | runs | km | red lights (/km) | set off after standing | slowed | drove through "
-             "| median s stood | median s rest -> line | median m/s at line |",
+    lines = ["| agent | runs | km | red lights (/km) | set off after standing (stood < 2 s) | slowed "
+             "| drove through | median s stood | median s rest -> line | median m/s at line |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for name, s in rows.items():
         lines.append(f"| {name} | {s['runs']} | {_f(s['km_completed'])} | {s['red_lights']} "
-                     f"({_f(s['red_lights_per_km'], 2)}) | {s['red_set_off']} | {s['red_slowed']} | "
+                     f"({_f(s['red_lights_per_km'], 2)}) | {s['red_set_off']} ({s['red_set_off_stood_under_2s']}) | "
+                     f"{s['red_slowed']} | "
                      f"{s['red_drove_through']} | {_f(s['red_set_off_median_standing_s'])} | "
                      f"{_f(s['red_set_off_median_to_line_s'])} | {_f(s['red_median_speed_at_line'])} |")
     lines += ["", "| agent | vehicle collisions (/km) | ego drove into it (front) | side | into the ego (rear) "

@@ -66,7 +66,7 @@ def test_folder_summary_and_cli(tmp_path, capsys):
     assert s["runs"] == 2 and s["km_completed"] == pytest.approx(2.0)
     assert (s["red_lights"], s["red_set_off"], s["red_drove_through"], s["red_slowed"]) == (2, 1, 1, 0)
     assert s["red_lights_per_km"] == pytest.approx(1.0)
-    assert s["red_set_off_median_standing_s"] == pytest.approx(3.0)
+    assert s["red_set_off_median_standing_s"] == pytest.approx(3.0) and s["red_set_off_stood_under_2s"] == 0
     assert (s["collisions_front"], s["collisions_rear"], s["collisions_repeats"]) == (1, 2, 1)
     assert s["collisions_distinct_per_km"] == pytest.approx(1.0)
     out = tmp_path / "inc"

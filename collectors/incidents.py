@@ -106,10 +106,13 @@ def folder_incidents(folder: str | Path) -> dict:
     files = sorted((Path(folder) / "routes").glob("*.json"))
     if not files:
         raise FileNotFoundError(f"{folder}: no route results (routes/*.json); is it a v2xbench eval folder?")
-    km, reds, cols = 0.0, [], []
+    km, reds, cols, failed = 0.0, [], [], 0
     for f in files:
         try:
             result = json.loads(f.read_text())
+            if result.get("record") is None:  # a run that failed (error or timeout) has no record
+                failed += 1
+                continue
             km += float(result["metrics"].get("km_completed", 0.0))
             inc = run_incidents(result)
         except (json.JSONDecodeError, KeyError, TypeError) as e:
@@ -117,7 +120,8 @@ def folder_incidents(folder: str | Path) -> dict:
         reds += inc["red_lights"]
         cols += inc["collisions"]
     per_km = (lambda n: n / km) if km > 0 else (lambda n: float("nan"))
-    s = {"folder": str(folder), "runs": len(files), "km_completed": km, "red_lights": len(reds),
+    s = {"folder": str(folder), "runs": len(files) - failed, "runs_without_record": failed, "km_completed": km,
+         "red_lights": len(reds),
          "red_lights_per_km": per_km(len(reds))}
     for kind in RED_KINDS:
         s[f"red_{kind}"] = sum(r["kind"] == kind for r in reds)

@@ -62,8 +62,11 @@ def test_folder_summary_and_cli(tmp_path, capsys):
         _result("r1_s0", np.full(200, 5.0), [(RED_LIGHT, 199, -1, 1.0), (COLLISION_VEHICLE, 20, 4, SIDE_REAR),
                                               (COLLISION_VEHICLE, 71, 4, SIDE_REAR)], km=1.5),
     ])
+    failed = _result("r2_s0", [], [])
+    failed["record"] = None  # a failed run: counted apart, not read
+    (tmp_path / "eval" / "routes" / "r2_s0.json").write_text(json.dumps(failed))
     s = I.folder_incidents(folder)
-    assert s["runs"] == 2 and s["km_completed"] == pytest.approx(2.0)
+    assert s["runs"] == 2 and s["runs_without_record"] == 1 and s["km_completed"] == pytest.approx(2.0)
     assert (s["red_lights"], s["red_set_off"], s["red_drove_through"], s["red_slowed"]) == (2, 1, 1, 0)
     assert s["red_lights_per_km"] == pytest.approx(1.0)
     assert s["red_set_off_median_standing_s"] == pytest.approx(3.0) and s["red_set_off_stood_under_2s"] == 0

@@ -73,7 +73,6 @@ COLLISION_FORGET_M = 5.0  # m: a registered collision's place is forgotten once 
 # the ego's frame): ahead within 45 degrees of the heading, behind within 45, else left or right.
 # 0 is a static party (and every collision of records written before the sides were recorded).
 SIDE_UNKNOWN, SIDE_FRONT, SIDE_LEFT, SIDE_RIGHT, SIDE_REAR = range(5)
-SIDE_NAMES = ("unknown", "front", "left", "right", "rear")
 HIT_VRU_LEAVES_S = 2.0  # s after its collision with the ego, a pedestrian or cyclist leaves the world
 ROUTE_DEVIATION_M = 30.0  # m
 BLOCKED_S = 180.0  # s without moving (no red light ahead) ends the route

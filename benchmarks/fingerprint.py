@@ -31,6 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+from v2xbench.platform_info import numpy_platform
+
 from .suite import _write as write_atomic
 
 
@@ -159,10 +161,9 @@ PLATFORM_KEY = "_platform"
 
 
 def platform_record() -> dict:
-    """What decides the last bits of NumPy's transcendental functions here: NumPy's version and
-    the SIMD extensions it dispatches to on this CPU."""
-    simd = np.show_config(mode="dicts").get("SIMD Extensions", {})
-    return {"numpy": np.__version__, "simd": sorted(simd.get("found", []))}
+    """What decides the last bits of NumPy's transcendental functions here
+    (``platform_info.numpy_platform``: NumPy's version and its SIMD extensions on this CPU)."""
+    return numpy_platform()
 
 
 def run(args: argparse.Namespace) -> int:

@@ -33,6 +33,8 @@ from v2xbench.envs.v2x_intersection.evaluation.metrics import (
 )
 from v2xbench.envs.v2x_intersection.scenarios import get_scenario
 
+from v2xbench.platform_info import run_platform
+
 COLLISION_CODES = (inf.COLLISION_PEDESTRIAN, inf.COLLISION_VEHICLE, inf.COLLISION_STATIC)
 #: How a failed route failed (result key ``failure``; ``ended_by`` is ``"error"`` for both, DS 0):
 #: ``"error"``: the agent, the world or the worker process raised or died; ``"timeout"``: the job
@@ -195,7 +197,9 @@ def build_result(*, job, spec, seed: int, suite: str, agent: str, agent_name: st
     ``error``, ``None`` for a route that ran to its end). ``fingerprint`` is the digest of the
     run's fingerprint (``agent_fingerprint.py``): the results of a directory share one. ``v2x``
     is what the channel did on the route (:meth:`RouteLog.v2x_summary`: settings, message
-    counts, the age of the ego's last message).
+    counts, the age of the ego's last message); ``platform`` the machine and library versions
+    that computed it (``platform_info.run_platform``: a run repeats to the last digit on its own
+    machine only).
     """
     if failure is not None and failure not in FAILURE_KINDS:
         raise ValueError(f"failure={failure!r} must be one of {FAILURE_KINDS}")
@@ -227,4 +231,5 @@ def build_result(*, job, spec, seed: int, suite: str, agent: str, agent_name: st
             traceback.format_exception(type(error), error, error.__traceback__)),
         "video": video, "config_overrides": dict(config or {}), "fingerprint": fingerprint,
         "v2x": log.v2x_summary() if log is not None else None,
+        "platform": run_platform(),
     }

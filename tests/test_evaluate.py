@@ -27,6 +27,7 @@ from v2xbench.envs.v2x_intersection.suites.route_files import (
 )
 
 from v2xbench import cli
+from v2xbench.platform_info import run_platform
 
 CFG = {"num_vehicles": 3, "num_parked": 2, "num_pedestrians": 2, "num_bicycles": 0, "max_steps": 40}
 CANDIDATES = ("PedestrianCrossing", "ParkedObstacle", "DynamicObjectCrossing", "Accident",
@@ -127,6 +128,7 @@ def test_one_result_per_job_and_summary(rf_run):
         m = compute_metrics(rec)
         assert m["driving_score"] == pytest.approx(r["metrics"]["driving_score"])
         assert len(rec.ego_speed) == r["ticks"] and rec.seed == r["seed"]
+        assert r["platform"] == run_platform() and r["platform"]["numpy"] == np.__version__
     assert not list((out / "routes").glob("*.tmp"))
     assert summary["n_results"] == summary["n_jobs"] == 3 and summary["agent_process"] == "in_process"
     ds = np.mean([r["metrics"]["driving_score"] for r in res.values()])

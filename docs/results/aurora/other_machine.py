@@ -14,9 +14,8 @@ import json
 import statistics
 from pathlib import Path
 
-from v2xbench.benchmarks.fingerprint import platform_record
-
 from v2xbench.files import atomic_write_text
+from v2xbench.platform_info import run_platform
 
 TABLE = Path(__file__).resolve().parents[1] / "planning_first10.json"
 
@@ -45,7 +44,7 @@ def main() -> None:
     ap.add_argument("folders", nargs="+", help="KEY=EVAL_DIR (KEY: aurora, no_fusion)")
     ap.add_argument("--out", required=True)
     a = ap.parse_args()
-    out = {"platform_here": platform_record()}
+    out = {"platform_here": run_platform()}
     for item in a.folders:
         key, folder = item.split("=", 1)
         out[key] = c = compare(key, folder)

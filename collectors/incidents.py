@@ -36,6 +36,8 @@ from v2xbench.envs.v2x_intersection.evaluation.infractions import (
 
 from v2xbench.files import atomic_write_text
 
+from .jobs import read_result
+
 LOOKBACK_S = 10.0  # s before the stop line that say how the ego came to a red light
 STANDING_MPS = 0.3  # m/s: slower is standing
 SLOW_MPS = 2.0  # m/s: a red light approached slower than this (without standing) "slowed"
@@ -109,13 +111,13 @@ def folder_incidents(folder: str | Path) -> dict:
     km, reds, cols, failed = 0.0, [], [], 0
     for f in files:
         try:
-            result = json.loads(f.read_text())
+            result = read_result(folder, f.stem)
             if result.get("record") is None:  # a run that failed (error or timeout) has no record
                 failed += 1
                 continue
             km += float(result["metrics"].get("km_completed", 0.0))
             inc = run_incidents(result)
-        except (json.JSONDecodeError, KeyError, TypeError) as e:
+        except (ValueError, KeyError, TypeError) as e:
             raise ValueError(f"{f}: not a readable eval result ({type(e).__name__}: {e})") from None
         reds += inc["red_lights"]
         cols += inc["collisions"]

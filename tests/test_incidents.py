@@ -20,7 +20,7 @@ DT = 0.1
 
 
 def _result(jid: str, speed, events, km: float = 0.5) -> dict:
-    return {"job_id": jid, "metrics": {"km_completed": km},
+    return {"job_id": jid, "ended_by": "completed", "scenarios": [], "ticks": len(speed), "metrics": {"km_completed": km},
             "record": {"dt": DT, "ego_speed": list(map(float, speed)), "events": [list(map(float, e)) for e in events]}}
 
 

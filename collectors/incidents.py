@@ -36,7 +36,7 @@ from v2xbench.envs.v2x_intersection.evaluation.infractions import (
 
 from v2xbench.files import atomic_write_text
 
-from .jobs import read_result
+from .jobs import all_results
 
 LOOKBACK_S = 10.0  # s before the stop line that say how the ego came to a red light
 STANDING_MPS = 0.3  # m/s: slower is standing
@@ -105,24 +105,22 @@ def _median(x: list) -> float:
 
 def folder_incidents(folder: str | Path) -> dict:
     """The incidents of every run in an eval folder, summed: counts, per km and medians."""
-    files = sorted((Path(folder) / "routes").glob("*.json"))
-    if not files:
-        raise FileNotFoundError(f"{folder}: no route results (routes/*.json); is it a v2xbench eval folder?")
+    results = all_results(folder)
     km, reds, cols, failed = 0.0, [], [], 0
-    for f in files:
+    for result in results:
+        if result.get("record") is None:  # a run that failed (error or timeout) has no record
+            failed += 1
+            continue
         try:
-            result = read_result(folder, f.stem)
-            if result.get("record") is None:  # a run that failed (error or timeout) has no record
-                failed += 1
-                continue
             km += float(result["metrics"].get("km_completed", 0.0))
             inc = run_incidents(result)
         except (ValueError, KeyError, TypeError) as e:
-            raise ValueError(f"{f}: not a readable eval result ({type(e).__name__}: {e})") from None
+            where = Path(folder) / "routes" / f"{result['job_id']}.json"
+            raise ValueError(f"{where}: not a readable eval result ({type(e).__name__}: {e})") from None
         reds += inc["red_lights"]
         cols += inc["collisions"]
     per_km = (lambda n: n / km) if km > 0 else (lambda n: float("nan"))
-    s = {"folder": str(folder), "runs": len(files) - failed, "runs_without_record": failed, "km_completed": km,
+    s = {"folder": str(folder), "runs": len(results) - failed, "runs_without_record": failed, "km_completed": km,
          "red_lights": len(reds),
          "red_lights_per_km": per_km(len(reds))}
     for kind in RED_KINDS:

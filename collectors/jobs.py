@@ -261,6 +261,19 @@ def read_results(out: str | Path, jobs: Iterable[Job]) -> list[dict]:
     return [read_result(out, j.job_id) for j in jobs if has_result(out, j.job_id)]
 
 
+def all_results(out: str | Path) -> list[dict]:
+    """Every result in ``out/routes`` (whatever the jobs that made them), in job-id order.
+
+    Raises:
+        FileNotFoundError: ``out`` holds no result file (the message names it).
+        ValueError: a file is not a result (the message names it).
+    """
+    files = sorted(routes_dir(out).glob("*.json")) if routes_dir(out).is_dir() else []
+    if not files:
+        raise FileNotFoundError(f"{out}: no route results (routes/*.json); is it a v2xbench eval folder?")
+    return [read_result(out, f.stem) for f in files]
+
+
 class UnreadableResultWarning(UserWarning):
     """A result file could not be read back; its job is run again."""
 

@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pytest
 from v2xbench.collectors import incidents as I
+from v2xbench.collectors import jobs as J
 from v2xbench.envs.v2x_intersection.evaluation.infractions import (
     COLLISION_VEHICLE,
     RED_LIGHT,
@@ -84,5 +85,16 @@ def test_bad_folders_are_named(tmp_path):
         I.folder_incidents(tmp_path)
     (tmp_path / "routes").mkdir()
     (tmp_path / "routes" / "x.json").write_text("{not json")
-    with pytest.raises(ValueError, match="x.json: not a readable eval result"):
+    with pytest.raises(ValueError, match="x.json is not valid JSON"):
         I.folder_incidents(tmp_path)
+    (tmp_path / "routes" / "x.json").write_text(json.dumps(_result("x", [1.0, 2.0], [(RED_LIGHT, 1, -1)])))
+    with pytest.raises(ValueError, match="x.json: not a readable eval result"):  # events of 3 columns
+        I.folder_incidents(tmp_path)
+
+
+def test_all_results_reads_every_file_in_job_order(tmp_path):
+    folder = _folder(tmp_path, [_result(j, [1.0], []) for j in ("b_s0", "a_s1", "a_s0")])
+    assert [r["job_id"] for r in J.all_results(folder)] == ["a_s0", "a_s1", "b_s0"]
+    (tmp_path / "eval" / "routes" / "a_s1.json").write_text(json.dumps(_result("other", [1.0], [])))
+    with pytest.raises(ValueError, match="a_s1.json holds job 'other'"):
+        J.all_results(folder)

@@ -14,6 +14,8 @@ import json
 import statistics
 from pathlib import Path
 
+from v2xbench.collectors.jobs import all_results
+
 from v2xbench.files import atomic_write_text
 from v2xbench.platform_info import run_platform
 
@@ -24,8 +26,7 @@ def compare(key: str, folder: str) -> dict:
     """Per run of ``folder`` that the table also holds: the table's and this machine's run."""
     earlier = json.loads(TABLE.read_text())[key]["per_run"]
     runs = {}
-    for f in sorted((Path(folder) / "routes").glob("*.json")):
-        r = json.loads(f.read_text())
+    for r in all_results(folder):
         old = earlier.get(r["job_id"])
         if old is not None:
             runs[r["job_id"]] = {"earlier": {k: old[k] for k in ("driving_score", "ticks", "ended_by")},

@@ -16,16 +16,15 @@ import json
 from pathlib import Path
 
 import numpy as np
+from v2xbench.collectors.jobs import all_results
 from v2xbench.envs.v2x_intersection.evaluation.metrics import aggregate, bootstrap_ci
+
+from v2xbench.files import atomic_write_text
 
 
 def runs(folder: str | Path) -> dict[str, dict]:
     """Job id -> metrics of every result in an eval folder."""
-    out = {}
-    for f in sorted((Path(folder) / "routes").glob("*.json")):
-        r = json.loads(f.read_text())
-        out[r["job_id"]] = r["metrics"]
-    return out
+    return {r["job_id"]: r["metrics"] for r in all_results(folder)}
 
 
 def main() -> None:
@@ -55,7 +54,7 @@ def main() -> None:
         print(f"paired DS difference {d['paired_ds_difference']:+.1f} "
               f"[{d['paired_ds_difference_ci'][0]:+.1f}, {d['paired_ds_difference_ci'][1]:+.1f}]")
     if a.out:
-        Path(a.out).write_text(json.dumps(result, indent=1) + "\n")
+        atomic_write_text(a.out, json.dumps(result, indent=1) + "\n")
 
 
 if __name__ == "__main__":

@@ -66,6 +66,7 @@ def _run_info(out: Path) -> dict:
     return json.loads((out / "summary.json").read_text())["run"]
 
 
+@pytest.mark.timeout(1500)  # Ray's start-up and 2 workers: ~2 min idle, >10 min on a loaded machine
 def test_ray_results_match_local_and_resume(tmp_path, ray_down):
     local, on_ray = tmp_path / "local", tmp_path / "ray"
     assert _eval(local, ROUTES) == 0
@@ -126,6 +127,7 @@ class Careful:
 """
 
 
+@pytest.mark.timeout(1500)  # Ray's start-up and 2 workers: ~2 min idle, >10 min on a loaded machine
 def test_file_agent_config_isolation_and_crash_on_ray(tmp_path, ray_down, capsys):
     seeds = {s.id: s.seed for s in load_suite_cached("test50")}
     path = tmp_path / "careful.py"

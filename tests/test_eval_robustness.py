@@ -34,7 +34,8 @@ from v2xbench import cli
 from v2xbench.locks import DirectoryLocked, dir_lock
 
 ROOT = Path(__file__).resolve().parents[1]
-TIMEOUT_S = 8.0  # --route-timeout of the hang tests; a 40-tick route takes ~1 s
+TIMEOUT_S = 15.0  # --route-timeout of the hang tests; a 40-tick route takes ~1 s on an idle machine,
+# up to ~10 s (isolated agent: its process starts and imports) while evaluations share the cores
 SEED = {"tiny_0": 10, "tiny_1": 11, "tiny_2": 12}  # world seed of each route with seed index 0
 
 MISBEHAVING = '''

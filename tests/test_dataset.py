@@ -120,6 +120,11 @@ def test_dataset_splits_by_route_and_replay_buffer(tiny_dataset):
         al[82]
     with pytest.raises(ValueError, match="split"):
         V2XDataset(tiny_dataset, "dev")
+    speeds = al.columns("ego_speed")  # one array per episode, frames on axis 0
+    assert [len(v) for v in speeds] == [m["frames"] for m in al.meta]
+    assert float(speeds[1][9]) == pytest.approx(float(x["ego_speed"]))
+    with pytest.raises(KeyError):
+        V2XDataset(tiny_dataset, "all", keys=["no_such_column"]).columns("no_such_column")
     rb = replay_buffer(tiny_dataset, "all", batch_size=6, keys=["ego_speed", "expert_waypoints"])
     b = rb.sample()
     assert b.batch_size == torch.Size([6]) and b["expert_waypoints"].shape == (6, 8, 2)

@@ -179,14 +179,11 @@ def split_reasons(root: str | Path, split: str) -> np.ndarray | None:
     split's global frame id (``None`` for a data set without the field)."""
     from v2xbench.collectors.dataset.loader import V2XDataset
 
-    ds = V2XDataset(root, split, keys=["expert_reason"])
-    out = []
-    for e in range(len(ds.episodes)):
-        sh = ds.shard(e)
-        if "expert_reason" not in sh:
-            return None
-        out.append(np.asarray(sh["expert_reason"], np.int64).reshape(-1))
-    return np.concatenate(out) if out else np.zeros(0, np.int64)
+    try:
+        cols = V2XDataset(root, split, keys=["expert_reason"]).columns("expert_reason")
+    except KeyError:  # a data set recorded before the field
+        return None
+    return np.concatenate([c.astype(np.int64).reshape(-1) for c in cols]) if cols else np.zeros(0, np.int64)
 
 
 def per_reason(rec: Mapping[str, np.ndarray], dt: float) -> dict:

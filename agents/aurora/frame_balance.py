@@ -62,10 +62,7 @@ def split_classes(root: str | Path, split: str) -> tuple[np.ndarray, np.ndarray]
     from v2xbench.collectors.dataset.loader import V2XDataset
 
     ds = V2XDataset(root, split, keys=["ego_speed", "expert_waypoints"])
-    cls = []
-    for e in range(len(ds.episodes)):
-        sh = ds.shard(e)
-        cls.append(frame_classes(np.asarray(sh["ego_speed"]), np.asarray(sh["expert_waypoints"])))
+    cls = [frame_classes(v, w) for v, w in zip(ds.columns("ego_speed"), ds.columns("expert_waypoints"))]
     return (np.asarray(ds.offsets, np.int64),
             np.concatenate(cls) if cls else np.zeros(0, np.int8))
 

@@ -97,6 +97,11 @@ class V2XDataset(Dataset):
             self._tds[e] = td.select(*self.keys, strict=True) if self.keys else td
         return self._tds[e]
 
+    def columns(self, key: str | tuple) -> list[np.ndarray]:
+        """``key`` of every episode as one NumPy array each (episode order, frames on axis 0):
+        a per-frame column read without building frames. ``KeyError`` if the shards lack it."""
+        return [np.asarray(self.shard(e)[key]) for e in range(len(self.episodes))]
+
     def __getitem__(self, index: int):
         e, t = self.locate(int(index))
         td = self.shard(e)[t].clone()

@@ -276,9 +276,47 @@ def test_a_failing_job_blocks_only_its_dependents(tiny_dataset, tmp_path):
     assert "FileNotFoundError" in fail["error"] and fail["traceback"]
 
 
+def test_shipped_weights_jobs(tiny_dataset, tmp_path):
+    """A ``shipped`` job names the package's exported weights: open-loop and closed-loop jobs
+    run them (the closed loop as ``v2xbench eval --agent NAME``: no agent config, so its results
+    are those of the plain command), No Fusion's says it reads no messages, and AURORA's
+    perception (which needs a training run's stages) is not available from them."""
+    from v2xbench.agents.aurora.export import SHIPPED
+
+    raw = {"name": "t", "methods": {"univ2x": {"agent": "univ2x", "baseline": "univ2x"},
+                                    "no_fusion": {"agent": "no_fusion"}},
+           "jobs": [{"id": "weights_{method}", "kind": "shipped", "method": "{method}",
+                     "matrix": {"method": ["univ2x", "no_fusion"]}},
+                    {"id": "data", "kind": "dataset", "path": str(tiny_dataset)},
+                    {"id": "perc_no_fusion", "kind": "perception", "method": "no_fusion",
+                     "run": "weights_no_fusion", "data": "data"},
+                    {"id": "cl_univ2x", "kind": "closed_loop", "method": "univ2x",
+                     "run": "weights_univ2x", "suite": "test50", "max_routes": 1,
+                     "set": {"max_steps": 5}}]}
+    st = run_experiments(parse_config(raw), tmp_path / "run")["jobs"]
+    assert {k: r["status"] for k, r in st.items()} == {
+        "weights_univ2x": "done", "weights_no_fusion": "done", "data": "done",
+        "perc_no_fusion": "not available", "cl_univ2x": "done"}, st
+    assert "final model" in st["perc_no_fusion"]["reason"]
+    res = {k: json.loads((tmp_path / "run" / k / "result.json").read_text())
+           for k in ("weights_univ2x", "weights_no_fusion")}
+    assert Path(res["weights_no_fusion"]["outputs"]["run"]) == (SHIPPED / "no_fusion").resolve()
+    assert res["weights_no_fusion"]["metrics"]["fusion"] is False
+    assert res["weights_univ2x"]["metrics"]["manifest"]["method"] == "univ2x"
+    fp = json.loads((tmp_path / "run" / "cl_univ2x" / "eval" / "run.json").read_text())["fingerprint"]
+    assert not fp["components"]["agent_config"]  # the shipped weights: the agent's default
+    with pytest.raises(ConfigError, match="weights_x"):
+        parse_config({**raw, "jobs": raw["jobs"] + [
+            {"id": "ol", "kind": "open_loop", "method": "univ2x", "run": "weights_x", "data": "data"}]})
+
+
 def test_shipped_configs_validate():
     paper = load_config(shipped_config("paper"))
     quick = load_config(shipped_config("quick"))
+    shipped = load_config(shipped_config("shipped"))  # the shipped weights, no training
+    assert {j.kind for j in shipped.jobs} == {"shipped", "collect", "open_loop", "closed_loop"}
+    assert {j.method for j in shipped.jobs if j.kind == "closed_loop" and j.get("seeds") == 3
+            and j.get("suite") == "test50" and not j.get("max_routes")} == set(shipped.report["planning"])
     for cfg in (paper, quick):
         assert set(cfg.report) == {"perception", "planning", "fusion_ablation",
                                    "planner_ablation", "vqa_ablation", "per_scenario",

@@ -19,7 +19,7 @@ CONFIG_DIR = Path(__file__).parent / "configs"
 
 
 def shipped_config(name: str) -> Path:
-    """The path of a shipped config (``paper``, ``quick``).
+    """The path of a shipped config (``paper``, ``quick``, ``shipped``, ``robustness_oracles``).
 
     Raises:
         ValueError: no such config (the shipped ones named).

@@ -40,6 +40,7 @@ KINDS: dict[str, tuple[str, ...]] = {
     "aurora_train": ("data", "scale", "fusion", "from", "planner", "qa", "max_steps", "stride",
                      "seed"),
     "baseline_train": ("data", "scale", "max_steps", "stride", "seed"),
+    "shipped": (),
     "perception": ("run", "data", "split", "stride", "top_k", "batch_size", "stage"),
     "open_loop": ("run", "data", "split", "stride", "stage", "batch_size"),
     "closed_loop": ("run", "suite", "seeds", "max_routes", "routes", "scenario", "v2x_only",
@@ -49,10 +50,11 @@ KINDS: dict[str, tuple[str, ...]] = {
 }
 COMMON = ("id", "kind", "method", "needs", "matrix", "label")
 #: Fields that name other jobs, and the kinds they may name.
-REFS = {"data": ("collect", "dataset"), "run": ("aurora_train", "baseline_train"),
+REFS = {"data": ("collect", "dataset"), "run": ("aurora_train", "baseline_train", "shipped"),
         "from": ("aurora_train",)}
 #: Kinds that belong to a method (``method`` required).
-METHOD_KINDS = ("aurora_train", "baseline_train", "perception", "open_loop", "closed_loop", "vqa")
+METHOD_KINDS = ("aurora_train", "baseline_train", "shipped", "perception", "open_loop", "closed_loop",
+                "vqa")
 CHANNEL_FIELDS = ("latency_ms", "loss_pct", "bandwidth_bytes_per_s")
 TABLES = ("perception", "planning", "fusion_ablation", "planner_ablation", "vqa_ablation",
           "per_scenario", "robustness")
@@ -263,7 +265,7 @@ def _check_job(src: str, d: dict, methods: dict) -> Job:
     elif method is not None:
         raise _fail(src, where, f"field 'method': a {kind!r} job belongs to no method")
     need = {"collect": ("suite",), "dataset": ("path",), "aurora_train": ("data",),
-            "baseline_train": ("data",), "perception": ("run", "data"),
+            "baseline_train": ("data",), "shipped": (), "perception": ("run", "data"),
             "open_loop": ("run", "data"), "closed_loop": ("suite",), "vqa": ("run", "data")}
     for key in need[kind]:
         if key not in d:

@@ -7,6 +7,8 @@ kind               function (command)                                           
 ``dataset``        an existing data set folder (``qa: true``: builds its QA items there)  -
 ``aurora_train``   ``aurora.pipeline.run_pipeline`` (``v2xbench aurora pipeline``)        run/
 ``baseline_train`` ``BASELINES[m].train.train`` (``v2xbench baselines train M``)          run/
+``shipped``        the weights the package ships for the method's agent (no training):      -
+                   ``agents/aurora/weights/<agent>`` or ``agents/baselines/weights/<name>``
 ``perception``     ``aurora.eval_fused.evaluate_fused`` (a fusion run: its fused heads),    eval/
                    ``aurora.eval_perception.evaluate_run`` (No Fusion: its ego branch) or
                    ``evaluate_perception`` of a baseline (``aurora eval-perception
@@ -24,6 +26,7 @@ Each runner gets the job, its folder ``DIR/<job id>`` and the results of the job
 
 from __future__ import annotations
 
+import json
 import shutil
 from collections.abc import Callable
 from pathlib import Path
@@ -69,6 +72,17 @@ def _data(deps: dict, job: Job) -> Path:
 
 def _run(deps: dict, job: Job) -> Path:
     return Path(deps[job.get("run")]["outputs"]["run"])
+
+
+def _is_shipped(deps: dict, job: Job) -> bool:
+    """Whether the job's ``run`` is a ``shipped`` job (exported weights, not a training run)."""
+    return deps[job.get("run")]["spec"].get("kind") == "shipped"
+
+
+def _fusion(deps: dict, job: Job) -> bool:
+    """Whether the model of the job's ``run`` reads the roadside unit's messages."""
+    dep = deps[job.get("run")]
+    return bool(dep["metrics"].get("fusion", dep["spec"].get("fusion", True)))
 
 
 def _collect(job: Job, d: Path, deps: dict, cfg: Config, progress: bool) -> dict:
@@ -173,6 +187,34 @@ def _baseline_train(job: Job, d: Path, deps: dict, cfg: Config, progress: bool) 
             "metrics": {"steps": s.get("steps"), "wall_s": s.get("wall_s")}}
 
 
+def shipped_weights(cfg: Config, method: str) -> Path:
+    """The folder of the weights the package ships for ``method``: AURORA's agents (``aurora``,
+    ``no_fusion``) in ``agents/aurora/weights/``, a baseline's in ``agents/baselines/weights/``.
+
+    Raises:
+        NotAvailable: the package ships no weights for it (the message names where it looked).
+    """
+    spec = cfg.methods[method]
+    agent, base = spec.get("agent", method), spec.get("baseline")
+    if base is not None:
+        from v2xbench.agents.baselines.common.export import SHIPPED
+        folder = SHIPPED / base
+    else:
+        from v2xbench.agents.aurora.export import SHIPPED
+        folder = SHIPPED / agent
+    if not (folder / "manifest.json").is_file():
+        raise NotAvailable(f"method {method!r}: no shipped weights ({folder}/manifest.json)")
+    return folder
+
+
+def _shipped(job: Job, d: Path, deps: dict, cfg: Config, progress: bool) -> dict:
+    folder = shipped_weights(cfg, job.method)
+    metrics: dict = {"manifest": json.loads((folder / "manifest.json").read_text())}
+    if cfg.methods[job.method].get("baseline") is None:  # AURORA's: its config says fusion
+        metrics["fusion"] = bool(json.loads((folder / "aurora.json").read_text()).get("fusion", True))
+    return {"outputs": {"run": str(folder.resolve())}, "metrics": metrics}
+
+
 def _message_bps(floats: int) -> float:
     """Bytes per second of one float16 message a tick (16-byte header, 10 Hz)."""
     return 10.0 * (16 + 2 * int(floats))
@@ -189,7 +231,10 @@ def _perception(job: Job, d: Path, deps: dict, cfg: Config, progress: bool) -> d
         r = baseline_module(base).evaluate_perception(run, data, split, out=out, **kw)
         row, bps = r["table"], 10.0 * r["message_bytes"]
         how = {"evaluator": "fused detections", "ground_truth": "gt/fused"}
-    elif deps[job.get("run")]["spec"].get("fusion", True):
+    elif _is_shipped(deps, job):
+        raise NotAvailable(f"job {job.id}: AURORA's perception evaluation reads a training run's "
+                           "stages; the shipped weights hold only the final model")
+    elif _fusion(deps, job):
         from v2xbench.agents.aurora.config import AuroraConfig
         from v2xbench.agents.aurora.eval_fused import evaluate_fused
         from v2xbench.agents.aurora.rsu_agent import message_floats
@@ -223,8 +268,9 @@ def _open_loop(job: Job, d: Path, deps: dict, cfg: Config, progress: bool) -> di
     else:
         from v2xbench.agents.aurora.eval_planning import evaluate_planning
 
-        r = evaluate_planning(_data(deps, job), run=_run(deps, job), stage=job.get("stage"),
-                              batch_size=job.get("batch_size", 8), **kw)
+        model = {"weights" if _is_shipped(deps, job) else "run": _run(deps, job)}
+        r = evaluate_planning(_data(deps, job), stage=job.get("stage"),
+                              batch_size=job.get("batch_size", 8), **model, **kw)
     m = r["overall"]["model"]
     return {"outputs": {"eval": str(out.resolve())},
             "metrics": {**m, "frames": r["overall"]["frames"],
@@ -236,7 +282,7 @@ def closed_loop_settings(job: Job, cfg: Config, deps: dict) -> dict:
     """The keyword arguments of ``evaluate`` for a closed-loop job (env overrides with the
     job's channel settings, the agent config naming the trained run)."""
     agent_cfg = dict(job.get("agent_config", {}))
-    if job.get("run") is not None:
+    if job.get("run") is not None and not _is_shipped(deps, job):  # shipped: the agent's default
         agent_cfg["run"] = str(_run(deps, job))
     if job.get("stage") is not None:
         agent_cfg["stage"] = job.get("stage")
@@ -289,9 +335,9 @@ def _vqa(job: Job, d: Path, deps: dict, cfg: Config, progress: bool) -> dict:
 
 RUNNERS: dict[str, Runner] = {
     "collect": _collect, "dataset": _dataset, "aurora_train": _aurora_train,
-    "baseline_train": _baseline_train, "perception": _perception, "open_loop": _open_loop,
+    "baseline_train": _baseline_train, "shipped": _shipped, "perception": _perception, "open_loop": _open_loop,
     "closed_loop": _closed_loop, "vqa": _vqa,
 }
 
 __all__ = ["RUNNERS", "NotAvailable", "baseline_module", "closed_loop_settings",
-           "method_available"]
+           "method_available", "shipped_weights"]

@@ -10,7 +10,8 @@ carries its digest). Its *components* (:func:`make_fingerprint`):
   ``path/to/file.py:ClassName`` agent (only that file: modules it imports are not followed;
   declare them with ``fingerprint()``); for a built-in agent the modules of ``v2xbench.agents``
   its class is defined in and those they import, transitively (``interface.py``, the harness's
-  side, excluded); for another factory the file that defines it;
+  side, excluded; a baseline's module brings in every module of its method package, which its
+  agent loads by name); for another factory the file that defines it;
 - ``checkpoint``: SHA-256 of each file or folder the agent declares in ``checkpoint``, and for a
   TorchRL policy passed to ``evaluate`` its architecture and weights (:func:`declared`,
   :func:`policy_digest`); a file inside the installed package (shipped weights) is keyed by its
@@ -41,6 +42,10 @@ from typing import Any
 _CHUNK = 1 << 20
 #: module of the harness's side of the interface: not part of any agent's code
 _HARNESS_MODULES = frozenset({"v2xbench.agents.interface"})
+#: packages whose agents load sibling modules by name (``BaselineAgent._load`` imports the
+#: method's ``policy`` and ``train`` with ``importlib``, which the import walk cannot see): a
+#: module of ``v2xbench.agents.baselines.<method>`` brings in every module of that package
+_WHOLE_PACKAGE_PARENTS = ("v2xbench.agents.baselines",)
 #: labels of the components in messages
 LABELS = {
     "suite": "suite",
@@ -118,6 +123,22 @@ def _imported_agent_modules(name: str, path: Path) -> set[str]:
     return {m for m in found if m.startswith("v2xbench.agents.") and _module_file(m) is not None}
 
 
+def _package_siblings(name: str) -> list[str]:
+    """Every module of the method package ``name`` belongs to, when that package is one of
+    :data:`_WHOLE_PACKAGE_PARENTS`' children (``v2xbench.agents.baselines.univ2x.agent`` ->
+    ``...univ2x.model``, ``...univ2x.policy``, ...); else none."""
+    for parent in _WHOLE_PACKAGE_PARENTS:
+        rest = name[len(parent) + 1:].split(".") if name.startswith(parent + ".") else []
+        if len(rest) >= 2:  # a module inside a method package (not the package itself)
+            package = f"{parent}.{rest[0]}"
+            folder = _module_file(package)
+            if folder is None or folder.name != "__init__.py":
+                return []
+            return [package] + sorted(f"{package}.{p.stem}" for p in folder.parent.glob("*.py")
+                                      if p.name != "__init__.py")
+    return []
+
+
 def builtin_code_digests(module: str) -> dict[str, str]:
     """SHA-256 of module ``module`` of ``v2xbench.agents`` and of every module of that package it
     imports, transitively (``interface.py`` excluded), by path relative to the package's parent
@@ -134,6 +155,7 @@ def builtin_code_digests(module: str) -> dict[str, str]:
             continue
         out[path.relative_to(root.parent).as_posix()] = sha256_file(path)
         todo.extend(_imported_agent_modules(name, path))
+        todo.extend(_package_siblings(name))
     return dict(sorted(out.items()))
 
 

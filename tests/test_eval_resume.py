@@ -214,6 +214,16 @@ def test_builtin_agents_are_fingerprinted_by_their_source():
     assert diff[1].startswith("agent code: agents/controller.py changed (sha256 ")
 
 
+def test_a_baselines_code_is_its_whole_method_package():
+    """A baseline's agent loads its package's ``policy`` and ``train`` by name (importlib):
+    its fingerprint holds every module of the package, the model the weights run in included."""
+    for name in ("univ2x", "codriving"):
+        code = code_digests(name)
+        for mod in ("model", "policy", "train", "config", "message"):
+            assert f"agents/baselines/{name}/{mod}.py" in code, (name, mod)
+    assert not any(k.startswith("agents/baselines/") for k in code_digests("aurora"))
+
+
 def test_torchrl_policy_weights_are_its_checkpoint(suite, tmp_path):  # noqa: F811
     import torch
     from tensordict.nn import TensorDictModule

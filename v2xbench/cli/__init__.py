@@ -9,6 +9,7 @@ Commands:
     leaderboard leaderboard table, plots and per-scenario breakdown from evaluation results
     incidents   how an agent's red lights (set off after standing, slowed, drove through) and
                 vehicle collisions (drove into a car, was hit, side; repeats) happened
+    compare     agents on the runs they share, paired run by run (DS difference with its CI)
     bench       benchmark suite (speed vs highway-env, sensors, batched worlds, eval time, memory)
     profile     where a tick's time goes: per stage and per numba kernel (objects or batched)
     floor       an objects tick's kernels back to back, without the Python between them

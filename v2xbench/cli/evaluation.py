@@ -1,4 +1,4 @@
-"""``v2xbench eval``, ``leaderboard`` and ``incidents``: closed-loop evaluation and its tables."""
+"""``v2xbench eval``, ``leaderboard``, ``incidents`` and ``compare``: closed-loop evaluation and its tables."""
 
 from __future__ import annotations
 
@@ -61,6 +61,16 @@ def _incidents(args: argparse.Namespace) -> int:
     named = [tuple(x.split("=", 1)) if "=" in x else (Path(x).name, x) for x in args.results]
     rows = build_incidents(named, args.out)
     print(incidents_markdown(rows))
+    if args.out:
+        print(f"wrote {Path(args.out).with_suffix('.md')} and {Path(args.out).with_suffix('.json')}")
+    return 0
+
+
+def _compare(args: argparse.Namespace) -> int:
+    from v2xbench.collectors.compare import compare, compare_markdown
+
+    named = [tuple(x.split("=", 1)) if "=" in x else (Path(x).name, x) for x in args.results]
+    print(compare_markdown(compare(named, args.out)))
     if args.out:
         print(f"wrote {Path(args.out).with_suffix('.md')} and {Path(args.out).with_suffix('.json')}")
     return 0
@@ -139,3 +149,15 @@ def register(sub) -> None:
     inc.add_argument("--out", default=None, metavar="PATH",
                      help="also write PATH.md and PATH.json (atomically)")
     inc.set_defaults(func=_incidents)
+    cmp = sub.add_parser("compare", help="agents on the runs they share, paired run by run (DS "
+                         "difference with its bootstrap CI)",
+                         description="The first eval folder against each other one on the runs "
+                         "both hold (same route and seed): both summaries on those runs, the mean "
+                         "paired DS difference with its bootstrap 95%% CI, runs higher / lower / "
+                         "equal, and whether both ran on the same platform.")
+    cmp.add_argument("results", nargs="+", metavar="[NAME=]DIR",
+                     help="eval output folders (routes/*.json), optionally named NAME=DIR; the "
+                     "first is compared with each of the others")
+    cmp.add_argument("--out", default=None, metavar="PATH",
+                     help="also write PATH.md and PATH.json (atomically)")
+    cmp.set_defaults(func=_compare)

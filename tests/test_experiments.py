@@ -276,6 +276,29 @@ def test_a_failing_job_blocks_only_its_dependents(tiny_dataset, tmp_path):
     assert "FileNotFoundError" in fail["error"] and fail["traceback"]
 
 
+def test_status_shows_each_job_and_closed_loop_progress(exp, tmp_path, capsys):
+    from v2xbench.collectors.experiments.status import experiment_status
+
+    rows = {r["id"]: r for r in experiment_status(exp["dir"])}
+    st = exp["state"]["jobs"]
+    assert {k: r["status"] for k, r in rows.items()} == {k: r["status"] for k, r in st.items()}
+    assert "min" in rows["cl_aurora"]["detail"] and "progress" not in rows["cl_aurora"]
+    # the same experiment with cl_aurora stopped half-way: no result.json, 2 of its 4 runs
+    part = tmp_path / "part"
+    shutil.copytree(exp["dir"], part)
+    (part / "cl_aurora" / "result.json").unlink()
+    runs = sorted((part / "cl_aurora" / "eval" / "routes").glob("*.json"))
+    for f in runs[2:]:
+        f.unlink()
+    row = {r["id"]: r for r in experiment_status(part)}["cl_aurora"]
+    assert row["status"] == "unfinished" and row["progress"]["runs"] == 2 and row["progress"]["of"] == 4
+    assert row["detail"].startswith("2 of 4 runs, ~")
+    assert main(["experiments", "status", str(part)]) == 0
+    assert "| cl_aurora | closed_loop | unfinished | 2 of 4 runs" in capsys.readouterr().out
+    with pytest.raises(FileNotFoundError, match="config.json"):
+        experiment_status(tmp_path)
+
+
 def test_shipped_weights_jobs(tiny_dataset, tmp_path):
     """A ``shipped`` job names the package's exported weights: open-loop and closed-loop jobs
     run them (the closed loop as ``v2xbench eval --agent NAME``: no agent config, so its results

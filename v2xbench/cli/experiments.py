@@ -42,8 +42,19 @@ def _report(args: argparse.Namespace) -> int:
     return 0
 
 
+def _status(args: argparse.Namespace) -> int:
+    from v2xbench.collectors.experiments import shipped_config
+    from v2xbench.collectors.experiments.status import experiment_status, status_markdown
+
+    config = args.config
+    if config is not None and "/" not in config and not config.endswith((".json", ".toml")):
+        config = str(shipped_config(config))
+    print(status_markdown(experiment_status(args.dir, config)), end="")
+    return 0
+
+
 def register(sub) -> None:
-    """Add ``experiments run`` and ``experiments report`` to the ``v2xbench`` parser."""
+    """Add ``experiments run``, ``report`` and ``status`` to the ``v2xbench`` parser."""
     p = sub.add_parser("experiments", help="run the paper's experiments from a config "
                        "(resumable) and build their tables and plots", description=__doc__)
     esub = p.add_subparsers(dest="experiments_command", required=True)
@@ -73,3 +84,12 @@ def register(sub) -> None:
                    help="build the tables anyway, marking missing cells `missing`")
     t.add_argument("--no-plots", action="store_true", help="only Markdown and JSON")
     t.set_defaults(func=_report)
+    st = esub.add_parser("status", help="where an experiment run stands, job by job",
+                         description="One line per job: done (with its time), failed (the "
+                         "error), not available, blocked, or not finished; an unfinished "
+                         "closed-loop job shows its runs with a result so far and the time left "
+                         "at their pace. Reads files only: safe while a run works on DIR.")
+    st.add_argument("dir", help="experiment folder (experiments run --out)")
+    st.add_argument("--config", default=None, help="the config (default DIR/config.json, "
+                    "written by the first run); a file or a shipped name")
+    st.set_defaults(func=_status)

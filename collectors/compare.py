@@ -9,8 +9,9 @@ agents' CIs are about +-10 DS wide each, the paired difference's often half that
 For the first folder against each other one: both agents' summaries over the common runs
 (``metrics.aggregate``: DS with its bootstrap CI, RC, infractions per km), the mean paired DS
 difference (first minus other) with its percentile-bootstrap 95 % CI over the common runs
-(``metrics.bootstrap_ci``), how many runs the first scores higher, lower or equal, and whether
-both folders ran on the same platform (``platform`` of each result: a learned agent's runs on
+(``metrics.bootstrap_ci``), the same over the runs of routes with a V2X-specific scenario type
+(the suite summary's V2X-type subset), how many runs the first scores higher, lower or equal, and whether
+both folders ran on the same platform (``same``, ``different`` or ``not recorded``) (``platform`` of each result: a learned agent's runs on
 another machine are another draw, docs/baselines.md "Same code, another machine").
 """
 
@@ -40,6 +41,16 @@ def _platforms(runs: list[dict]) -> list[str]:
     return sorted({json.dumps(r["platform"], sort_keys=True) for r in runs if r.get("platform")})
 
 
+def _is_v2x_route(result: dict) -> bool:
+    """Whether the run's route holds a V2X-specific scenario type (from its suite's route file,
+    as the suite summary's V2X-type subset)."""
+    from v2xbench.envs.v2x_intersection.scenarios import get_scenario
+    from v2xbench.envs.v2x_intersection.suites.route_files import load_suite_cached
+
+    route = next(r for r in load_suite_cached(str(result["suite"])) if r.id == result["route_id"])
+    return any(get_scenario(sc.type).v2x for sc in route.scenarios)
+
+
 def compare_pair(first: tuple[str, str | Path], other: tuple[str, str | Path]) -> dict:
     """The paired comparison of two ``(name, eval folder)`` on the runs both hold.
 
@@ -58,6 +69,7 @@ def compare_pair(first: tuple[str, str | Path], other: tuple[str, str | Path]) -
                          "route selection")
     diff = np.array([mine[j]["metrics"]["driving_score"] - theirs[j]["metrics"]["driving_score"]
                      for j in common], np.float64)
+    v2x = np.array([_is_v2x_route(mine[j]) for j in common], bool)
     pa, pb = _platforms([mine[j] for j in common]), _platforms([theirs[j] for j in common])
     return {
         "jobs": common, "runs_only_in": {a: len(mine) - len(common), b: len(theirs) - len(common)},
@@ -67,7 +79,11 @@ def compare_pair(first: tuple[str, str | Path], other: tuple[str, str | Path]) -
         "paired_ds_difference_ci": list(bootstrap_ci(diff)),
         "runs_higher": int((diff > TIE_DS).sum()), "runs_lower": int((diff < -TIE_DS).sum()),
         "runs_equal": int((np.abs(diff) <= TIE_DS).sum()),
-        "same_platform": bool(pa and pb and pa == pb and len(pa) == 1),
+        "v2x_runs": int(v2x.sum()),
+        "v2x_paired_ds_difference": float(np.mean(diff[v2x])) if v2x.any() else None,
+        "v2x_paired_ds_difference_ci": list(bootstrap_ci(diff[v2x])) if v2x.any() else None,
+        "platform": ("not recorded" if not (pa and pb) else
+                     "same" if pa == pb and len(pa) == 1 else "different"),
         "platforms": {a: [json.loads(p) for p in pa], b: [json.loads(p) for p in pb]},
     }
 
@@ -104,14 +120,18 @@ def compare_markdown(result: dict[str, dict]) -> str:
                         f"{s['route_completion']:.1f} | {s.get('red_light_per_km', nan):.2f} | "
                         f"{s.get('collision_vehicle_per_km', nan):.2f} |")
         lo, hi = d["paired_ds_difference_ci"]
-        plat = ("the same platform" if d["same_platform"] else
-                "**not the same platform** (or none recorded): runs of a learned agent differ "
-                "across machines")
+        plat = {"same": "both on the same platform",
+                "different": "**on different platforms**: a learned agent's runs differ across machines",
+                "not recorded": "platform not recorded in every run (results written before 2026-11-29)"
+                }[d["platform"]]
         parts.append(f"### {title}\n\n" + "\n".join(rows) + "\n\n"
                      f"Paired DS difference ({a} minus {b}, run by run): "
                      f"**{d['paired_ds_difference']:+.1f}** [{lo:+.1f}, {hi:+.1f}]; {a} higher on "
                      f"{d['runs_higher']}, lower on {d['runs_lower']}, equal on {d['runs_equal']} "
-                     f"of {len(d['jobs'])} runs; {plat}.\n")
+                     f"of {len(d['jobs'])} runs; {plat}."
+                     + (f" On the {d['v2x_runs']} runs of V2X-type routes: "
+                        f"**{d['v2x_paired_ds_difference']:+.1f}** [{d['v2x_paired_ds_difference_ci'][0]:+.1f}, "
+                        f"{d['v2x_paired_ds_difference_ci'][1]:+.1f}]." if d["v2x_runs"] else "") + "\n")
     return "\n".join(parts)
 
 

@@ -13,7 +13,8 @@ PLATFORM = {"cpu": "x", "torch": "2.13.0"}
 
 
 def _result(jid: str, ds: float, platform: dict | None = PLATFORM) -> dict:
-    return {"job_id": jid, "ended_by": "completed", "scenarios": [], "ticks": 100, "platform": platform,
+    return {"job_id": jid, "suite": "test50", "route_id": jid.rsplit("_", 1)[0],
+            "ended_by": "completed", "scenarios": [], "ticks": 100, "platform": platform,
             "metrics": {"driving_score": ds, "route_completion": 100.0, "infraction_score": ds / 100.0,
                         "km_completed": 1.0}}
 
@@ -27,36 +28,38 @@ def _folder(tmp_path, name: str, scores: dict, platform: dict | None = PLATFORM)
 
 
 def test_paired_difference_on_the_common_runs(tmp_path):
-    a = _folder(tmp_path, "a", {"r0_s0": 80.0, "r1_s0": 50.0, "r2_s0": 30.0, "r3_s0": 10.0})
-    b = _folder(tmp_path, "b", {"r0_s0": 60.0, "r1_s0": 50.0, "r2_s0": 40.0, "r9_s0": 99.0})
+    a = _folder(tmp_path, "a", {"test50_000_s0": 80.0, "test50_001_s0": 50.0, "test50_002_s0": 30.0, "test50_003_s0": 10.0})
+    b = _folder(tmp_path, "b", {"test50_000_s0": 60.0, "test50_001_s0": 50.0, "test50_002_s0": 40.0, "test50_004_s0": 99.0})
     d = C.compare_pair(("a", a), ("b", b))
-    assert d["jobs"] == ["r0_s0", "r1_s0", "r2_s0"] and d["runs_only_in"] == {"a": 1, "b": 1}
+    assert d["jobs"] == ["test50_000_s0", "test50_001_s0", "test50_002_s0"] and d["runs_only_in"] == {"a": 1, "b": 1}
     assert d["paired_ds_difference"] == pytest.approx((20.0 + 0.0 - 10.0) / 3)
     assert d["paired_ds_difference_ci"] == list(bootstrap_ci([20.0, 0.0, -10.0]))
     assert (d["runs_higher"], d["runs_lower"], d["runs_equal"]) == (1, 1, 1)
     assert d["a"]["driving_score"] == pytest.approx(160.0 / 3)  # only the common runs
     assert d["b"]["driving_score"] == pytest.approx(50.0)
-    assert d["same_platform"]
+    assert d["platform"] == "same"
+    # of the common routes only test50_001 holds a V2X-specific scenario type (VehicleTurningRoute)
+    assert d["v2x_runs"] == 1 and d["v2x_paired_ds_difference"] == 0.0
 
 
 def test_platforms_and_cli(tmp_path, capsys):
-    a = _folder(tmp_path, "a", {"r0_s0": 80.0, "r1_s0": 50.0})
-    b = _folder(tmp_path, "b", {"r0_s0": 60.0, "r1_s0": 55.0}, platform={"cpu": "y", "torch": "2.13.0"})
-    old = _folder(tmp_path, "old", {"r0_s0": 60.0}, platform=None)  # written before platforms
+    a = _folder(tmp_path, "a", {"test50_000_s0": 80.0, "test50_001_s0": 50.0})
+    b = _folder(tmp_path, "b", {"test50_000_s0": 60.0, "test50_001_s0": 55.0}, platform={"cpu": "y", "torch": "2.13.0"})
+    old = _folder(tmp_path, "old", {"test50_000_s0": 60.0}, platform=None)  # written before platforms
     out = tmp_path / "cmp"
     assert main(["compare", f"mine={a}", f"theirs={b}", old, "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "### mine vs theirs" in text and "### mine vs old" in text
-    assert "**+7.5** [" in text and "not the same platform" in text
+    assert "**+7.5** [" in text and "on different platforms" in text and "platform not recorded" in text
     res = json.loads(out.with_suffix(".json").read_text())
-    assert not res["mine vs theirs"]["same_platform"] and not res["mine vs old"]["same_platform"]
+    assert res["mine vs theirs"]["platform"] == "different" and res["mine vs old"]["platform"] == "not recorded"
     assert res["mine vs old"]["platforms"]["old"] == []
     assert out.with_suffix(".md").read_text().startswith("### mine vs theirs")
 
 
 def test_bad_inputs_are_named(tmp_path):
-    a = _folder(tmp_path, "a", {"r0_s0": 80.0})
-    b = _folder(tmp_path, "b", {"r1_s0": 60.0})
+    a = _folder(tmp_path, "a", {"test50_000_s0": 80.0})
+    b = _folder(tmp_path, "b", {"test50_001_s0": 60.0})
     with pytest.raises(ValueError, match="share no run"):
         C.compare([("a", a), ("b", b)])
     with pytest.raises(ValueError, match="at least two"):

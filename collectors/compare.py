@@ -71,6 +71,7 @@ def compare_pair(first: tuple[str, str | Path], other: tuple[str, str | Path]) -
                      for j in common], np.float64)
     v2x = np.array([_is_v2x_route(mine[j]) for j in common], bool)
     pa, pb = _platforms([mine[j] for j in common]), _platforms([theirs[j] for j in common])
+    recorded = all(r.get("platform") for j in common for r in (mine[j], theirs[j]))
     return {
         "jobs": common, "runs_only_in": {a: len(mine) - len(common), b: len(theirs) - len(common)},
         a: aggregate([mine[j]["metrics"] for j in common], len(common)),
@@ -82,7 +83,7 @@ def compare_pair(first: tuple[str, str | Path], other: tuple[str, str | Path]) -
         "v2x_runs": int(v2x.sum()),
         "v2x_paired_ds_difference": float(np.mean(diff[v2x])) if v2x.any() else None,
         "v2x_paired_ds_difference_ci": list(bootstrap_ci(diff[v2x])) if v2x.any() else None,
-        "platform": ("not recorded" if not (pa and pb) else
+        "platform": ("not recorded" if not recorded else
                      "same" if pa == pb and len(pa) == 1 else "different"),
         "platforms": {a: [json.loads(p) for p in pa], b: [json.loads(p) for p in pb]},
     }

@@ -54,6 +54,9 @@ def test_platforms_and_cli(tmp_path, capsys):
     res = json.loads(out.with_suffix(".json").read_text())
     assert res["mine vs theirs"]["platform"] == "different" and res["mine vs old"]["platform"] == "not recorded"
     assert res["mine vs old"]["platforms"]["old"] == []
+    (tmp_path / "b" / "routes" / "test50_002_s0.json").write_text(json.dumps(_result("test50_002_s0", 1.0, None)))
+    (tmp_path / "a" / "routes" / "test50_002_s0.json").write_text(json.dumps(_result("test50_002_s0", 1.0)))
+    assert C.compare_pair(("a", a), ("b", b))["platform"] == "not recorded"  # one run of b has none
     assert out.with_suffix(".md").read_text().startswith("### mine vs theirs")
 
 

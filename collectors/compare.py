@@ -42,13 +42,12 @@ def _platforms(runs: list[dict]) -> list[str]:
 
 
 def _is_v2x_route(result: dict) -> bool:
-    """Whether the run's route holds a V2X-specific scenario type (from its suite's route file,
-    as the suite summary's V2X-type subset)."""
-    from v2xbench.envs.v2x_intersection.scenarios import get_scenario
+    """Whether the run's route holds a V2X-specific scenario type (from its suite's route file)."""
     from v2xbench.envs.v2x_intersection.suites.route_files import load_suite_cached
 
-    route = next(r for r in load_suite_cached(str(result["suite"])) if r.id == result["route_id"])
-    return any(get_scenario(sc.type).v2x for sc in route.scenarios)
+    from .route_selection import is_v2x_route
+
+    return is_v2x_route(next(r for r in load_suite_cached(str(result["suite"])) if r.id == result["route_id"]))
 
 
 def compare_pair(first: tuple[str, str | Path], other: tuple[str, str | Path]) -> dict:

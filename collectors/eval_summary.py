@@ -26,6 +26,7 @@ from v2xbench.files import atomic_write_text
 
 from . import jobs as J
 from .route_log import FAILURE_KINDS
+from .route_selection import is_v2x_route
 
 
 def sensor_settings(overrides: dict | None) -> dict:
@@ -51,9 +52,7 @@ def summarize(
         return [dict(results[j.job_id]["metrics"]) for j in sel if j.job_id in results]
 
     overall = aggregate(metric_dicts(jobs), n_routes, seeds, n_boot=n_boot)
-    is_v2x = {
-        i: any(get_scenario(s.type).v2x for s in routes[i].scenarios) for i in range(len(routes))
-    }
+    is_v2x = {i: is_v2x_route(routes[i]) for i in range(len(routes))}
     v2x_jobs = [j for j in jobs if is_v2x[j.route_index]]
     n_v2x = len({j.route_index for j in v2x_jobs})
     v2x = aggregate(metric_dicts(v2x_jobs), n_v2x, seeds, n_boot=n_boot) if n_v2x else {}

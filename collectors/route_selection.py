@@ -49,7 +49,9 @@ def _hint(name: str, known: Sequence[str]) -> str:
     return f" Did you mean {close[0]!r}?" if close else ""
 
 
-def _is_v2x(spec) -> bool:
+def is_v2x_route(spec) -> bool:
+    """Whether a route (``RouteSpec``) holds a V2X-specific scenario type (the suite summary's
+    V2X-type subset, ``--v2x-only``)."""
     return any(get_scenario(s.type).v2x for s in spec.scenarios)
 
 
@@ -112,7 +114,7 @@ def select_routes(
         keep = [i for i in keep if {s.type for s in routes[i].scenarios} & set(types)]
         parts.append(f"scenario {','.join(types)}")
     if v2x_only:
-        keep = [i for i in keep if _is_v2x(routes[i])]
+        keep = [i for i in keep if is_v2x_route(routes[i])]
         parts.append("V2X-type")
     if not keep:
         raise ValueError(f"no route of suite {suite} passes {' and '.join(parts)}")

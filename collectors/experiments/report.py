@@ -36,9 +36,9 @@ from typing import Any
 
 from v2xbench.files import atomic_write_json, atomic_write_text
 
-from .config import Config, Job, parse_config
+from .config import Config, Job
 from .job_kinds import method_available
-from .runner import CONFIG_COPY, FAILED, RESULT, STATE, read_result
+from .runner import FAILED, RESULT, STATE, load_config_copy, read_result
 
 MISSING = "missing"
 NA = "n/a"
@@ -402,12 +402,7 @@ def build_report(root: str | Path, out: str | Path | None = None, *,
             ``allow_partial`` is false; nothing is written then.
     """
     root = Path(root)
-    copy = root / CONFIG_COPY
-    if not copy.is_file():
-        raise FileNotFoundError(f"experiments report: {root} holds no experiment ({copy} is "
-                                "missing; `v2xbench experiments run --config FILE --out DIR`)")
-    saved = json.loads(copy.read_text())
-    cfg = parse_config(saved["config"], saved.get("source", str(copy)))
+    cfg = load_config_copy(root, "experiments report")
     res = _Results(root, cfg)
     tables: dict[str, str] = {}
     data: dict[str, Any] = {}

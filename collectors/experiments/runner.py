@@ -25,7 +25,7 @@ from pathlib import Path
 from v2xbench.files import atomic_write_json, check_output_dir, remove_stale_tmp
 from v2xbench.locks import dir_lock
 
-from .config import Config, Job, load_config
+from .config import Config, Job, load_config, parse_config
 from .job_kinds import RUNNERS, NotAvailable, method_available
 
 RESULT = "result.json"
@@ -48,6 +48,21 @@ def read_result(out: Path, job_id: str) -> dict | None:
         return json.loads(p.read_text())
     except ValueError:
         return None  # a file that does not read back: the job runs again
+
+
+def load_config_copy(out: str | Path, who: str = "experiments") -> Config:
+    """The config a run wrote into its folder (:data:`CONFIG_COPY`), parsed.
+
+    Raises:
+        FileNotFoundError: ``out`` holds no config copy (no run yet; the message, led by ``who``,
+            names it).
+    """
+    copy = Path(out) / CONFIG_COPY
+    if not copy.is_file():
+        raise FileNotFoundError(f"{who}: {out} holds no experiment ({copy} is missing; `v2xbench "
+                                "experiments run --config FILE --out DIR`)")
+    saved = json.loads(copy.read_text())
+    return parse_config(saved["config"], saved.get("source", str(copy)))
 
 
 def _same_spec(old: dict, job: Job) -> bool:
@@ -182,4 +197,5 @@ def _json_default(x):
     raise TypeError(f"{type(x).__name__} is not JSON serializable")
 
 
-__all__ = ["CONFIG_COPY", "FAILED", "RESULT", "STATE", "read_result", "run_experiments"]
+__all__ = ["CONFIG_COPY", "FAILED", "RESULT", "STATE", "load_config_copy", "read_result",
+           "run_experiments"]

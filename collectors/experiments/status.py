@@ -12,8 +12,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .config import Config, Job, load_config, parse_config
-from .runner import CONFIG_COPY, FAILED, RESULT, STATE
+from .config import Config, Job, load_config
+from .runner import FAILED, RESULT, STATE, load_config_copy
 
 
 def _closed_loop_progress(job: Job, d: Path) -> dict:
@@ -46,15 +46,15 @@ def experiment_status(root: str | Path, config: str | Path | None = None) -> lis
     an unfinished closed-loop job its ``progress`` (:func:`_closed_loop_progress`).
 
     Raises:
-        FileNotFoundError: ``root`` has no config copy (no run yet) and no ``config`` is given.
+        FileNotFoundError: ``root`` has no config copy (no run yet) and no ``config`` is given
+            (pass ``--config FILE`` or a shipped name then).
     """
     root = Path(root)
     if config is None:
-        if not (root / CONFIG_COPY).is_file():
-            raise FileNotFoundError(f"experiments status: {root} has no {CONFIG_COPY} (not run "
-                                    "yet?); give --config FILE or a shipped name")
-        saved = json.loads((root / CONFIG_COPY).read_text())
-        cfg = parse_config(saved["config"], saved.get("source", str(root / CONFIG_COPY)))
+        try:
+            cfg = load_config_copy(root, "experiments status")
+        except FileNotFoundError as e:
+            raise FileNotFoundError(f"{e}; or give --config FILE or a shipped name") from None
     else:
         cfg = config if isinstance(config, Config) else load_config(config)
     state = json.loads((root / STATE).read_text()).get("jobs", {}) if (root / STATE).is_file() else {}

@@ -55,24 +55,30 @@ def _leaderboard(args: argparse.Namespace) -> int:
     return 0
 
 
+def _named(folders: list[str]) -> list[tuple[str, str]]:
+    """``[NAME=]DIR`` arguments as ``(name, dir)`` (no name: the folder's name)."""
+    return [tuple(x.split("=", 1)) if "=" in x else (Path(x).name, x) for x in folders]
+
+
+def _say_wrote(out: str | None) -> None:
+    """The files a ``--out PATH`` table command wrote (``PATH.md``, ``PATH.json``)."""
+    if out:
+        print(f"wrote {Path(out).with_suffix('.md')} and {Path(out).with_suffix('.json')}")
+
+
 def _incidents(args: argparse.Namespace) -> int:
     from v2xbench.collectors.incidents import build_incidents, incidents_markdown
 
-    named = [tuple(x.split("=", 1)) if "=" in x else (Path(x).name, x) for x in args.results]
-    rows = build_incidents(named, args.out)
-    print(incidents_markdown(rows))
-    if args.out:
-        print(f"wrote {Path(args.out).with_suffix('.md')} and {Path(args.out).with_suffix('.json')}")
+    print(incidents_markdown(build_incidents(_named(args.results), args.out)))
+    _say_wrote(args.out)
     return 0
 
 
 def _compare(args: argparse.Namespace) -> int:
     from v2xbench.collectors.compare import compare, compare_markdown
 
-    named = [tuple(x.split("=", 1)) if "=" in x else (Path(x).name, x) for x in args.results]
-    print(compare_markdown(compare(named, args.out)))
-    if args.out:
-        print(f"wrote {Path(args.out).with_suffix('.md')} and {Path(args.out).with_suffix('.json')}")
+    print(compare_markdown(compare(_named(args.results), args.out)))
+    _say_wrote(args.out)
     return 0
 
 

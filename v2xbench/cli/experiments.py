@@ -14,17 +14,22 @@ def _shipped() -> list[str]:
     return sorted(q.stem for q in CONFIG_DIR.glob("*.json"))
 
 
-def _run(args: argparse.Namespace) -> int:
+def _config_file(config: str) -> str:
+    """A config file's path, or the path of the shipped config of that name (``paper``)."""
     from v2xbench.collectors.experiments import shipped_config
+
+    if "/" not in config and not config.endswith((".json", ".toml")):
+        return str(shipped_config(config))
+    return config
+
+
+def _run(args: argparse.Namespace) -> int:
     from v2xbench.collectors.experiments.runner import run_experiments
 
     if (args.config is None) == (not args.quick):
         raise ValueError("experiments run: give --config FILE (or a shipped name: "
                          f"{', '.join(_shipped())}) or --quick")
-    config = args.config or "quick"
-    if "/" not in config and not config.endswith((".json", ".toml")):
-        config = str(shipped_config(config))
-    state = run_experiments(config, args.out, progress=args.verbose)
+    state = run_experiments(_config_file(args.config or "quick"), args.out, progress=args.verbose)
     c = state["counts"]
     return 1 if c["failed"] or c["blocked"] else 0
 
@@ -43,12 +48,9 @@ def _report(args: argparse.Namespace) -> int:
 
 
 def _status(args: argparse.Namespace) -> int:
-    from v2xbench.collectors.experiments import shipped_config
     from v2xbench.collectors.experiments.status import experiment_status, status_markdown
 
-    config = args.config
-    if config is not None and "/" not in config and not config.endswith((".json", ".toml")):
-        config = str(shipped_config(config))
+    config = None if args.config is None else _config_file(args.config)
     print(status_markdown(experiment_status(args.dir, config)), end="")
     return 0
 

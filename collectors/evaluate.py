@@ -73,7 +73,6 @@ from typing import Any
 import torch
 from v2xbench.envs.v2x_intersection.evaluation.metrics import ENDED_ERROR
 from v2xbench.envs.v2x_intersection.sim.config import EnvConfig, make_config
-from v2xbench.envs.v2x_intersection.suites.route_files import load_suite_cached
 
 from v2xbench.files import check_output_dir, remove_stale_tmp
 from v2xbench.locks import dir_lock
@@ -96,7 +95,7 @@ from .eval_summary import per_scenario, summarize, summary_markdown, write_summa
 from .eval_workers import DEFAULT_ROUTE_TIMEOUT_S, check_route_timeout, run_jobs
 from .roadside import policy_label, roadside_component
 from .route_log import build_result
-from .route_selection import select_routes
+from .route_selection import selected_jobs
 
 __all__ = ["evaluate", "per_scenario", "summarize", "summary_markdown", "write_summary"]
 
@@ -304,16 +303,9 @@ def evaluate(
     route_timeout = check_route_timeout(route_timeout)
     check_backend(backend, address)
     out = check_output_dir(out, "evaluation output directory")
-    suite_routes = load_suite_cached(str(suite))
-    selection = select_routes(
-        suite_routes,
-        str(suite),
-        route_ids=routes,
-        scenario=scenario,
-        v2x_only=v2x_only,
-        max_routes=max_routes,
+    suite_routes, selection, jobs = selected_jobs(
+        suite, seeds, routes=routes, scenario=scenario, v2x_only=v2x_only, max_routes=max_routes
     )
-    jobs = J.make_jobs([r.id for r in suite_routes], seeds, indices=selection.indices)
     agent_cfg, agent_cfg_file = resolve_agent_config(agent_config)
     agent_cfg = agent_cfg or None
     policy_mode = _is_policy(agent)

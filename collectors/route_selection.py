@@ -16,6 +16,8 @@ from typing import NamedTuple
 
 from v2xbench.envs.v2x_intersection.scenarios import SCENARIOS, get_scenario
 
+from . import jobs as J
+
 
 class Selection(NamedTuple):
     """The routes an evaluation runs.
@@ -131,3 +133,31 @@ def select_routes(
         "route_ids": [ids[i] for i in keep],
     }
     return Selection(keep, [ids[i] for i in keep], label, record)
+
+
+def selected_jobs(
+    suite: str,
+    seeds: int = 1,
+    *,
+    routes: str | Sequence[str] | None = None,
+    scenario: str | Sequence[str] | None = None,
+    v2x_only: bool = False,
+    max_routes: int | None = None,
+) -> tuple[list, Selection, list[J.Job]]:
+    """The route x seed jobs an evaluation of ``suite`` with these filters runs (``evaluate``
+    and ``experiments status`` count the same ones).
+
+    Returns:
+        ``(suite_routes, selection, jobs)``: the suite's ``RouteSpec`` list, the
+        :func:`select_routes` result and the jobs (seed-major, ``jobs.make_jobs``).
+
+    Raises:
+        ValueError: an unknown suite, a bad filter (:func:`select_routes`) or bad ``seeds``.
+    """
+    from v2xbench.envs.v2x_intersection.suites.route_files import load_suite_cached
+
+    suite_routes = load_suite_cached(str(suite))
+    selection = select_routes(suite_routes, str(suite), route_ids=routes, scenario=scenario,
+                              v2x_only=v2x_only, max_routes=max_routes)
+    jobs = J.make_jobs([r.id for r in suite_routes], seeds, indices=selection.indices)
+    return suite_routes, selection, jobs

@@ -20,14 +20,11 @@ def _closed_loop_progress(job: Job, d: Path) -> dict:
     """``{"runs", "of", "wall_s"}``: the job's selected runs with a result in ``d/eval`` and the
     sum of their wall time."""
     from v2xbench.collectors import jobs as J
-    from v2xbench.collectors.route_selection import select_routes
-    from v2xbench.envs.v2x_intersection.suites.route_files import load_suite_cached
+    from v2xbench.collectors.route_selection import selected_jobs
 
-    routes = load_suite_cached(str(job.get("suite")))
-    sel = select_routes(routes, str(job.get("suite")), route_ids=job.get("routes"),
-                        scenario=job.get("scenario"), v2x_only=job.get("v2x_only", False),
-                        max_routes=job.get("max_routes"))
-    jobs = J.make_jobs([r.id for r in routes], job.get("seeds", 1), indices=sel.indices)
+    _, _, jobs = selected_jobs(str(job.get("suite")), job.get("seeds", 1), routes=job.get("routes"),
+                               scenario=job.get("scenario"), v2x_only=job.get("v2x_only", False),
+                               max_routes=job.get("max_routes"))
     out, done, wall = d / "eval", 0, 0.0
     for j in jobs:
         if J.has_result(out, j.job_id):

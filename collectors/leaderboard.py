@@ -8,7 +8,8 @@
   each track apart: one table per **group** of runs with the same suite, the same routes (the
   selection's route ids), the same number of seeds, the same observation mode (the *track*:
   ``objects``, ``sensors``, ``bev``) and the same world settings (the env overrides other than
-  the agent's own choices: obs/action mode, roadside policy and sensor settings). Within a group
+  the agent's own choices: obs/action mode, roadside policy, sensor settings and the payload limit
+  its messages need, ``max_payload_floats``). Within a group
   rows are sorted by driving score: agent, roadside policy, sensor settings (from the env
   overrides; ``default`` when none), routes x seeds, runs with results, DS with the half-width of
   its bootstrap 95% CI, RC, IS, Efficiency, Comfortness, BPS and the DS (with its CI) and
@@ -18,6 +19,11 @@
   group's per-scenario-type table (success rate % / mean DS per agent). Summaries written before
   these fields existed show ``unknown`` where they lack one; their routes were the suite's first
   ``n_routes`` (``--max-routes`` was the only selection then), read from the suite when it loads;
+- with ``common=True`` (``--common``), every folder is scored on the same runs: the largest grid
+  of routes x seed indices ``0 .. k-1`` whose runs every folder holds (:func:`common_runs`), its
+  summary recomputed from the per-route results (``eval_summary.summarize``), so that evaluations
+  still running, or of other lengths or selections, rank in one table; the group's label says
+  it is such a grid. The folders must be of one suite;
 - ``leaderboard.json``: the rows (with their ``group`` and ``rank``) and the groups as data;
 - ``driving_score.png``, ``route_completion.png``, ``infraction_score.png``, ``bps.png``: bar
   plots, one set per group (``<metric>_g<k>.png`` for group ``k`` when there are several;
@@ -34,7 +40,8 @@ import numpy as np
 
 from v2xbench.files import atomic_write, atomic_write_text
 
-from .eval_summary import sensor_settings
+from . import jobs as J
+from .eval_summary import sensor_settings, summarize
 from .jobs import write_json_atomic
 
 PLOTS = (
@@ -52,6 +59,9 @@ COLUMNS = (
 )
 #: env overrides that are the agent's own choices, not world settings (they do not split groups)
 AGENT_SIDE_KEYS = ("obs_mode", "rsu_policy", "action_mode")
+#: channel settings an agent declares its messages need (``agent.channel``): a message is never
+#: cut, so the limit changes nothing for the run but whether the message fits (not a world setting)
+AGENT_CHANNEL_KEYS = ("max_payload_floats",)
 UNKNOWN = "unknown"
 
 
@@ -76,10 +86,12 @@ def _setting(s: dict, key: str) -> str:
 
 
 def world_settings(overrides: dict) -> dict:
-    """The env overrides that change the world (all but :data:`AGENT_SIDE_KEYS` and sensors)."""
+    """The env overrides that change the world (all but :data:`AGENT_SIDE_KEYS`,
+    :data:`AGENT_CHANNEL_KEYS` and sensors)."""
     sensors = sensor_settings(overrides)
     return {
-        k: v for k, v in sorted(overrides.items()) if k not in AGENT_SIDE_KEYS and k not in sensors
+        k: v for k, v in sorted(overrides.items())
+        if k not in AGENT_SIDE_KEYS and k not in AGENT_CHANNEL_KEYS and k not in sensors
     }
 
 
@@ -162,13 +174,75 @@ def _ds_key(r: dict) -> float:
     return -r["driving_score"] if np.isfinite(r["driving_score"]) else np.inf
 
 
-def load_rows(result_dirs: list[str | Path]) -> list[dict]:
-    """One row per directory with a ``summary.json``, grouped (module docstring) and ranked by
-    driving score within each group (best first); groups with more runs come first.
+def common_runs(result_dirs: list[str | Path]) -> tuple[str, list[str], int]:
+    """``(suite, route_ids, seeds)``: the largest grid of the suite's routes x seed indices
+    ``0 .. seeds - 1`` whose every run has a result in every folder (most runs; on a tie, more
+    seeds), routes in suite order.
 
     Raises:
-        ValueError: none of the directories has a summary, or a summary does not parse.
+        ValueError: fewer than two folders, a folder without ``run.json``, folders of different
+            suites, or no run that every folder holds.
     """
+    dirs = [Path(d) for d in result_dirs]
+    if len(dirs) < 2:
+        raise ValueError("--common compares folders on the runs they share: give two or more")
+    suites = {}
+    for d in dirs:
+        try:
+            suites[d] = str(json.loads((d / "run.json").read_text())["suite"])
+        except (OSError, ValueError, KeyError) as e:
+            raise ValueError(f"{d} is not an evaluation folder (run.json: {type(e).__name__}: {e})") from None
+    if len(set(suites.values())) > 1:
+        raise ValueError("--common needs folders of one suite; these are of "
+                         + ", ".join(f"{d}: {s}" for d, s in suites.items()))
+    suite = suites[dirs[0]]
+    ids = _suite_ids(suite)
+    held = [{p.stem for p in J.routes_dir(d).glob("*.json")} for d in dirs]
+    shared = set.intersection(*held)
+    best: tuple[int, int, list[str]] = (0, 0, [])
+    k = 1
+    while True:
+        routes = [r for r in ids if all(J.job_id(r, s) in shared for s in range(k))]
+        if not routes:
+            break
+        if len(routes) * k >= best[0]:
+            best = (len(routes) * k, k, routes)
+        k += 1
+    if not best[0]:
+        raise ValueError(f"the {len(dirs)} folders share no run of suite {suite}: "
+                         + ", ".join(f"{d} holds {len(h)}" for d, h in zip(dirs, held)))
+    return suite, best[2], best[1]
+
+
+def common_summaries(result_dirs: list[str | Path], n_boot: int = 2000) -> list[tuple[Path, dict]]:
+    """Each folder's summary over the runs all of them hold (:func:`common_runs`), recomputed
+    from its per-route results; the selection's label names the grid."""
+    suite, route_ids, seeds = common_runs(result_dirs)
+    ids = _suite_ids(suite)
+    jobs = J.make_jobs(ids, seeds, indices=[ids.index(r) for r in route_ids])
+    label = f"runs all {len(result_dirs)} folders hold"
+    record = {"routes": None, "scenario": None, "v2x_only": False, "max_routes": None,
+              "common": True, "label": label, "route_ids": route_ids}
+    return [(Path(d), summarize(d, jobs, n_boot=n_boot, selection=record)) for d in result_dirs]
+
+
+def _suite_ids(suite: str) -> list[str]:
+    from v2xbench.envs.v2x_intersection.suites.route_files import load_suite_cached
+
+    return [r.id for r in load_suite_cached(suite)]
+
+
+def load_rows(result_dirs: list[str | Path], common: bool = False) -> list[dict]:
+    """One row per directory with a ``summary.json``, grouped (module docstring) and ranked by
+    driving score within each group (best first); groups with more runs come first. With
+    ``common``, every directory's summary over the runs all hold (:func:`common_summaries`).
+
+    Raises:
+        ValueError: none of the directories has a summary, or a summary does not parse (with
+            ``common``: :func:`common_runs`' errors).
+    """
+    if common:
+        return _ranked([_row(d, s) for d, s in common_summaries(result_dirs)], result_dirs)
     rows = []
     for d in map(Path, result_dirs):
         p = d / "summary.json"
@@ -181,6 +255,11 @@ def load_rows(result_dirs: list[str | Path]) -> list[dict]:
             raise ValueError(
                 f"{p} is not an evaluation summary ({type(e).__name__}: {e})"
             ) from None
+    return _ranked(rows, result_dirs)
+
+
+def _ranked(rows: list[dict], result_dirs: list[str | Path]) -> list[dict]:
+    """The rows grouped, sorted and ranked, with display labels (:func:`load_rows`)."""
     if not rows:
         raise ValueError(
             f"no summary.json in {', '.join(map(str, result_dirs)) or 'no directories'}; "
@@ -303,9 +382,11 @@ def save_plots(rows: list[dict], out: Path, suffix: str = "") -> list[Path]:
 
 
 def build_leaderboard(
-    result_dirs: list[str | Path], out: str | Path = "leaderboard", plots: bool = True
+    result_dirs: list[str | Path], out: str | Path = "leaderboard", plots: bool = True,
+    common: bool = False,
 ) -> dict:
-    """Write ``leaderboard.md``, ``leaderboard.json`` and the plots into ``out`` (atomically).
+    """Write ``leaderboard.md``, ``leaderboard.json`` and the plots into ``out`` (atomically);
+    ``common``: every folder scored on the runs all of them hold (module docstring).
 
     Returns:
         ``{"rows": [...], "groups": [labels], "markdown": path, "plots": [paths],
@@ -313,7 +394,7 @@ def build_leaderboard(
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    rows = load_rows(result_dirs)
+    rows = load_rows(result_dirs, common=common)
     parts = groups(rows)
     md = atomic_write_text(out / "leaderboard.md", leaderboard_markdown(rows))
     write_json_atomic(

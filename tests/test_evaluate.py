@@ -256,6 +256,42 @@ def test_leaderboard_from_two_runs(rf_run, flaky_run, tmp_path, capsys):
         build_leaderboard([tmp_path / "missing"], tmp_path / "lb3")
 
 
+def test_leaderboard_common_scores_every_folder_on_the_shared_runs(rf_run, flaky_run, tmp_path):
+    from v2xbench.collectors.leaderboard import common_runs, world_settings
+
+    (rf, _), (fl, _) = rf_run, flaky_run
+    part = tmp_path / "part"  # an evaluation still running: tiny_2 not done yet
+    shutil.copytree(rf, part)
+    (part / "routes" / "tiny_2_s0.json").unlink()
+    assert common_runs([rf, fl, part]) == (json.loads((rf / "run.json").read_text())["suite"],
+                                           ["tiny_0", "tiny_1"], 1)
+    res = build_leaderboard([rf, fl, part], tmp_path / "lb", plots=False, common=True)
+    rows = {r["run"]: r for r in res["rows"]}
+    assert len(res["groups"]) == 1 and "runs all 3 folders hold" in res["groups"][0]
+    assert all(r["n_routes"] == 2 and r["n_results"] == 2 for r in rows.values())
+    by_run = _results(rf)
+    mean = np.mean([by_run[j]["metrics"]["driving_score"] for j in ("tiny_0_s0", "tiny_1_s0")])
+    assert rows["route_follower"]["driving_score"] == pytest.approx(mean)
+    assert rows["part"]["driving_score"] == rows["route_follower"]["driving_score"]
+    assert "| 2 x 1 |" in Path(res["markdown"]).read_text()
+    only2 = tmp_path / "only2"
+    shutil.copytree(rf, only2)
+    for j in ("tiny_0_s0", "tiny_1_s0"):
+        (only2 / "routes" / f"{j}.json").unlink()
+    with pytest.raises(ValueError, match="share no run"):
+        common_runs([part, only2])
+    with pytest.raises(ValueError, match="two or more"):
+        common_runs([rf])
+    other = tmp_path / "other_suite"
+    shutil.copytree(rf, other)
+    m = json.loads((other / "run.json").read_text())
+    (other / "run.json").write_text(json.dumps({**m, "suite": "test50"}))
+    with pytest.raises(ValueError, match="one suite"):
+        common_runs([rf, other])
+    # the payload limit a method declares for its messages does not split the table
+    assert world_settings({"max_payload_floats": 1494, "num_vehicles": 3}) == {"num_vehicles": 3}
+
+
 def test_lost_claim_is_recovered_when_all_workers_idle(suite, tmp_path):
     from v2xbench.collectors.eval_env import copy_policy, make_env_factory
     from v2xbench.collectors.eval_workers import run_jobs

@@ -47,7 +47,7 @@ def _eval(args: argparse.Namespace) -> int:
 def _leaderboard(args: argparse.Namespace) -> int:
     from v2xbench.collectors.leaderboard import build_leaderboard
 
-    res = build_leaderboard(args.results, args.out, plots=not args.no_plots)
+    res = build_leaderboard(args.results, args.out, plots=not args.no_plots, common=args.common)
     print(Path(res["markdown"]).read_text())
     if res["note"]:
         print(res["note"], file=sys.stderr)
@@ -147,6 +147,9 @@ def register(sub) -> None:
     lb.add_argument("results", nargs="+", help="result directories (each with a summary.json)")
     lb.add_argument("--out", default="leaderboard")
     lb.add_argument("--no-plots", action="store_true", help="only the markdown and JSON tables")
+    lb.add_argument("--common", action="store_true",
+                    help="score every folder on the runs all of them hold (the largest grid of "
+                         "routes x seeds), e.g. evaluations still running; one suite")
     lb.set_defaults(func=_leaderboard)
     inc = sub.add_parser("incidents", help="how an agent's red lights and vehicle collisions happened "
                          "(from eval result dirs)")

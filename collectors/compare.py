@@ -13,11 +13,19 @@ difference (first minus other) with its percentile-bootstrap 95 % CI over the co
 (the suite summary's V2X-type subset), how many runs the first scores higher, lower or equal, and whether
 both folders ran on the same platform (``same``, ``different`` or ``not recorded``) (``platform`` of each result: a learned agent's runs on
 another machine are another draw, docs/baselines.md "Same code, another machine").
+
+And the scenario instances of the common runs, paired instance by instance (every route holds the
+same instances in both runs), all of them and those of V2X-specific types: how many each agent
+*succeeds* on (passed, no collision in the scenario window, no timeout), on how many only one of
+them does, the two-sided exact sign test on those (McNemar's exact test: is one agent's success
+more likely where they differ?), and how many each *reaches* (triggers) and *collides* in. A DS
+difference says by how much; this says whether it comes from the scenarios themselves.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -48,6 +56,44 @@ def _is_v2x_route(result: dict) -> bool:
     from .route_selection import is_v2x_route
 
     return is_v2x_route(next(r for r in load_suite_cached(str(result["suite"])) if r.id == result["route_id"]))
+
+
+def sign_test_p(k: int, n: int) -> float:
+    """Two-sided exact binomial p-value of ``k`` successes in ``n`` trials at probability 1/2
+    (1.0 for ``n == 0``)."""
+    if n == 0:
+        return 1.0
+    tail = sum(math.comb(n, i) for i in range(min(k, n - k) + 1)) / 2.0 ** n
+    return min(1.0, 2.0 * tail)
+
+
+def scenario_pairs(mine: list[dict], theirs: list[dict], names: tuple[str, str],
+                   v2x: bool | None = None) -> dict:
+    """The scenario instances of paired runs (same jobs, in order), compared instance by instance;
+    ``v2x``: only instances of V2X-specific types (``True``), only the others (``False``) or all.
+
+    Raises:
+        ValueError: two paired runs whose scenario lists differ (not the same route).
+    """
+    a, b = names
+    n = sa = sb = only_a = only_b = ca = cb = ra = rb = 0
+    for ra_, rb_ in zip(mine, theirs):
+        xs, ys = ra_.get("scenarios") or [], rb_.get("scenarios") or []
+        if [x["type"] for x in xs] != [y["type"] for y in ys]:
+            raise ValueError(f"compare: run {ra_['job_id']} holds other scenario instances in the two "
+                             "folders (another suite file?)")
+        for x, y in zip(xs, ys):
+            if v2x is not None and bool(x.get("v2x")) != v2x:
+                continue
+            n += 1
+            sa, sb = sa + bool(x["success"]), sb + bool(y["success"])
+            only_a += bool(x["success"]) and not y["success"]
+            only_b += bool(y["success"]) and not x["success"]
+            ca, cb = ca + bool(x["collision"]), cb + bool(y["collision"])
+            ra, rb = ra + bool(x["triggered"]), rb + bool(y["triggered"])
+    return {"instances": n, "success": {a: sa, b: sb}, "only": {a: only_a, b: only_b},
+            "sign_test_p": sign_test_p(only_a, only_a + only_b),
+            "collision": {a: ca, b: cb}, "reached": {a: ra, b: rb}}
 
 
 def compare_pair(first: tuple[str, str | Path], other: tuple[str, str | Path]) -> dict:
@@ -85,6 +131,9 @@ def compare_pair(first: tuple[str, str | Path], other: tuple[str, str | Path]) -
         "platform": ("not recorded" if not recorded else
                      "same" if pa == pb and len(pa) == 1 else "different"),
         "platforms": {a: [json.loads(p) for p in pa], b: [json.loads(p) for p in pb]},
+        "scenarios": {which: scenario_pairs([mine[j] for j in common], [theirs[j] for j in common],
+                                            (a, b), v2x=flag)
+                      for which, flag in (("all", None), ("v2x", True))},
     }
 
 
@@ -131,8 +180,28 @@ def compare_markdown(result: dict[str, dict]) -> str:
                      f"of {len(d['jobs'])} runs; {plat}."
                      + (f" On the {d['v2x_runs']} runs of V2X-type routes: "
                         f"**{d['v2x_paired_ds_difference']:+.1f}** [{d['v2x_paired_ds_difference_ci'][0]:+.1f}, "
-                        f"{d['v2x_paired_ds_difference_ci'][1]:+.1f}]." if d["v2x_runs"] else "") + "\n")
+                        f"{d['v2x_paired_ds_difference_ci'][1]:+.1f}]." if d["v2x_runs"] else "") + "\n"
+                     + _scenario_markdown(d.get("scenarios"), a, b))
     return "\n".join(parts)
 
 
-__all__ = ["compare", "compare_markdown", "compare_pair"]
+def _scenario_markdown(sc: dict | None, a: str, b: str) -> str:
+    """The scenario-instance table of a pair (empty for results without scenarios)."""
+    if not sc or not sc["all"]["instances"]:
+        return ""
+    rows = ["\nScenario instances of these runs, paired (success: passed, no collision, no timeout; "
+            "p: exact sign test on the instances only one succeeds on):\n",
+            f"| instances | n | {a} succeeds | {b} succeeds | only {a} | only {b} | p | "
+            f"{a} collides | {b} collides | {a} reached | {b} reached |",
+            "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for which, label in (("all", "all"), ("v2x", "V2X-specific types")):
+        d = sc[which]
+        if not d["instances"]:
+            continue
+        rows.append(f"| {label} | {d['instances']} | {d['success'][a]} | {d['success'][b]} | "
+                    f"{d['only'][a]} | {d['only'][b]} | {d['sign_test_p']:.2f} | {d['collision'][a]} | "
+                    f"{d['collision'][b]} | {d['reached'][a]} | {d['reached'][b]} |")
+    return "\n".join(rows) + "\n"
+
+
+__all__ = ["compare", "compare_markdown", "compare_pair", "scenario_pairs", "sign_test_p"]

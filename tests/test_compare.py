@@ -72,3 +72,37 @@ def test_bad_inputs_are_named(tmp_path):
     with pytest.raises(FileNotFoundError, match="no route results"):
         C.compare([("a", a), ("c", str(tmp_path / "nothing"))])
     assert np.isfinite(C.compare([("a", a), ("a2", a)])["a vs a2"]["paired_ds_difference"])
+
+
+def _scen(t: str, v2x: bool, success: bool, collision: bool = False, triggered: bool = True) -> dict:
+    return {"type": t, "v2x": v2x, "triggered": triggered, "passed": success or collision,
+            "timed_out": False, "collision": collision, "success": success}
+
+
+def test_scenario_instances_are_paired_instance_by_instance(tmp_path):
+    a = _folder(tmp_path, "a", {"test50_000_s0": 80.0, "test50_001_s0": 50.0})
+    b = _folder(tmp_path, "b", {"test50_000_s0": 60.0, "test50_001_s0": 55.0})
+    runs = {  # (a's instances, b's instances) per job
+        "test50_000_s0": ([_scen("ParkingExit", False, True), _scen("PedestrianCrossing", True, True)],
+                          [_scen("ParkingExit", False, True), _scen("PedestrianCrossing", True, False, True)]),
+        "test50_001_s0": ([_scen("VehicleTurningRoute", True, False, True)],
+                          [_scen("VehicleTurningRoute", True, False, False, triggered=False)]),
+    }
+    for jid, (xs, ys) in runs.items():
+        for folder, sc in ((a, xs), (b, ys)):
+            p = tmp_path / folder / "routes" / f"{jid}.json"
+            p.write_text(json.dumps({**json.loads(p.read_text()), "scenarios": sc}))
+    d = C.compare_pair(("a", a), ("b", b))["scenarios"]
+    assert d["all"]["instances"] == 3 and d["v2x"]["instances"] == 2
+    assert d["all"]["success"] == {"a": 2, "b": 1} and d["all"]["only"] == {"a": 1, "b": 0}
+    assert d["v2x"]["collision"] == {"a": 1, "b": 1} and d["v2x"]["reached"] == {"a": 2, "b": 1}
+    assert d["all"]["sign_test_p"] == 1.0  # one discordant instance says nothing
+    md = C.compare_markdown(C.compare([("a", a), ("b", b)]))
+    assert "| V2X-specific types | 2 | 1 | 0 | 1 | 0 | 1.00 | 1 | 1 | 2 | 1 |" in md
+    # the exact sign test: 10 of 10 discordant one way is p = 2 / 2**10
+    assert C.sign_test_p(10, 10) == pytest.approx(2 / 1024) and C.sign_test_p(5, 10) == 1.0
+    assert C.sign_test_p(0, 0) == 1.0 and C.sign_test_p(2, 10) == C.sign_test_p(8, 10)
+    p = tmp_path / b / "routes" / "test50_001_s0.json"
+    p.write_text(json.dumps({**json.loads(p.read_text()), "scenarios": [_scen("Accident", False, True)]}))
+    with pytest.raises(ValueError, match="other scenario instances"):
+        C.compare_pair(("a", a), ("b", b))

@@ -134,6 +134,10 @@ def test_quick_pipeline_runs_end_to_end_and_writes_the_tables(exp, tmp_path):
     # the fusion ablation scores both on the ground both have: gt/ego
     assert {r["method"]: r["ground_truth"] for r in data["fusion_ablation"]} == {
         "aurora": "gt/ego", "no_fusion": "gt/ego"}
+    # and pairs No Fusion's closed-loop runs with AURORA's, run by run
+    pv = {r["method"]: r for r in data["fusion_ablation"]}["no_fusion"]["paired_vs_first"]
+    assert pv["runs"] == 4 and pv["ds_difference_ci"][0] <= pv["ds_difference"] <= pv["ds_difference_ci"][1]
+    assert "AURORA minus " in (out / "fusion_ablation.md").read_text() and "paired on the 4 runs" in md
     lat = {p["x"]: p for p in data["robustness"]["latency_ms"]["oracle_v2x"]}
     assert set(lat) == {0.0, 500.0}
     # UniV2X has no sweep: its main run is a flat reference at every point, labelled so

@@ -260,7 +260,57 @@ def _ablation(res: _Results, methods: list[str], kind: str) -> tuple[str, list[d
                 row += [_f(d["vqa_closed"], 3), _f(d["vqa_f1"], 3)]
             rows.append(row)
         data.append(d)
-    return _table(head, rows) + (_FUSION_NOTE if kind == "fusion" else ""), data
+    paired = _paired_with_first(res, methods, data)
+    return _table(head, rows) + (_FUSION_NOTE if kind == "fusion" else "") + paired, data
+
+
+def _paired_with_first(res: _Results, methods: list[str], data: list[dict]) -> str:
+    """Each other row's closed-loop runs against the first row's, paired run by run
+    (``compare.compare_pair``): the text under an ablation table; the numbers go into the rows'
+    ``paired_vs_first``. Empty when the first row has no closed-loop result."""
+    from v2xbench.collectors.compare import compare_pair
+
+    dirs = {}
+    for m in methods:
+        r = res.result(res.job(m, "closed_loop"))
+        if isinstance(r, dict) and (r.get("outputs") or {}).get("eval"):
+            dirs[m] = r["outputs"]["eval"]
+    first = methods[0] if methods else None
+    if first not in dirs:
+        return ""
+    lines = []
+    for d in data:
+        m = d["method"]
+        if m == first or m not in dirs:
+            continue
+        try:
+            c = compare_pair((first, dirs[first]), (m, dirs[m]))
+        except ValueError as e:  # no shared run: said, not a table
+            lines.append(f"- {res.cfg.label(m)}: not paired ({e})")
+            continue
+        lo, hi = c["paired_ds_difference_ci"]
+        v = c["scenarios"]["v2x"]
+        d["paired_vs_first"] = {"runs": len(c["jobs"]), "ds_difference": c["paired_ds_difference"],
+                                "ds_difference_ci": [lo, hi],
+                                "v2x_ds_difference": c["v2x_paired_ds_difference"],
+                                "v2x_ds_difference_ci": c["v2x_paired_ds_difference_ci"],
+                                "v2x_instances": v}
+        text = (f"- {res.cfg.label(first)} minus {res.cfg.label(m)}, paired on the "
+                f"{len(c['jobs'])} runs both hold: DS **{c['paired_ds_difference']:+.1f}** "
+                f"[{lo:+.1f}, {hi:+.1f}]")
+        if c["v2x_runs"]:
+            vlo, vhi = c["v2x_paired_ds_difference_ci"]
+            text += (f"; V2X-type routes ({c['v2x_runs']} runs) "
+                     f"{c['v2x_paired_ds_difference']:+.1f} [{vlo:+.1f}, {vhi:+.1f}]")
+        if v["instances"]:
+            text += (f"; V2X-specific scenario instances succeeded {v['success'][first]} against "
+                     f"{v['success'][m]} of {v['instances']} (exact sign test p = "
+                     f"{v['sign_test_p']:.2f})")
+        lines.append(text + ".")
+    if not lines:
+        return ""
+    return ("\nPaired with the first row, run by run (`v2xbench compare`; CIs: bootstrap over "
+            "the shared runs):\n\n" + "\n".join(lines) + "\n")
 
 
 _FUSION_NOTE = ("\nmAP / NDS against `gt/ego` (what the ego's own sensors see), the ground both "

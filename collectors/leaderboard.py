@@ -217,9 +217,10 @@ def common_runs(result_dirs: list[str | Path]) -> tuple[str, list[str], int]:
 def common_summaries(result_dirs: list[str | Path], n_boot: int = 2000) -> list[tuple[Path, dict]]:
     """Each folder's summary over the runs all of them hold (:func:`common_runs`), recomputed
     from its per-route results; the selection's label names the grid."""
+    from .route_selection import selected_jobs
+
     suite, route_ids, seeds = common_runs(result_dirs)
-    ids = _suite_ids(suite)
-    jobs = J.make_jobs(ids, seeds, indices=[ids.index(r) for r in route_ids])
+    _, _, jobs = selected_jobs(suite, seeds, routes=route_ids)
     label = f"runs all {len(result_dirs)} folders hold"
     record = {"routes": None, "scenario": None, "v2x_only": False, "max_routes": None,
               "common": True, "label": label, "route_ids": route_ids}

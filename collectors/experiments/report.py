@@ -117,15 +117,13 @@ class _Results:
 def closed_loop_summary(eval_dir: str | Path) -> dict:
     """The summary of an evaluation folder recomputed from its per-route results with
     ``eval_summary.summarize`` (the selection and seeds of its ``summary.json``)."""
-    from v2xbench.collectors import jobs as J
     from v2xbench.collectors.eval_summary import summarize
-    from v2xbench.envs.v2x_intersection.suites.route_files import load_suite_cached
+    from v2xbench.collectors.route_selection import selected_jobs
 
     d = Path(eval_dir)
     old = json.loads((d / "summary.json").read_text())
-    ids = [r.id for r in load_suite_cached(str(old["suite"]))]
     sel = old["selection"]
-    jobs = J.make_jobs(ids, int(old["seeds"]), indices=[ids.index(r) for r in sel["route_ids"]])
+    _, _, jobs = selected_jobs(str(old["suite"]), int(old["seeds"]), routes=sel["route_ids"])
     return summarize(d, jobs, selection=sel)
 
 
